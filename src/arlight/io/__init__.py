@@ -1,0 +1,12 @@
+"""Image input/output: LDR and HDR frames, EXR layers, atomic writes."""
+
+from arlight.io.images import (
+    atomic_write,
+    read_hdr,
+    read_image,
+    read_ldr,
+    write_exr,
+    write_png,
+)
+
+__all__ = ["atomic_write", "read_hdr", "read_image", "read_ldr", "write_exr", "write_png"]

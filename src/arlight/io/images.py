@@ -1,0 +1,132 @@
+"""Reading and writing images.
+
+LDR images (PNG/JPEG/PPM/PGM) are returned as raw integer code values; converting them to
+linear radiance is the job of :mod:`arlight.transfer`, because it depends on the camera's
+declared transfer function. HDR images (OpenEXR, Radiance ``.hdr``) are read as linear
+float32 through Mitsuba's ``Bitmap`` (which also reads tiled and mip-mapped EXR, level 0).
+
+Every writer is atomic: it writes a temporary file in the target folder and renames it, so
+an interrupted run never leaves a half-written image behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from arlight.errors import InputError
+
+HDR_SUFFIXES = {".exr", ".hdr", ".rgbe", ".pfm"}
+LDR_SUFFIXES = {".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff"}
+
+
+def _bitmap_module():
+    """Mitsuba with any variant set (Bitmap I/O does not depend on the variant)."""
+    import mitsuba as mi
+
+    if mi.variant() is None:
+        from arlight.backend.variant import ensure_variant
+
+        ensure_variant()
+    return mi
+
+
+def is_hdr_path(path: str | Path) -> bool:
+    return Path(path).suffix.lower() in HDR_SUFFIXES
+
+
+def read_hdr(path: str | Path) -> np.ndarray:
+    """Read an HDR image as linear float32 ``(H, W, 3)``.
+
+    Raises :class:`InputError` naming the file when it is missing, unreadable, not RGB(A),
+    or holds NaN/Inf values.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", file=str(path))
+    mi = _bitmap_module()
+    try:
+        bmp = mi.Bitmap(str(path))
+        bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, srgb_gamma=False)
+        arr = np.array(bmp, dtype=np.float32, copy=True)
+    except Exception as exc:  # Mitsuba raises RuntimeError with its own wording
+        raise InputError(f"cannot read HDR image ({exc})", file=str(path)) from exc
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, axis=2)
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        raise InputError(f"{bad} NaN/Inf values in HDR image", file=str(path))
+    return arr
+
+
+def read_ldr(path: str | Path) -> np.ndarray:
+    """Read an 8- or 16-bit image as raw code values ``(H, W, 3)`` (uint8 or uint16).
+
+    Grey images are expanded to three channels and alpha is dropped.
+    """
+    import imageio.v3 as iio
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", file=str(path))
+    try:
+        arr = iio.imread(path)
+    except Exception as exc:
+        raise InputError(f"cannot read image ({exc})", file=str(path)) from exc
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, axis=2)
+    if arr.ndim != 3 or arr.shape[2] not in (3, 4):
+        raise InputError(f"expected an RGB image, got shape {arr.shape}", file=str(path))
+    if arr.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"unsupported LDR sample type {arr.dtype}", file=str(path))
+    return np.ascontiguousarray(arr[..., :3])
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an HDR image as float32 radiance or an LDR image as raw code values."""
+    return read_hdr(path) if is_hdr_path(path) else read_ldr(path)
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` on success only."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix,
+                               dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_exr(path: str | Path, image: np.ndarray) -> Path:
+    """Write a float image ``(H, W)``, ``(H, W, 1)`` or ``(H, W, 3)`` as a float32 OpenEXR."""
+    mi = _bitmap_module()
+    arr = np.ascontiguousarray(image, dtype=np.float32)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    with atomic_write(path, ".exr") as tmp:
+        fmt = mi.Bitmap.PixelFormat.Y if arr.ndim == 2 else mi.Bitmap.PixelFormat.RGB
+        mi.Bitmap(arr, fmt).write(str(tmp))
+    return Path(path)
+
+
+def write_png(path: str | Path, image: np.ndarray) -> Path:
+    """Write uint8/uint16 code values ``(H, W)`` or ``(H, W, 3)`` as a PNG."""
+    import imageio.v3 as iio
+
+    if image.dtype not in (np.uint8, np.uint16):
+        raise TypeError(f"write_png expects uint8/uint16 code values, got {image.dtype}")
+    with atomic_write(path, ".png") as tmp:
+        iio.imwrite(tmp, image, extension=".png")
+    return Path(path)

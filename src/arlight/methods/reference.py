@@ -1,0 +1,94 @@
+"""``reference``: two-pass differential path tracing (Debevec 1998; Kán Eq. 2.20).
+
+``I_m`` is path traced in the mixed scene (ρ: proxy + virtual objects) and ``I_r`` in the
+real-only scene (µ: proxy), with identical camera samples and identical per-lane random
+sequences, so the two solutions are strongly correlated and their difference (the delta) has
+low variance. Radiance comes from Mitsuba's own ``path`` integrator (unidirectional path
+tracing with next-event estimation and MIS, environment importance sampling, Russian
+roulette) — the trusted reference every faster method is measured against. The mask ``M`` is
+the fraction of a pixel's camera samples whose first hit is a virtual shape.
+
+The per-sample composite ``m·L_m + (1 − m)(I_c + L_m − L_r)`` is also accumulated, to give a
+per-pixel standard error for the composite. With no virtual object only µ is traced and the
+composite is the frame, bit for bit.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, build_views
+from arlight.backend.passes import run_passes
+from arlight.methods import register
+from arlight.methods.base import Layers, RenderSettings, require_frame
+from arlight.scene.model import ARScene
+
+
+def path_integrator(settings: RenderSettings) -> mi.SamplingIntegrator:
+    """Mitsuba's ``path`` integrator with the depth settings of ``settings``."""
+    return mi.load_dict({"type": "path", "max_depth": settings.max_depth,
+                         "rr_depth": settings.rr_depth})
+
+
+def trace_radiance(integrator: mi.SamplingIntegrator, view: SceneView,
+                   rays: mi.RayDifferential3f, seed: mi.UInt32, lanes: int) -> mi.Color3f:
+    """Per-lane radiance along ``rays``; equal seeds give equal random sequences."""
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, lanes)
+    spec, _, _ = integrator.sample(view.scene, sampler, rays)
+    return mi.Color3f(spec)
+
+
+def virtual_coverage(view: SceneView, rays: mi.RayDifferential3f) -> mi.Float:
+    """1 where the ray's first hit is a virtual shape, else 0."""
+    si = view.scene.ray_intersect(mi.Ray3f(rays))
+    return dr.select(view.hit_role(si) == ROLE_VIRTUAL, mi.Float(1.0), mi.Float(0.0))
+
+
+def frame_gather(frame: np.ndarray):
+    """A function pixel-index -> frame radiance (Color3f) for use inside kernels."""
+    flat = np.ascontiguousarray(frame.reshape(-1, 3), dtype=np.float32)
+    table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
+    return lambda pixel: dr.gather(mi.Color3f, table, pixel)
+
+
+@register("reference")
+def render_reference(scene: ARScene, settings: RenderSettings) -> Layers:
+    """Two-pass differential path tracing with Mitsuba's path tracer (ground-truth method)."""
+    frame = require_frame(scene)
+    views = build_views(scene)
+    integrator = path_integrator(settings)
+    background = frame_gather(frame)
+
+    def kernel(rays, pixel, seed, lanes):
+        real = trace_radiance(integrator, views.real, rays, seed, lanes)
+        if not scene.has_virtual:
+            return {"real": real}
+        mixed = trace_radiance(integrator, views.mixed, rays, seed, lanes)
+        m = virtual_coverage(views.mixed, rays)
+        delta = mixed - real
+        comp = m * mixed + (1.0 - m) * (background(pixel) + delta)
+        return {"mixed": mixed, "real": real, "delta": delta, "mask": m, "composite": comp}
+
+    res = run_passes(scene.camera, settings.spp, kernel, seed=settings.seed,
+                     spp_per_pass=settings.spp_per_pass,
+                     progress="reference" if settings.progress else None)
+    mom = res.moments
+    real = mom["real"].mean
+    samples = res.lanes
+    stats = {"seconds": res.seconds, "samples": float(samples), "spp": float(settings.spp),
+             "samples_per_second": samples / max(res.seconds, 1e-9),
+             "paths_traced": float(samples * (2 if scene.has_virtual else 1))}
+    if not scene.has_virtual:
+        zeros = np.zeros_like(frame)
+        return Layers.assemble(frame, real, zeros, zeros[..., 0], real=real,
+                               stderr={"real": mom["real"].stderr, "mixed": mom["real"].stderr,
+                                       "composite": np.zeros_like(frame)},
+                               stats=stats)
+    return Layers.assemble(frame, mom["mixed"].mean, mom["delta"].mean, mom["mask"].mean[..., 0],
+                           real=real,
+                           stderr={k: mom[k].stderr for k in ("mixed", "real", "delta",
+                                                              "composite")},
+                           stats=stats)

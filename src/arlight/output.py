@@ -1,0 +1,48 @@
+"""Writing a method's layers: EXR for every HDR layer, PNG for display.
+
+The display PNG uses the scene's transfer function (:class:`arlight.transfer.Transfer`), the
+exact inverse of the decoding applied to the input frame, so an unchanged frame comes out
+byte-identical. The bit depth follows the input frame (8 or 16 bits; 8 for HDR frames).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from arlight.io.images import atomic_write, write_exr, write_png
+from arlight.methods.base import Layers
+from arlight.scene.model import ARScene
+
+
+def display_dtype(scene: ARScene) -> type:
+    """uint16 when the frame came from a 16-bit file, else uint8."""
+    codes = scene.frame_codes
+    return np.uint16 if codes is not None and codes.dtype == np.uint16 else np.uint8
+
+
+def write_layers(layers: Layers, scene: ARScene, out_dir: str | Path) -> dict[str, Path]:
+    """Write ``composite.png`` and EXRs of every layer into ``out_dir``; return the paths.
+
+    Files: ``composite.exr``, ``composite.png``, ``mixed.exr``, ``delta.exr``, ``mask.exr``,
+    ``real.exr`` (when the method has it), ``stderr_<layer>.exr`` and ``stats.json``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths: dict[str, Path] = {}
+    images = {"composite": layers.composite, "mixed": layers.mixed, "delta": layers.delta,
+              "mask": layers.mask, "background": layers.background}
+    if layers.real is not None:
+        images["real"] = layers.real
+    for name, img in images.items():
+        paths[name] = write_exr(out / f"{name}.exr", img)
+    for name, img in layers.stderr.items():
+        paths[f"stderr_{name}"] = write_exr(out / f"stderr_{name}.exr", img)
+    png = scene.camera.transfer.to_display(layers.composite, display_dtype(scene))
+    paths["composite_png"] = write_png(out / "composite.png", png)
+    with atomic_write(out / "stats.json", ".json") as tmp:
+        tmp.write_text(json.dumps({"method": layers.method, **layers.stats}, indent=2))
+    paths["stats"] = out / "stats.json"
+    return paths

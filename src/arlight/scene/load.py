@@ -1,0 +1,340 @@
+"""Loading, validating and saving AR scene files (TOML or JSON).
+
+The format is documented in ``docs/scene-format.md``; field tables live in
+:mod:`arlight.scene.schema`. A scene file has the tables ``[camera]``, optional ``[frame]``,
+optional ``[materials.<name>]``, and the arrays ``[[shapes]]`` and ``[[lights]]``. Relative
+paths are relative to the scene file.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arlight.errors import InputError
+from arlight.scene import schema
+from arlight.scene.camera import Camera, look_at
+from arlight.scene.model import ARScene, Light, Material, MeshData, Shape
+from arlight.scene.schema import Validator
+from arlight.transfer import Transfer
+
+FORMAT = "arlight-scene/1"
+TOP_LEVEL = {"format", "camera", "frame", "materials", "shapes", "lights", "description"}
+DEFAULT_MATERIAL = {"type": "diffuse", "albedo": 0.5}
+
+
+def load_scene(path: str | Path) -> ARScene:
+    """Load and validate a scene file; raise :class:`InputError` naming file and field."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("scene file not found", file=str(path))
+    text = path.read_text(encoding="utf-8")
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"syntax error: {exc}", file=str(path)) from exc
+    return parse_scene(data, base_dir=path.parent, file=str(path))
+
+
+def parse_scene(data: dict[str, Any], base_dir: str | Path = ".",
+                file: str = "<scene>") -> ARScene:
+    """Validate a scene dictionary (as read from TOML/JSON) and build an :class:`ARScene`."""
+    v = Validator(file, Path(base_dir).resolve())
+    v.table(data, "")
+    v.check_keys(data, TOP_LEVEL, "")
+    if data.get("format", FORMAT) != FORMAT:
+        raise v.fail("format", f"unsupported format {data['format']!r}; expected {FORMAT!r}")
+    camera = _camera(v, v.table(data.get("camera", None) or _missing(v, "camera"), "camera"))
+    materials = _materials(v, data.get("materials", {}))
+    shapes = [_shape(v, s, i, materials) for i, s in enumerate(_array(v, data, "shapes"))]
+    names = [s.name for s in shapes]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise v.fail("shapes", f"duplicate shape name {sorted(dup)[0]!r}")
+    lights = [_light(v, x, i) for i, x in enumerate(_array(v, data, "lights"))]
+    scene = ARScene(camera=camera, shapes=shapes, lights=lights,
+                    source=Path(file) if file != "<scene>" else None)
+    if "frame" in data:
+        frame_tab = v.fields(v.table(data["frame"], "frame"), schema.FRAME_FIELDS, "frame")
+        scene = _attach_frame(v, scene, frame_tab["image"])
+    scene.raw = _canonical_raw(data, v.base_dir)
+    return scene
+
+
+def _missing(v: Validator, field: str):
+    raise v.fail(field, "missing required table")
+
+
+def _array(v: Validator, data: dict, key: str) -> list[dict]:
+    items = data.get(key, [])
+    if not isinstance(items, list):
+        raise v.fail(key, "expected an array of tables")
+    return [v.table(x, f"{key}[{i}]") for i, x in enumerate(items)]
+
+
+def _camera(v: Validator, tab: dict) -> Camera:
+    c = v.fields(tab, schema.CAMERA_FIELDS, "camera")
+    w, h = c["resolution"]
+    if w != int(w) or h != int(h) or w < 1 or h < 1:
+        raise v.fail("camera.resolution", f"expected two positive integers, got {[w, h]}")
+    w, h = int(w), int(h)
+    if (c["fov_y_deg"] is None) == (c["intrinsics"] is None):
+        raise v.fail("camera", "give exactly one of `fov_y_deg` and `intrinsics`")
+    if (c["look_at"] is None) == (c["world_from_camera"] is None):
+        raise v.fail("camera", "give exactly one of `look_at` and `world_from_camera`")
+    if c["look_at"] is not None:
+        la = v.table(c["look_at"], "camera.look_at")
+        v.check_keys(la, {"origin", "target", "up"}, "camera.look_at")
+        for key in ("origin", "target"):
+            if key not in la:
+                raise v.fail(f"camera.look_at.{key}", "missing required field")
+        try:
+            pose = look_at(v.vector(la["origin"], 3, "camera.look_at.origin"),
+                           v.vector(la["target"], 3, "camera.look_at.target"),
+                           v.vector(la.get("up", [0, 1, 0]), 3, "camera.look_at.up"))
+        except ValueError as exc:
+            raise v.fail("camera.look_at", str(exc)) from exc
+    else:
+        pose = np.array(c["world_from_camera"], dtype=np.float64)
+        _check_rigid(v, pose, "camera.world_from_camera")
+    kw = dict(world_from_camera=pose, aperture_radius=c["aperture_radius"],
+              focus_distance=c["focus_distance"], aperture_shape=c["aperture_shape"],
+              transfer=Transfer(c["transfer"], c["gamma"], c["exposure"]))
+    if c["intrinsics"] is not None:
+        k = v.table(c["intrinsics"], "camera.intrinsics")
+        spec = schema.Field("float", schema.REQUIRED, min=0.0, exclusive_min=True)
+        f = v.fields(k, {"fx": spec, "fy": spec, "cx": schema.Field("float"),
+                         "cy": schema.Field("float")}, "camera.intrinsics")
+        return Camera(w, h, f["fx"], f["fy"], f["cx"], f["cy"], **kw)
+    return Camera.from_fov(w, h, c["fov_y_deg"], **kw)
+
+
+def _check_rigid(v: Validator, m: np.ndarray, field: str) -> None:
+    r = m[:3, :3]
+    if not np.allclose(r.T @ r, np.eye(3), atol=1e-5) or np.linalg.det(r) < 0 or \
+            not np.allclose(m[3], [0, 0, 0, 1]):
+        raise v.fail(field, "must be a rigid transform (rotation + translation)")
+
+
+def _material(v: Validator, tab: dict, name: str, field: str) -> Material:
+    tab = v.table(tab, field)
+    mtype = tab.get("type")
+    if mtype not in schema.MATERIAL_TYPES:
+        raise v.fail(f"{field}.type", f"unknown material type {mtype!r}; expected one of "
+                     f"{', '.join(schema.MATERIAL_TYPES)}")
+    params = v.fields(tab, schema.MATERIAL_TYPES[mtype], field, extra={"type"})
+    if mtype == "phong" and any(a + b > 1.0 + 1e-9 for a, b in zip(params["kd"], params["ks"],
+                                                                     strict=True)):
+        raise v.fail(f"{field}.ks", "k_d + k_s must not exceed 1 (energy conservation)")
+    return Material(name=name, type=mtype, params=params)
+
+
+def _materials(v: Validator, tab: Any) -> dict[str, Material]:
+    tab = v.table(tab, "materials")
+    out = {"default": Material("default", "diffuse", {"albedo": [0.5] * 3, "texture": None})}
+    for name, m in tab.items():
+        out[name] = _material(v, m, name, f"materials.{name}")
+    return out
+
+
+def transform_matrix(v: Validator, tab: Any, field: str) -> np.ndarray:
+    """Object-to-world 4×4 from a transform table: translate · rotate_n…rotate_1 · scale."""
+    if tab is None:
+        return np.eye(4)
+    tab = v.table(tab, field)
+    v.check_keys(tab, set(schema.TRANSFORM_FIELDS), field)
+    if "matrix" in tab:
+        if len(tab) > 1:
+            raise v.fail(f"{field}.matrix", "`matrix` excludes scale/rotate/translate")
+        m = np.array(v.value(tab["matrix"], schema.TRANSFORM_FIELDS["matrix"],
+                             f"{field}.matrix"))
+        if abs(np.linalg.det(m[:3, :3])) < 1e-12 or not np.allclose(m[3], [0, 0, 0, 1]):
+            raise v.fail(f"{field}.matrix", "must be an invertible affine matrix")
+        return m
+    scale = tab.get("scale", 1.0)
+    s = [v.number(scale, f"{field}.scale")] * 3 if not isinstance(scale, list) \
+        else v.vector(scale, 3, f"{field}.scale")
+    if any(x == 0 for x in s):
+        raise v.fail(f"{field}.scale", "scale must not be zero")
+    m = np.diag([*s, 1.0])
+    rots = tab.get("rotate", [])
+    if rots and not isinstance(rots[0], list):
+        rots = [rots]
+    for i, r in enumerate(rots):
+        ax, ay, az, deg = v.vector(r, 4, f"{field}.rotate[{i}]")
+        m = _rotation([ax, ay, az], np.radians(deg), v, f"{field}.rotate[{i}]") @ m
+    t = np.eye(4)
+    t[:3, 3] = v.vector(tab.get("translate", [0, 0, 0]), 3, f"{field}.translate")
+    return t @ m
+
+
+def _rotation(axis, angle: float, v: Validator | None = None, field: str = "") -> np.ndarray:
+    a = np.asarray(axis, dtype=np.float64)
+    n = np.linalg.norm(a)
+    if n == 0:
+        if v is None:
+            raise ValueError("zero rotation axis")
+        raise v.fail(field, "rotation axis must not be zero")
+    a /= n
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    r = np.eye(4)
+    r[:3, :3] = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+    return r
+
+
+def z_to(normal, v: Validator | None = None, field: str = "") -> np.ndarray:
+    """Rotation (4×4) that turns +z onto ``normal`` along the shortest arc."""
+    nrm = np.asarray(normal, dtype=np.float64)
+    length = np.linalg.norm(nrm)
+    if length == 0:
+        raise (v.fail(field, "normal must not be zero") if v else ValueError("zero normal"))
+    nrm /= length
+    c = float(np.clip(nrm[2], -1, 1))
+    if c > 1 - 1e-12:
+        return np.eye(4)
+    if c < -1 + 1e-12:
+        return _rotation([1, 0, 0], np.pi)
+    return _rotation(np.cross([0, 0, 1], nrm), np.arccos(c))
+
+
+def _shape(v: Validator, tab: dict, i: int, materials: dict[str, Material]) -> Shape:
+    field = f"shapes[{i}]"
+    stype = tab.get("type")
+    if stype not in schema.SHAPE_TYPES:
+        raise v.fail(f"{field}.type", f"unknown shape type {stype!r}; expected one of "
+                     f"{', '.join(schema.SHAPE_TYPES)}")
+    common = v.fields({k: tab[k] for k in tab if k in schema.SHAPE_COMMON},
+                      schema.SHAPE_COMMON, field)
+    params = v.fields({k: tab[k] for k in tab if k not in schema.SHAPE_COMMON},
+                      schema.SHAPE_TYPES[stype], field)
+    name = common["name"] or f"shape{i}"
+    mat = common["material"]
+    if isinstance(mat, str):
+        if mat not in materials:
+            raise v.fail(f"{field}.material", f"unknown material {mat!r}; defined: "
+                         f"{', '.join(sorted(materials))}")
+        material = materials[mat]
+    else:
+        material = _material(v, mat, f"{name}.material", f"{field}.material")
+    to_world = transform_matrix(v, common["transform"], f"{field}.transform")
+    if "normal" in params:
+        to_world = to_world @ z_to(params["normal"], v, f"{field}.normal")
+    mesh = _load_mesh(v, params["file"], f"{field}.file") if stype == "mesh" else None
+    if material.params.get("texture") and stype == "mesh" and mesh is not None \
+            and mesh.uv is None:
+        raise v.fail(f"{field}.material.texture", "the mesh has no texture coordinates")
+    return Shape(name=name, role=common["role"], type=stype, params=params,
+                 to_world=to_world, material=material, mesh=mesh)
+
+
+def _load_mesh(v: Validator, path: str, field: str) -> MeshData:
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:
+        raise v.fail(field, f"cannot read mesh {path}: {exc}") from exc
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
+    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))))
+    if faces.size == 0 or len(faces) == 0:
+        raise v.fail(field, f"mesh {path} has no faces")
+    if not np.all(np.isfinite(verts)):
+        raise v.fail(field, f"mesh {path} has non-finite vertex positions")
+    uv = getattr(getattr(mesh, "visual", None), "uv", None)
+    uv = None if uv is None or len(uv) != len(verts) else np.asarray(uv, np.float32)
+    return MeshData(np.asarray(verts, np.float32), np.asarray(faces, np.uint32), uv)
+
+
+def _light(v: Validator, tab: dict, i: int) -> Light:
+    field = f"lights[{i}]"
+    ltype = tab.get("type")
+    if ltype not in schema.LIGHT_TYPES:
+        raise v.fail(f"{field}.type", f"unknown light type {ltype!r}; expected one of "
+                     f"{', '.join(schema.LIGHT_TYPES)}")
+    params = v.fields(tab, schema.LIGHT_TYPES[ltype], field, extra={"type", "name"})
+    name = tab.get("name", f"light{i}")
+    radiance_map = None
+    if ltype == "envmap":
+        from arlight.io.images import read_hdr
+
+        try:
+            img = read_hdr(params["file"])
+        except InputError as exc:
+            raise v.fail(f"{field}.file", exc.message + f" ({params['file']})") from exc
+        if np.any(img < 0):
+            raise v.fail(f"{field}.file", f"negative radiance in {params['file']}")
+        if params["mapping"] != "equirect":
+            from arlight.light.envmap import to_equirect
+
+            img = to_equirect(img, params["mapping"])
+        radiance_map = np.ascontiguousarray(img, dtype=np.float32)
+    elif ltype == "sh":
+        n = len(params["coefficients"])
+        if int(round(np.sqrt(n))) ** 2 != n:
+            raise v.fail(f"{field}.coefficients", f"expected (L+1)² rows, got {n}")
+        from arlight.light.sh import sh_to_equirect
+
+        radiance_map = np.maximum(sh_to_equirect(np.array(params["coefficients"]),
+                                                 params["resolution"]), 0).astype(np.float32)
+    elif ltype == "directional" and np.linalg.norm(params["direction"]) == 0:
+        raise v.fail(f"{field}.direction", "direction must not be zero")
+    elif ltype == "spot" and params["beam_width_deg"] > params["cutoff_deg"]:
+        raise v.fail(f"{field}.beam_width_deg", "must not exceed cutoff_deg")
+    if ltype == "area":
+        m = transform_matrix(v, params["transform"], f"{field}.transform")
+        params = {**params, "to_world": (m @ z_to(params["normal"], v, f"{field}.normal"))}
+    return Light(name=name, type=ltype, params=params, radiance_map=radiance_map)
+
+
+def _attach_frame(v: Validator, scene: ARScene, path: str) -> ARScene:
+    from arlight.io.images import is_hdr_path, read_hdr, read_ldr
+
+    cam = scene.camera
+    try:
+        if is_hdr_path(path):
+            codes, frame = None, read_hdr(path)
+        else:
+            codes = read_ldr(path)
+            frame = cam.transfer.to_radiance(codes).astype(np.float32)
+    except InputError as exc:
+        raise v.fail("frame.image", f"{exc.message} ({path})") from exc
+    if frame.shape[:2] != (cam.height, cam.width):
+        raise v.fail("frame.image", f"image is {frame.shape[1]}×{frame.shape[0]} but the camera "
+                     f"resolution is {cam.width}×{cam.height} ({path})")
+    if np.any(frame < 0):
+        raise v.fail("frame.image", f"negative radiance in {path}")
+    return scene.with_frame(frame, codes)
+
+
+def _canonical_raw(data: dict, base_dir: Path) -> dict:
+    """A copy of the scene dict with relative paths made absolute (for saving elsewhere)."""
+
+    def fix(node: Any, key: str = "") -> Any:
+        if isinstance(node, dict):
+            return {k: fix(x, k) for k, x in node.items()}
+        if isinstance(node, list):
+            return [fix(x) for x in node]
+        if key in ("file", "image", "texture") and isinstance(node, str):
+            p = Path(node)
+            return str(p if p.is_absolute() else (base_dir / p).resolve())
+        return node
+
+    return fix(data)
+
+
+def scene_to_dict(scene: ARScene) -> dict[str, Any]:
+    """The scene's validated dictionary with absolute paths (``json.dump``-able)."""
+    return dict(scene.raw)
+
+
+def save_scene(scene_dict: dict[str, Any], path: str | Path) -> Path:
+    """Write a scene dictionary as JSON (atomically). Paths inside are kept as given."""
+    from arlight.io.images import atomic_write
+
+    with atomic_write(path, ".json") as tmp:
+        tmp.write_text(json.dumps(scene_dict, indent=2), encoding="utf-8")
+    return Path(path)

@@ -1,0 +1,326 @@
+"""Field definitions of the scene file format and the validators that read them.
+
+Each table below is the reference for one kind of entry; ``docs/scene-format.md`` is written
+from these tables by :func:`schema_markdown`. Validators return canonical Python values
+(floats, lists of three floats, absolute paths) and raise :class:`InputError` naming the
+scene file and the field path (``shapes[2].material.albedo``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arlight.errors import InputError
+
+REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Field:
+    """One field of a table.
+
+    ``kind`` is one of: ``rgb`` (a number or three numbers), ``float``, ``int``, ``bool``,
+    ``str``, ``vec2``, ``vec3``, ``mat4`` (4×4 nested list), ``path`` (relative to the scene
+    file), ``choice`` (one of ``choices``), ``rgb_list`` (list of RGB triples), ``table``.
+    """
+
+    kind: str
+    default: Any = REQUIRED
+    doc: str = ""
+    unit: str = ""
+    min: float | None = None
+    max: float | None = None
+    choices: tuple[str, ...] = ()
+    exclusive_min: bool = False
+
+
+_RGB_REFL = dict(min=0.0, max=1.0)
+
+MATERIAL_TYPES: dict[str, dict[str, Field]] = {
+    "diffuse": {
+        "albedo": Field("rgb", 0.5, "Lambertian reflectance", "", **_RGB_REFL),
+        "texture": Field("path", None, "albedo texture; LDR files are sRGB-decoded, HDR files "
+                         "are linear; replaces `albedo` (needs UVs)"),
+    },
+    "phong": {
+        "kd": Field("rgb", 0.5, "diffuse reflectivity k_d (Kán Eq. 2.6)", "", **_RGB_REFL),
+        "ks": Field("rgb", 0.0, "specular reflectivity k_s; k_d + k_s <= 1 per channel", "",
+                    **_RGB_REFL),
+        "exponent": Field("float", 20.0, "Phong shininess n", "", min=0.0),
+    },
+    "roughconductor": {
+        "alpha": Field("float", 0.1, "GGX roughness α", "", min=1e-4, max=1.0),
+        "reflectance": Field("rgb", 0.9, "constant (Fresnel) reflectance", "", **_RGB_REFL),
+    },
+    "roughdielectric": {
+        "alpha": Field("float", 0.1, "GGX roughness α", "", min=1e-4, max=1.0),
+        "ior": Field("float", 1.5, "interior index of refraction", "", min=1e-3,
+                     exclusive_min=True),
+        "ext_ior": Field("float", 1.0, "exterior index of refraction", "", min=1e-3),
+    },
+    "mirror": {
+        "reflectance": Field("rgb", 1.0, "perfect specular reflectance", "", **_RGB_REFL),
+    },
+    "glass": {
+        "ior": Field("float", 1.5, "index of refraction of a smooth dielectric (1 = "
+                     "invisible)", "", min=1e-3),
+        "ext_ior": Field("float", 1.0, "exterior index of refraction", "", min=1e-3),
+    },
+}
+
+SHAPE_TYPES: dict[str, dict[str, Field]] = {
+    "rectangle": {
+        "size": Field("vec2", [1.0, 1.0], "side lengths along local x and y", "m", min=0.0,
+                      exclusive_min=True),
+        "normal": Field("vec3", [0.0, 0.0, 1.0], "front normal before `transform` (the local "
+                        "+z axis is turned onto it)"),
+    },
+    "disk": {
+        "radius": Field("float", 0.5, "radius", "m", min=0.0, exclusive_min=True),
+        "normal": Field("vec3", [0.0, 0.0, 1.0], "front normal before `transform`"),
+    },
+    "box": {
+        "size": Field("vec3", [1.0, 1.0, 1.0], "side lengths along local x, y, z (centred on "
+                      "the origin)", "m", min=0.0, exclusive_min=True),
+    },
+    "sphere": {
+        "radius": Field("float", 0.5, "radius (centred on the origin)", "m", min=0.0,
+                        exclusive_min=True),
+    },
+    "mesh": {
+        "file": Field("path", REQUIRED, "PLY, OBJ, glTF/GLB, STL or OFF file (read by trimesh)"),
+        "smooth": Field("bool", True, "interpolate vertex normals (False: flat faces)"),
+    },
+}
+
+SHAPE_COMMON: dict[str, Field] = {
+    "name": Field("str", None, "unique name (default: `shape<i>`)"),
+    "role": Field("choice", REQUIRED, "`real` (proxy of the real world) or `virtual`",
+                  choices=("real", "virtual")),
+    "type": Field("choice", REQUIRED, "shape type", choices=tuple(SHAPE_TYPES)),
+    "material": Field("table", "default", "name of an entry of [materials] or an inline table"),
+    "transform": Field("table", None, "object-to-world transform, see Transforms"),
+}
+
+TRANSFORM_FIELDS: dict[str, Field] = {
+    "scale": Field("vec3", [1.0, 1.0, 1.0], "scale (a number or three), applied first"),
+    "rotate": Field("table", [], "rotations `[ax, ay, az, angle_deg]` (one or a list), applied "
+                    "in order after scaling"),
+    "translate": Field("vec3", [0.0, 0.0, 0.0], "translation, applied last", "m"),
+    "matrix": Field("mat4", None, "full 4×4 object-to-world matrix (excludes the others)"),
+}
+
+LIGHT_TYPES: dict[str, dict[str, Field]] = {
+    "envmap": {
+        "file": Field("path", REQUIRED, "HDR image (EXR or Radiance .hdr), linear radiance"),
+        "mapping": Field("choice", "equirect", "`equirect` (latitude-longitude) or `angular` "
+                         "(Debevec light probe)", choices=("equirect", "angular")),
+        "scale": Field("float", 1.0, "radiance multiplier", "", min=0.0),
+        "rotation_deg": Field("float", 0.0, "rotation about +Y (world up)", "deg"),
+    },
+    "sh": {
+        "coefficients": Field("rgb_list", REQUIRED, "real SH coefficients of radiance, "
+                              "(L+1)² RGB rows, index l(l+1)+m", "W/(sr·m²)"),
+        "scale": Field("float", 1.0, "radiance multiplier", "", min=0.0),
+        "rotation_deg": Field("float", 0.0, "rotation about +Y (world up)", "deg"),
+        "resolution": Field("int", 64, "height of the equirect map the SH is rendered into",
+                            "px", min=4),
+    },
+    "constant": {
+        "radiance": Field("rgb", REQUIRED, "radiance of a uniform environment", "W/(sr·m²)",
+                          min=0.0),
+    },
+    "point": {
+        "position": Field("vec3", REQUIRED, "position", "m"),
+        "intensity": Field("rgb", REQUIRED, "radiant intensity", "W/sr", min=0.0),
+    },
+    "spot": {
+        "position": Field("vec3", REQUIRED, "position", "m"),
+        "target": Field("vec3", REQUIRED, "point the spot is aimed at", "m"),
+        "intensity": Field("rgb", REQUIRED, "radiant intensity on the axis", "W/sr", min=0.0),
+        "cutoff_deg": Field("float", 20.0, "half angle where the light ends", "deg", min=0.0,
+                            max=90.0, exclusive_min=True),
+        "beam_width_deg": Field("float", 15.0, "half angle where the fall-off starts", "deg",
+                                min=0.0, max=90.0),
+    },
+    "directional": {
+        "direction": Field("vec3", REQUIRED, "direction the light travels (towards the scene)"),
+        "irradiance": Field("rgb", REQUIRED, "irradiance on a surface facing the light",
+                            "W/m²", min=0.0),
+    },
+    "area": {
+        "size": Field("vec2", [1.0, 1.0], "rectangle side lengths", "m", min=0.0,
+                      exclusive_min=True),
+        "normal": Field("vec3", [0.0, 0.0, 1.0], "emitting side's normal before `transform`"),
+        "transform": Field("table", None, "placement, see Transforms"),
+        "radiance": Field("rgb", REQUIRED, "emitted radiance (front side)", "W/(sr·m²)",
+                          min=0.0),
+    },
+}
+
+CAMERA_FIELDS: dict[str, Field] = {
+    "resolution": Field("vec2", REQUIRED, "[width, height]", "px"),
+    "fov_y_deg": Field("float", None, "vertical field of view (or give `intrinsics`)", "deg",
+                       min=0.0, max=179.0, exclusive_min=True),
+    "intrinsics": Field("table", None, "OpenCV `{fx, fy, cx, cy}` in pixels"),
+    "look_at": Field("table", None, "`{origin, target, up}` (or give `world_from_camera`)"),
+    "world_from_camera": Field("mat4", None, "4×4 camera-to-world pose, OpenCV axes"),
+    "aperture_radius": Field("float", 0.0, "thin-lens aperture radius (0 = pinhole)", "m",
+                             min=0.0),
+    "focus_distance": Field("float", 1.0, "distance of the focal plane along the view axis",
+                            "m", min=0.0, exclusive_min=True),
+    "aperture_shape": Field("choice", "disk", "`disk` or Kán's `square`",
+                            choices=("disk", "square")),
+    "transfer": Field("choice", "srgb", "frame transfer function",
+                      choices=("srgb", "gamma", "linear")),
+    "gamma": Field("float", 2.2, "exponent for `transfer = \"gamma\"`", "", min=0.0,
+                   exclusive_min=True),
+    "exposure": Field("float", 0.0, "display = transfer(radiance · 2^exposure)", "EV"),
+}
+
+FRAME_FIELDS: dict[str, Field] = {
+    "image": Field("path", REQUIRED, "LDR (PNG/JPEG, decoded through the camera's transfer "
+                   "function) or HDR (EXR/.hdr, linear radiance) image of the camera's size"),
+}
+
+
+class Validator:
+    """Reads fields of one scene file, raising errors that name the file and field."""
+
+    def __init__(self, file: str, base_dir: Path):
+        self.file = file
+        self.base_dir = base_dir
+
+    def fail(self, field: str, message: str) -> InputError:
+        return InputError(message, file=self.file, field=field)
+
+    def table(self, value: Any, field: str) -> dict:
+        if not isinstance(value, dict):
+            raise self.fail(field, f"expected a table, got {type(value).__name__}")
+        return value
+
+    def check_keys(self, table: dict, allowed: set[str], field: str) -> None:
+        unknown = sorted(set(table) - allowed)
+        if unknown:
+            raise self.fail(f"{field}.{unknown[0]}" if field else unknown[0],
+                            f"unknown field; expected one of {', '.join(sorted(allowed))}")
+
+    def number(self, value: Any, field: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(field, f"expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise self.fail(field, f"must be finite, got {value!r}")
+        return float(value)
+
+    def _range(self, x: float, spec: Field, field: str) -> None:
+        if spec.min is not None and (x < spec.min or (spec.exclusive_min and x == spec.min)):
+            rel = ">" if spec.exclusive_min else ">="
+            raise self.fail(field, f"must be {rel} {spec.min}, got {x}")
+        if spec.max is not None and x > spec.max:
+            raise self.fail(field, f"must be <= {spec.max}, got {x}")
+
+    def vector(self, value: Any, n: int, field: str) -> list[float]:
+        if not isinstance(value, list | tuple) or len(value) != n:
+            raise self.fail(field, f"expected a list of {n} numbers, got {value!r}")
+        return [self.number(v, f"{field}[{i}]") for i, v in enumerate(value)]
+
+    def value(self, value: Any, spec: Field, field: str) -> Any:
+        """Validate one value against its field spec and return it in canonical form."""
+        k = spec.kind
+        if k in ("float", "int"):
+            x = self.number(value, field)
+            if k == "int" and (not isinstance(value, int) or isinstance(value, bool)):
+                raise self.fail(field, f"expected an integer, got {value!r}")
+            self._range(x, spec, field)
+            return int(x) if k == "int" else x
+        if k == "rgb":
+            rgb = [self.number(value, field)] * 3 if not isinstance(value, list | tuple) \
+                else self.vector(value, 3, field)
+            for i, c in enumerate(rgb):
+                if c < 0:
+                    raise self.fail(field, f"negative value {c} (channel {i}) is not allowed")
+                self._range(c, spec, field)
+            return rgb
+        if k == "rgb_list":
+            if not isinstance(value, list) or not value:
+                raise self.fail(field, "expected a non-empty list of [r, g, b] rows")
+            return [self.vector(v, 3, f"{field}[{i}]") for i, v in enumerate(value)]
+        if k in ("vec2", "vec3"):
+            n = 2 if k == "vec2" else 3
+            v = self.vector(value, n, field)
+            for x in v:
+                self._range(x, spec, field)
+            return v
+        if k == "mat4":
+            if not isinstance(value, list) or len(value) != 4:
+                raise self.fail(field, "expected a 4×4 nested list")
+            m = np.array([self.vector(r, 4, f"{field}[{i}]") for i, r in enumerate(value)])
+            return m.tolist()
+        if k == "bool":
+            if not isinstance(value, bool):
+                raise self.fail(field, f"expected true or false, got {value!r}")
+            return value
+        if k == "str":
+            if not isinstance(value, str) or not value:
+                raise self.fail(field, f"expected a non-empty string, got {value!r}")
+            return value
+        if k == "choice":
+            if value not in spec.choices:
+                raise self.fail(field, f"unknown value {value!r}; expected one of "
+                                f"{', '.join(spec.choices)}")
+            return value
+        if k == "path":
+            if not isinstance(value, str) or not value:
+                raise self.fail(field, f"expected a file path, got {value!r}")
+            p = Path(value)
+            p = p if p.is_absolute() else (self.base_dir / p)
+            if not p.is_file():
+                raise self.fail(field, f"file not found: {p}")
+            return str(p.resolve())
+        if k == "table":
+            return value
+        raise AssertionError(f"unknown field kind {k}")
+
+    def fields(self, table: dict, specs: dict[str, Field], field: str,
+               extra: set[str] = frozenset()) -> dict[str, Any]:
+        """Validate a table against ``specs``; unknown keys (other than ``extra``) fail."""
+        self.check_keys(table, set(specs) | set(extra), field)
+        out: dict[str, Any] = {}
+        for name, spec in specs.items():
+            path = f"{field}.{name}" if field else name
+            if name in table:
+                out[name] = self.value(table[name], spec, path)
+            elif spec.default is REQUIRED:
+                raise self.fail(path, "missing required field")
+            else:
+                out[name] = spec.default
+        return out
+
+
+def schema_markdown() -> str:
+    """The field reference of the scene format as Markdown tables (for docs/scene-format.md)."""
+
+    def rows(specs: dict[str, Field]) -> list[str]:
+        lines = ["| field | kind | default | unit | meaning |", "|---|---|---|---|---|"]
+        for name, s in specs.items():
+            default = "required" if s.default is REQUIRED else (
+                "—" if s.default is None else f"`{s.default}`")
+            kind = s.kind if not s.choices else " \\| ".join(f"`{c}`" for c in s.choices)
+            lines.append(f"| `{name}` | {kind} | {default} | {s.unit} | {s.doc} |")
+        return lines
+
+    out = ["## [camera]", "", *rows(CAMERA_FIELDS), "", "## [frame]", "", *rows(FRAME_FIELDS),
+           "", "## [[shapes]] (common fields)", "", *rows(SHAPE_COMMON), ""]
+    for name, specs in SHAPE_TYPES.items():
+        out += [f"### shape `type = \"{name}\"`", "", *rows(specs), ""]
+    out += ["## Transforms", "", *rows(TRANSFORM_FIELDS), ""]
+    for name, specs in MATERIAL_TYPES.items():
+        out += [f"## material `type = \"{name}\"`", "", *rows(specs), ""]
+    for name, specs in LIGHT_TYPES.items():
+        out += [f"## light `type = \"{name}\"`", "", *rows(specs), ""]
+    return "\n".join(out)
