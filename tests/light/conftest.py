@@ -23,6 +23,12 @@ def smooth_map(height: int = 64) -> np.ndarray:
 
 
 @pytest.fixture
+def make_smooth():
+    """The :func:`smooth_map` factory (height -> map)."""
+    return smooth_map
+
+
+@pytest.fixture
 def smooth() -> np.ndarray:
     return smooth_map()
 

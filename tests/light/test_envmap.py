@@ -8,7 +8,6 @@ import pytest
 from arlight.light import envmap as E
 from arlight.light import sh
 from arlight.light.sampling import EnvmapSampler
-from tests.light.conftest import smooth_map
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:
@@ -60,8 +59,8 @@ def test_angular_and_ball_orientation():
     ("angular", 256, {}),
     ("ball", 256, {"center": (128.0, 128.0), "radius": 127.0}),
 ])
-def test_conversion_preserves_sh(mapping, size, kw):
-    env = smooth_map(64)
+def test_conversion_preserves_sh(mapping, size, kw, make_smooth):
+    env = make_smooth(64)
     img, _ = E.from_equirect(env, mapping, size, **kw)
     back = E.to_equirect(img, mapping, height=64, **kw)
     assert back.shape == (64, 128, 3) and back.dtype == np.float32
@@ -71,8 +70,8 @@ def test_conversion_preserves_sh(mapping, size, kw):
     assert np.abs(c1 - c0).max() < 0.03 * np.abs(c0).max()
 
 
-def test_to_equirect_equirect_resizes_and_mirrors():
-    env = smooth_map(64)
+def test_to_equirect_equirect_resizes_and_mirrors(make_smooth):
+    env = make_smooth(64)
     small = E.to_equirect(env, "equirect", height=32)
     assert small.shape == (32, 64, 3)
     assert small.mean() == pytest.approx(env.mean(), rel=1e-3)
@@ -89,10 +88,10 @@ def test_to_equirect_rejects_bad_input():
         E.to_equirect(np.zeros((10, 10, 3)), "ball")
 
 
-def test_rotate_equirect_moves_a_lobe():
+def test_rotate_equirect_moves_a_lobe(make_smooth):
     from scipy.spatial.transform import Rotation
 
-    env = smooth_map(64)
+    env = make_smooth(64)
     R = Rotation.from_euler("y", 90, degrees=True).as_matrix()
     rot = E.rotate_equirect(env, R)
     d_before = sh.dominant_direction(sh.project_equirect(env, 1))

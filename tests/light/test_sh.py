@@ -8,7 +8,6 @@ from scipy.spatial.transform import Rotation
 
 from arlight.light import sh
 from arlight.light.envmap import equirect_directions, equirect_solid_angle, rotate_equirect
-from tests.light.conftest import smooth_map
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:
@@ -85,8 +84,8 @@ def test_constant_environment_irradiance_is_pi_L():
     np.testing.assert_allclose(E, np.broadcast_to(np.pi * L, E.shape), rtol=1e-6)
 
 
-def test_irradiance_nine_coefficients_within_3_percent():
-    env = smooth_map(64)
+def test_irradiance_nine_coefficients_within_3_percent(make_smooth):
+    env = make_smooth(64)
     c = sh.project_equirect(env, 2)
     normals = random_dirs(60, seed=3)
     d = equirect_directions(64).reshape(-1, 3)
@@ -132,8 +131,8 @@ def test_rotation_preserves_energy_and_composes(order):
     np.testing.assert_allclose(sh.sh_eval(r, d), sh.sh_eval(c, d @ R1), atol=1e-10)
 
 
-def test_rotation_matches_projection_of_rotated_map():
-    env = smooth_map(128)
+def test_rotation_matches_projection_of_rotated_map(make_smooth):
+    env = make_smooth(128)
     R = Rotation.from_euler("yxz", [1.0, 0.5, -0.3]).as_matrix()
     c_rot = sh.rotate(sh.project_equirect(env, 4), R)
     c_map = sh.project_equirect(rotate_equirect(env, R), 4)
@@ -141,12 +140,12 @@ def test_rotation_matches_projection_of_rotated_map():
     assert np.abs(c_rot - c_map).max() < 5e-3 * scale
 
 
-def test_dominant_direction_points_to_light():
+def test_dominant_direction_points_to_light(make_smooth):
     target = np.array([0.2, 0.9, -0.4])
     target /= np.linalg.norm(target)
     c = sh.directional_light_coeffs(target, [1.0, 1.0, 1.0], 2)
     np.testing.assert_allclose(sh.dominant_direction(c), target, atol=1e-12)
-    env = smooth_map(64)
+    env = make_smooth(64)
     dom = sh.dominant_direction(sh.project_equirect(env, 1))
     assert dom @ np.array([0.6, 0.64, 0.48]) > 0.95
 
