@@ -124,15 +124,18 @@ class FisheyeCamera:
         return 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
 
     def _undistort(self, rho: np.ndarray) -> np.ndarray:
-        """Solve ``rho = theta_d(theta)`` for theta by Newton's method."""
+        """Solve ``rho = theta_d(theta)`` for theta in [0, pi] by (clamped) Newton steps;
+        radii the model cannot reach get ``theta = inf`` (invalid)."""
         theta = np.array(rho, dtype=np.float64, copy=True)
         if not np.any(self.D):
             return theta
-        for _ in range(30):
+        for _ in range(50):
             step = (self._distort(theta) - rho) / self._distort_derivative(theta)
-            theta -= step
+            theta = np.clip(theta - step, 0.0, np.pi)
             if np.max(np.abs(step), initial=0.0) < 1e-14:
                 break
+        bad = np.abs(self._distort(theta) - rho) > 1e-9 * np.maximum(1.0, rho)
+        theta[bad] = np.inf
         return theta
 
     def project(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -160,10 +163,11 @@ class FisheyeCamera:
         xn = (p[..., 0] - K[0, 2] - K[0, 1] * yn) / K[0, 0]
         rho = np.hypot(xn, yn)
         theta = self._undistort(rho)
+        valid = theta <= np.radians(self.fov_deg / 2) + 1e-12
+        theta = np.where(np.isfinite(theta), theta, np.pi)
         with np.errstate(invalid="ignore", divide="ignore"):
             s = np.where(rho > 0, np.sin(theta) / rho, 1.0)
         d_cam = np.stack([xn * s, yn * s, np.cos(theta)], axis=-1)
-        valid = theta <= np.radians(self.fov_deg / 2) + 1e-12
         return d_cam @ self.world_from_camera.T, valid
 
     def pixel_centres(self) -> np.ndarray:
@@ -180,11 +184,13 @@ class FisheyeCamera:
         xn = (p[..., 0] - K[0, 2] - K[0, 1] * yn) / K[0, 0]
         rho = np.hypot(xn, yn)
         theta = self._undistort(rho)
+        inside = theta <= np.radians(self.fov_deg / 2)
+        theta = np.where(np.isfinite(theta), theta, np.pi)
         with np.errstate(invalid="ignore", divide="ignore"):
             j = np.where(rho > 1e-12, np.sin(theta) / (rho * self._distort_derivative(theta)),
                          1.0)
         sa = j / (K[0, 0] * K[1, 1])
-        sa[theta > np.radians(self.fov_deg / 2)] = 0.0
+        sa[~inside] = 0.0
         return sa
 
     def pixel_angle(self) -> float:
