@@ -1,0 +1,421 @@
+"""``LightEstimate``: what photometric registration produces, and its exchange formats.
+
+A light estimate is one *main* directional light, optionally more explicit lights, and
+the radiance SH of everything else (the "ambient" remainder), plus an optional HDR
+equirect map, a timestamp and a confidence. The lights and the SH partition the
+environment's energy: main + extra lights + SH = the map (see :mod:`arlight.light.extract`).
+
+JSON layouts (:meth:`LightEstimate.to_json` / :meth:`LightEstimate.from_json`):
+
+``"arlight"`` (lossless, ours)
+    every field, SH of any order in our basis (``docs/conventions.md``), floats written
+    with ``repr`` precision; the HDR map goes to an EXR file next to the JSON.
+``"arcore"`` (ARCore Environmental HDR)
+    ``environmentalHdrAmbientSphericalHarmonics``: 27 floats, interleaved
+    ``[r0, g0, b0, r1, ...]``, radiance SH in the Condon-Shortley-phase real basis written
+    in Cartesian world coordinates (``y_1^{-1} = -0.488603 y``, ``y_1^0 = 0.488603 z``,
+    ``y_1^1 = -0.488603 x``, ...; Filament's basis). These are *not* pre-multiplied:
+    ARCore's hello_ar sample multiplies them in the app by ``y_lm`` constant x ``A_l / pi``
+    (``0.282095, -0.325735, 0.325735, -0.325735, 0.273137, -0.273137, 0.078848,
+    -0.273137, 0.136569``) before the shader evaluates ``E/pi`` at the world normal;
+    :func:`arcore_shader_factors` gives these numbers. ``environmentalHdrMainLightDirection``
+    points *toward* the light (the sample uses ``dot(normal, direction)``),
+    ``environmentalHdrMainLightIntensity`` is RGB irradiance on a surface facing the light
+    (the sample shades ``albedo/pi * intensity * n.l``); ``timestamp`` in nanoseconds.
+    ARCore's SH are *ambient*: the main light is not in them.
+``"arkit"`` (``ARDirectionalLightEstimate``)
+    ``sphericalHarmonicsCoefficients``: 27 floats in three *planes* (9 red, 9 green,
+    9 blue); ``primaryLightDirection`` and ``primaryLightIntensity`` (a scalar, in lumens
+    per Apple). Apple documents neither the SH basis signs nor which way the direction
+    points; we assume the basis without the Condon-Shortley phase, the direction the
+    light *travels* (SceneKit's light orientation) and pass the intensity through as
+    luminance-weighted irradiance (no photometric calibration). ``timestamp`` in seconds.
+``"webxr"`` (``XRLightEstimate``, WebXR Lighting Estimation)
+    ``sphericalHarmonicsCoefficients``: 27 floats interleaved RGB, order
+    ``C_0^0, C_1^-1, C_1^0, C_1^1, C_2^-2, ... C_2^2`` (spec); ``primaryLightDirection``
+    *toward* the light and ``primaryLightIntensity`` RGB, both as ``{x, y, z, w}`` with
+    w = 0 and 1. The spec does not fix the SH sign convention; we follow three.js
+    (``XREstimatedLight`` feeds them to ``SphericalHarmonics3``: no Condon-Shortley phase).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from arlight.light import sh as SH
+from arlight.light.extract import (
+    ExtractedLight,
+    auto_threshold,
+    median_cut,
+    split_highlights,
+)
+from arlight.light.imageio import atomic_write
+
+LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
+FORMAT_TAG = "arlight.light_estimate"
+
+# ----------------------------------------------------------------------------- foreign SH
+
+
+def _cartesian_l2_basis(condon_shortley: bool) -> Callable[[np.ndarray], np.ndarray]:
+    """The common graphics L2 basis written in Cartesian world coordinates (z = pole)."""
+    s = -1.0 if condon_shortley else 1.0
+    k0, k1 = 0.5 / np.sqrt(np.pi), np.sqrt(3 / (4 * np.pi))  # 0.282095, 0.488603
+    k2, k3, k4 = 0.5 * np.sqrt(15 / np.pi), 0.25 * np.sqrt(5 / np.pi), 0.25 * np.sqrt(15 / np.pi)
+
+    def basis(d: np.ndarray) -> np.ndarray:
+        x, y, z = d[:, 0], d[:, 1], d[:, 2]
+        return np.stack([
+            np.full_like(x, k0),
+            s * k1 * y, k1 * z, s * k1 * x,
+            k2 * x * y, s * k2 * y * z, k3 * (3 * z * z - 1),
+            s * k2 * x * z, k4 * (x * x - y * y),
+        ], axis=1)
+
+    return basis
+
+
+@lru_cache(maxsize=4)
+def _to_foreign_matrix(condon_shortley: bool) -> np.ndarray:
+    """``M`` with ``c_foreign = M @ c_ours`` (both L2): ``M_ji = int y^f_j y_i dw``."""
+    dirs, w = SH.sphere_quadrature(4)
+    Yf = _cartesian_l2_basis(condon_shortley)(dirs)
+    Yo = SH.sh_basis(dirs, 2)
+    M = (Yf * w[:, None]).T @ Yo
+    M.setflags(write=False)
+    return M
+
+
+def _l2(coeffs: np.ndarray) -> np.ndarray:
+    """Truncate or zero-pad radiance SH to 9 coefficients."""
+    c = np.zeros((9, 3))
+    k = min(9, coeffs.shape[0])
+    c[:k] = coeffs[:k]
+    return c
+
+
+def sh_to_foreign(coeffs: np.ndarray, condon_shortley: bool) -> np.ndarray:
+    """Our radiance SH (any order, truncated to L2) -> the Cartesian L2 basis, (9, 3)."""
+    return _to_foreign_matrix(condon_shortley) @ _l2(np.asarray(coeffs, np.float64))
+
+
+def sh_from_foreign(coeffs9: np.ndarray, condon_shortley: bool) -> np.ndarray:
+    """Inverse of :func:`sh_to_foreign` (the matrix is orthogonal)."""
+    return _to_foreign_matrix(condon_shortley).T @ np.asarray(coeffs9, np.float64)
+
+
+def arcore_shader_factors() -> np.ndarray:
+    """ARCore's hello_ar ``sphericalHarmonicFactors``: ``y_lm`` constant x ``A_l / pi``
+    for the CS-phase Cartesian basis, so that ``sum_i f_i c_i p_i(n) = E(n) / pi``."""
+    k = np.array([0.282095, -0.488603, 0.488603, -0.488603, 1.092548, -1.092548,
+                  0.315392, -1.092548, 0.546274])
+    A = np.array([SH.clamped_cosine_band(int(l)) for l in SH.band_of_each_coeff(2)])
+    return k * A / np.pi
+
+
+# ----------------------------------------------------------------------------- the type
+
+
+def _vec3(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.size != 3 or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: expected 3 finite numbers, got {v!r}")
+    return a
+
+
+@dataclass
+class LightEstimate:
+    """Main directional light + radiance SH of the rest (+ extra lights, HDR map).
+
+    ``main_direction``: unit vector *toward* the main light (world, +Y up);
+    ``main_irradiance``: RGB W/m^2 on a surface facing it; ``sh``: ``(n, 3)`` radiance SH
+    (our basis) of the ambient remainder (neither the main nor the extra lights);
+    ``lights``: further explicit lights; ``hdr_map``: ``(H, 2H, 3)`` equirect radiance of
+    the whole environment (optional); ``timestamp`` in seconds; ``confidence`` in [0, 1]
+    (for estimates from a capture: the fraction of the sphere actually observed).
+    """
+
+    main_direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    main_irradiance: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sh: np.ndarray = field(default_factory=lambda: np.zeros((9, 3)))
+    lights: list[ExtractedLight] = field(default_factory=list)
+    hdr_map: np.ndarray | None = None
+    timestamp: float = 0.0
+    confidence: float = 1.0
+
+    def __post_init__(self) -> None:
+        d = _vec3(self.main_direction, "main_direction")
+        n = np.linalg.norm(d)
+        if n == 0:
+            d, n = np.array([0.0, 1.0, 0.0]), 1.0
+        self.main_direction = d if abs(n - 1.0) < 1e-12 else d / n
+        self.main_irradiance = _vec3(self.main_irradiance, "main_irradiance")
+        c = np.asarray(self.sh, dtype=np.float64)
+        if c.ndim != 2 or c.shape[1] != 3:
+            raise ValueError(f"sh: expected (n, 3) coefficients, got shape {c.shape}")
+        SH.order_of(c.shape[0])
+        self.sh = c
+        self.timestamp = float(self.timestamp)
+        self.confidence = float(self.confidence)
+        if not 0.0 <= self.confidence <= 1.0:
+            raise ValueError(f"confidence must be in [0, 1], got {self.confidence}")
+        if self.hdr_map is not None:
+            self.hdr_map = np.asarray(self.hdr_map, dtype=np.float32)
+
+    # ------------------------------------------------------------------ construction
+
+    @classmethod
+    def from_envmap(cls, equirect: np.ndarray, n_lights: int = 16, sh_order: int = 2,
+                    method: str = "median_cut", threshold: float | None = None,
+                    keep_map: bool = True, timestamp: float | None = None,
+                    confidence: float = 1.0) -> LightEstimate:
+        """Estimate from an equirect radiance map.
+
+        Highlights above ``threshold`` (default :func:`~arlight.light.extract.auto_threshold`)
+        become ``n_lights`` lights by median cut / variance minimisation (the brightest is
+        the main light); the clipped remainder is projected to SH of ``sh_order``. With
+        ``n_lights = 0`` everything goes to SH and the main light is the SH's dominant
+        direction with zero irradiance.
+        """
+        img = np.asarray(equirect, dtype=np.float32)
+        lights: list[ExtractedLight] = []
+        rest = img
+        if n_lights > 0:
+            thr = auto_threshold(img) if threshold is None else float(threshold)
+            bright, rest = split_highlights(img, thr)
+            cand = median_cut(bright, n_lights, method=method)
+            total = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in cand)
+            lights = [lt for lt in cand if float(lt.irradiance @ SH.LUMINANCE) > 1e-9 * total]
+        coeffs = SH.project_equirect(rest, sh_order)
+        if lights:
+            main, extra = lights[0], lights[1:]
+            direction, irr = main.direction, main.irradiance
+        else:
+            extra, direction, irr = [], SH.dominant_direction(coeffs), np.zeros(3)
+        return cls(main_direction=direction, main_irradiance=irr, sh=coeffs, lights=extra,
+                   hdr_map=img if keep_map else None,
+                   timestamp=time.time() if timestamp is None else timestamp,
+                   confidence=confidence)
+
+    # ------------------------------------------------------------------ queries
+
+    def ambient_sh(self, order: int = 2, fold_lights: bool = True) -> np.ndarray:
+        """Radiance SH of everything except the main light; ``fold_lights`` adds the extra
+        lights as delta lobes (what ARCore-style "ambient" SH mean)."""
+        c = np.zeros((SH.n_coeffs(order), 3))
+        k = min(c.shape[0], self.sh.shape[0])
+        c[:k] = self.sh[:k]
+        if fold_lights:
+            for lt in self.lights:
+                c += SH.directional_light_coeffs(lt.direction, lt.irradiance, order)
+        return c
+
+    def total_sh(self, order: int = 2) -> np.ndarray:
+        """Radiance SH of the whole environment (main and extra lights folded in)."""
+        return self.ambient_sh(order) + SH.directional_light_coeffs(
+            self.main_direction, self.main_irradiance, order)
+
+    def irradiance(self, normals: np.ndarray) -> np.ndarray:
+        """Irradiance (W/m^2) at unit normals: 9-coefficient SH of the ambient part plus the
+        explicit lights with their exact clamped cosine."""
+        n = np.asarray(normals, np.float64).reshape(-1, 3)
+        E = SH.irradiance(self.sh, n)
+        for lt in [ExtractedLight(self.main_direction, self.main_irradiance), *self.lights]:
+            E += np.clip(n @ lt.direction, 0, None)[:, None] * lt.irradiance[None]
+        return E
+
+    # ------------------------------------------------------------------ scene files
+
+    def to_scene_lights(self, light_type: str = "directional", room_size: float = 2.0,
+                        origin: np.ndarray | None = None, include_extra: bool = True,
+                        include_sh: bool = True, envmap_file: str | None = None,
+                        envmap_scale: float = 1.0) -> list[dict]:
+        """Light tables for an AR scene file (schema of ``arlight.scene``).
+
+        ``light_type``: ``"directional"`` (``irradiance``) or ``"point"`` at
+        ``origin + direction * room_size`` (Kan's room size) with ``I = E room_size^2``.
+        The SH remainder becomes one ``{"type": "sh"}`` table. With ``envmap_file`` (an EXR
+        of :attr:`hdr_map`, written by the caller, e.g. :meth:`write_hdr_map`) a single
+        ``envmap`` table is returned instead: the map already holds every light, so adding
+        lights would count them twice.
+        """
+        if envmap_file is not None:
+            return [{"type": "envmap", "file": str(envmap_file), "mapping": "equirect",
+                     "scale": float(envmap_scale), "rotation_deg": 0.0}]
+        if light_type not in ("directional", "point"):
+            raise ValueError(f"light_type must be 'directional' or 'point', got {light_type!r}")
+        lights = [ExtractedLight(self.main_direction, self.main_irradiance)]
+        if include_extra:
+            lights += self.lights
+        out: list[dict] = []
+        for lt in lights:
+            if not np.any(lt.irradiance > 0):
+                continue
+            out.append(lt.to_directional() if light_type == "directional"
+                       else lt.to_point(room_size, origin))
+        if include_sh:
+            sh = self.sh if include_extra else self.ambient_sh(SH.order_of(self.sh.shape[0]))
+            out.append({"type": "sh", "coefficients": sh.tolist()})
+        return out
+
+    def write_hdr_map(self, path: str | Path) -> Path:
+        """Write :attr:`hdr_map` as an EXR (atomic)."""
+        from arlight.light.imageio import write_exr
+
+        if self.hdr_map is None:
+            raise ValueError("this estimate has no HDR map")
+        return write_exr(path, self.hdr_map)
+
+    # ------------------------------------------------------------------ JSON
+
+    def to_json(self, layout: str = "arlight", hdr_file: str | None = None) -> dict:
+        """A JSON-ready dict in ``layout`` (see the module docstring)."""
+        if layout == "arlight":
+            d = {
+                "format": FORMAT_TAG, "version": 1,
+                "main_light": {"direction_to_light": self.main_direction.tolist(),
+                               "irradiance": self.main_irradiance.tolist()},
+                "sh": {"order": SH.order_of(self.sh.shape[0]), "quantity": "radiance",
+                       "basis": "arlight (docs/conventions.md, Franke Eq. 4.5)",
+                       "coefficients": self.sh.tolist()},
+                "lights": [lt.to_dict() for lt in self.lights],
+                "timestamp": self.timestamp, "confidence": self.confidence,
+            }
+            if hdr_file is not None:
+                d["hdr_map"] = {"file": hdr_file, "mapping": "equirect"}
+            return d
+        amb = self.ambient_sh(2)
+        if layout == "arcore":
+            c = sh_to_foreign(amb, condon_shortley=True)
+            return {"layout": "arcore",
+                    "environmentalHdrAmbientSphericalHarmonics": c.reshape(-1).tolist(),
+                    "environmentalHdrMainLightDirection": self.main_direction.tolist(),
+                    "environmentalHdrMainLightIntensity": self.main_irradiance.tolist(),
+                    "timestamp": int(round(self.timestamp * 1e9)), "state": "VALID",
+                    "confidence": self.confidence}
+        if layout == "arkit":
+            c = sh_to_foreign(amb, condon_shortley=False)
+            return {"layout": "arkit",
+                    "sphericalHarmonicsCoefficients": c.T.reshape(-1).tolist(),
+                    "primaryLightDirection": (-self.main_direction).tolist(),
+                    "primaryLightIntensity": float(self.main_irradiance @ SH.LUMINANCE),
+                    "timestamp": self.timestamp, "confidence": self.confidence}
+        if layout == "webxr":
+            c = sh_to_foreign(amb, condon_shortley=False)
+            x, y, z = self.main_direction
+            r, g, b = self.main_irradiance
+            return {"layout": "webxr",
+                    "sphericalHarmonicsCoefficients": c.reshape(-1).tolist(),
+                    "primaryLightDirection": {"x": x, "y": y, "z": z, "w": 0.0},
+                    "primaryLightIntensity": {"x": r, "y": g, "z": b, "w": 1.0},
+                    "timestamp": self.timestamp, "confidence": self.confidence}
+        raise ValueError(f"unknown layout {layout!r}; expected one of {LAYOUTS}")
+
+    @staticmethod
+    def detect_layout(d: dict) -> str:
+        """Guess the layout of a JSON dict (``"layout"``/``"format"`` keys, else the keys)."""
+        if d.get("format") == FORMAT_TAG:
+            return "arlight"
+        if d.get("layout") in LAYOUTS:
+            return str(d["layout"])
+        if "environmentalHdrAmbientSphericalHarmonics" in d:
+            return "arcore"
+        if "sphericalHarmonicsCoefficients" in d:
+            return "arkit" if np.isscalar(d.get("primaryLightIntensity", 0.0)) else "webxr"
+        raise ValueError("not a light estimate: no known layout keys")
+
+    @classmethod
+    def from_json(cls, d: dict, layout: str | None = None,
+                  base_dir: str | Path | None = None) -> LightEstimate:
+        """Parse a dict written by :meth:`to_json` (or by ARCore/ARKit/WebXR apps).
+        Raises ``ValueError`` naming the offending key."""
+        layout = layout or cls.detect_layout(d)
+        try:
+            if layout == "arlight":
+                ml = d["main_light"]
+                hdr = None
+                if "hdr_map" in d and base_dir is not None:
+                    from arlight.light.imageio import read_image
+
+                    hdr = read_image(Path(base_dir) / d["hdr_map"]["file"])
+                return cls(main_direction=ml["direction_to_light"],
+                           main_irradiance=ml["irradiance"],
+                           sh=np.asarray(d["sh"]["coefficients"], np.float64),
+                           lights=[ExtractedLight.from_dict(x) for x in d.get("lights", [])],
+                           hdr_map=hdr, timestamp=d.get("timestamp", 0.0),
+                           confidence=d.get("confidence", 1.0))
+            if layout == "arcore":
+                c = _floats(d["environmentalHdrAmbientSphericalHarmonics"], 27).reshape(9, 3)
+                return cls(main_direction=d["environmentalHdrMainLightDirection"],
+                           main_irradiance=d["environmentalHdrMainLightIntensity"],
+                           sh=sh_from_foreign(c, condon_shortley=True),
+                           timestamp=float(d.get("timestamp", 0)) * 1e-9,
+                           confidence=d.get("confidence", 1.0))
+            if layout == "arkit":
+                c = _floats(d["sphericalHarmonicsCoefficients"], 27).reshape(3, 9).T
+                inten = float(d.get("primaryLightIntensity", 0.0))
+                return cls(main_direction=-_vec3(d["primaryLightDirection"],
+                                                 "primaryLightDirection"),
+                           main_irradiance=np.full(3, inten),
+                           sh=sh_from_foreign(c, condon_shortley=False),
+                           timestamp=d.get("timestamp", 0.0), confidence=d.get("confidence", 1.0))
+            if layout == "webxr":
+                c = _floats(d["sphericalHarmonicsCoefficients"], 27).reshape(9, 3)
+                return cls(main_direction=_point(d["primaryLightDirection"]),
+                           main_irradiance=_point(d["primaryLightIntensity"]),
+                           sh=sh_from_foreign(c, condon_shortley=False),
+                           timestamp=d.get("timestamp", 0.0), confidence=d.get("confidence", 1.0))
+        except KeyError as exc:
+            raise ValueError(f"{layout} light estimate: missing key {exc}") from exc
+        raise ValueError(f"unknown layout {layout!r}; expected one of {LAYOUTS}")
+
+    def save(self, path: str | Path, layout: str = "arlight") -> Path:
+        """Write JSON atomically; with ``layout="arlight"`` and an HDR map, the map goes to
+        ``<stem>.hdr.exr`` next to it (referenced relatively)."""
+        path = Path(path)
+        hdr_file = None
+        if layout == "arlight" and self.hdr_map is not None:
+            hdr_file = f"{path.stem}.hdr.exr"
+            self.write_hdr_map(path.parent / hdr_file)
+        text = json.dumps(self.to_json(layout, hdr_file=hdr_file), indent=1)
+        return atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+    @classmethod
+    def load(cls, path: str | Path, layout: str | None = None) -> LightEstimate:
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except FileNotFoundError as exc:
+            raise ValueError(f"{path}: file not found") from exc
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+        if not isinstance(d, dict):
+            raise ValueError(f"{path}: expected a JSON object")
+        try:
+            return cls.from_json(d, layout, base_dir=path.parent)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from exc
+
+
+def _floats(v, n: int) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.size != n or not np.all(np.isfinite(a)):
+        raise ValueError(f"expected {n} finite numbers, got {a.size}")
+    return a
+
+
+def _point(p) -> np.ndarray:
+    if isinstance(p, dict):
+        return _vec3([p["x"], p["y"], p["z"]], "point")
+    return _vec3(list(p)[:3], "point")
+
+
+__all__ = ["LAYOUTS", "LightEstimate", "arcore_shader_factors", "sh_from_foreign",
+           "sh_to_foreign"]
