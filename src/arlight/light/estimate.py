@@ -175,7 +175,8 @@ class LightEstimate:
     def from_envmap(cls, equirect: np.ndarray, n_lights: int = 16, sh_order: int = 2,
                     method: str = "median_cut", threshold: float | None = None,
                     keep_map: bool = True, timestamp: float | None = None,
-                    confidence: float = 1.0) -> LightEstimate:
+                    confidence: float = 1.0, sh_map: np.ndarray | None = None
+                    ) -> LightEstimate:
         """Estimate from an equirect radiance map.
 
         Highlights above ``threshold`` (default :func:`~arlight.light.extract.auto_threshold`)
@@ -183,13 +184,20 @@ class LightEstimate:
         the main light); the clipped remainder is projected to SH of ``sh_order``. With
         ``n_lights = 0`` everything goes to SH and the main light is the SH's dominant
         direction with zero irradiance.
+
+        ``sh_map`` (default: ``equirect``) is the map whose clipped remainder goes to SH,
+        e.g. a fisheye capture with the upper hemisphere mirrored into the lower one, while
+        the lights come from the observed ``equirect`` only (mirrored lamps would otherwise
+        pull light directions to the horizon).
         """
         img = np.asarray(equirect, dtype=np.float32)
+        full = img if sh_map is None else np.asarray(sh_map, dtype=np.float32)
         lights: list[ExtractedLight] = []
-        rest = img
+        rest = full
         if n_lights > 0:
             thr = auto_threshold(img) if threshold is None else float(threshold)
-            bright, rest = split_highlights(img, thr)
+            bright, _ = split_highlights(img, thr)
+            _, rest = split_highlights(full, thr)
             cand = median_cut(bright, n_lights, method=method)
             total = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in cand)
             lights = [lt for lt in cand if float(lt.irradiance @ SH.LUMINANCE) > 1e-9 * total]
@@ -200,7 +208,7 @@ class LightEstimate:
         else:
             extra, direction, irr = [], SH.dominant_direction(coeffs), np.zeros(3)
         return cls(main_direction=direction, main_irradiance=irr, sh=coeffs, lights=extra,
-                   hdr_map=img if keep_map else None,
+                   hdr_map=full if keep_map else None,
                    timestamp=time.time() if timestamp is None else timestamp,
                    confidence=confidence)
 

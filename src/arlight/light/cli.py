@@ -1,0 +1,225 @@
+"""``arlight light``: estimate lights from a probe / map / fisheye image, and picture them.
+
+Examples::
+
+    python -m arlight.light.cli estimate grace.hdr --kind equirect --lights 16 -o light.json
+    python -m arlight.light.cli estimate ball.exr --kind ball --ball-center 512,500 \\
+        --ball-radius 480 -o light.json
+    python -m arlight.light.cli estimate sky.png --kind fisheye --fov 185 -o light.json
+    python -m arlight.light.cli show light.json -o light.png
+
+Outputs are written to a temporary file and renamed, so a failed run leaves nothing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from arlight.light import envmap as E
+from arlight.light import sh as SH
+from arlight.light.estimate import LAYOUTS, LightEstimate
+from arlight.light.extract import ExtractedLight
+from arlight.light.fisheye import FisheyeCamera
+from arlight.light.imageio import ImageReadError, atomic_write, read_image
+
+KINDS = ("equirect", "probe", "ball", "fisheye")
+
+app = typer.Typer(
+    help="Light estimation: SH, environment maps, probes, fisheye images, light extraction.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+
+class CliError(Exception):
+    """A user error: printed without a traceback, exit status 2."""
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code=2)
+
+
+def _parse_center(text: str | None) -> tuple[float, float] | None:
+    if text is None:
+        return None
+    try:
+        cx, cy = (float(v) for v in text.split(","))
+    except ValueError as exc:
+        raise CliError(f"--ball-center: expected 'cx,cy' in pixels, got {text!r}") from exc
+    return cx, cy
+
+
+def load_environment(image: Path, kind: str, height: int | None = None,
+                     ball_center: str | None = None, ball_radius: float | None = None,
+                     fisheye_calib: Path | None = None, fov: float = 180.0,
+                     mirror_lower: bool = True
+                     ) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """Read ``image`` of ``kind``: (equirect map of what was observed, observed sphere
+    fraction, map for the SH remainder when it differs -- the mirrored fisheye capture)."""
+    if kind not in KINDS:
+        raise CliError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    img = read_image(image)
+    H, W = img.shape[:2]
+    if kind == "equirect":
+        if W != 2 * H:
+            raise CliError(f"{image}: an equirect map must be 2:1, got {W}x{H}")
+        return E.to_equirect(img, "equirect", height=height), 1.0, None
+    if kind == "probe":
+        if W != H:
+            raise CliError(f"{image}: an angular light probe must be square, got {W}x{H}")
+        return E.to_equirect(img, "angular", height=height), 1.0, None
+    if kind == "ball":
+        center = _parse_center(ball_center)
+        if center is None or ball_radius is None or ball_radius <= 0:
+            raise CliError("--kind ball needs --ball-center cx,cy and --ball-radius (pixels)")
+        m = E.to_equirect(img, "ball", height=height, center=center, radius=ball_radius)
+        return m, 1.0, None
+    if fisheye_calib is not None:
+        try:
+            cam = FisheyeCamera.load(fisheye_calib, fov_deg=fov)
+        except ValueError as exc:
+            raise CliError(f"--fisheye-calib: {exc}") from exc
+        if cam.size != (W, H):
+            raise CliError(f"{image}: image is {W}x{H} but {fisheye_calib} is for "
+                           f"{cam.size[0]}x{cam.size[1]}")
+    else:
+        cam = FisheyeCamera.equidistant((W, H), fov_deg=fov)
+    m = E.to_equirect(img, "fisheye", height=height, camera=cam)
+    mirrored = E.mirror_lower_hemisphere(m) if mirror_lower else None
+    observed = min(1.0, (1 - np.cos(np.radians(min(fov, 360.0) / 2))) / 2)
+    return m, float(observed), mirrored
+
+
+@app.command()
+def estimate(
+    image: Annotated[Path, typer.Argument(help="HDR (.hdr/.exr) or LDR image")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="light JSON to write")] = Path(
+        "light.json"),
+    kind: Annotated[str, typer.Option(help="equirect | probe (Debevec angular) | ball | "
+                                           "fisheye")] = "equirect",
+    lights: Annotated[int, typer.Option(help="number of extracted lights (0: SH only)")] = 16,
+    sh_order: Annotated[int, typer.Option(help="SH order L ((L+1)^2 coefficients)")] = 2,
+    method: Annotated[str, typer.Option(help="median_cut | variance")] = "median_cut",
+    threshold: Annotated[float | None, typer.Option(
+        help="highlight luminance threshold (default 4x the mean)")] = None,
+    height: Annotated[int | None, typer.Option(help="equirect height to work at")] = None,
+    ball_center: Annotated[str | None, typer.Option(help="mirror ball centre 'cx,cy' (px)")
+                           ] = None,
+    ball_radius: Annotated[float | None, typer.Option(help="mirror ball radius (px)")] = None,
+    fisheye_calib: Annotated[Path | None, typer.Option(
+        help="OpenCV fisheye calibration (.yml/.xml) or JSON (K, D, size)")] = None,
+    fov: Annotated[float, typer.Option(help="fisheye field of view (deg)")] = 180.0,
+    mirror_lower: Annotated[bool, typer.Option(
+        help="fisheye: mirror the upper hemisphere into the lower (Kan)")] = True,
+    layout: Annotated[str, typer.Option(help="arlight | arcore | arkit | webxr")] = "arlight",
+) -> None:
+    """Estimate a LightEstimate (main light, extra lights, SH remainder) from an image."""
+    try:
+        if layout not in LAYOUTS:
+            raise CliError(f"--layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
+        if method not in ("median_cut", "variance"):
+            raise CliError(f"--method: expected median_cut or variance, got {method!r}")
+        if lights < 0 or sh_order < 0:
+            raise CliError("--lights and --sh-order must be >= 0")
+        env, observed, sh_map = load_environment(image, kind, height, ball_center,
+                                                 ball_radius, fisheye_calib, fov, mirror_lower)
+        est = LightEstimate.from_envmap(env, n_lights=lights, sh_order=sh_order,
+                                        method=method, threshold=threshold,
+                                        confidence=observed, sh_map=sh_map)
+        est.save(output, layout=layout)
+    except (CliError, ImageReadError, ValueError) as exc:
+        _fail(str(exc))
+    typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}, "
+               f"{len(est.lights)} more lights, SH order {sh_order}")
+
+
+def _tonemap(img: np.ndarray) -> np.ndarray:
+    scale = np.percentile(img, 99.0) or 1.0
+    return np.clip(img / scale, 0, 1) ** (1 / 2.2)
+
+
+def _irradiance_sphere(est: LightEstimate, size: int = 160) -> np.ndarray:
+    """A white Lambertian sphere seen from +Z (radiance E/pi), black outside."""
+    xs = (np.arange(size) + 0.5) / size * 2 - 1
+    X, Y = np.meshgrid(xs, -xs)
+    r2 = X**2 + Y**2
+    inside = r2 <= 1
+    n = np.stack([X, Y, np.sqrt(np.clip(1 - r2, 0, None))], axis=-1)
+    out = np.zeros((size, size, 3))
+    out[inside] = est.irradiance(n[inside]) / np.pi
+    return out
+
+
+def render_picture(est: LightEstimate, path: Path, title: str = "") -> Path:
+    """Three panels: map + lights, SH reconstruction, irradiance sphere (PNG, atomic)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    order = SH.order_of(est.sh.shape[0])
+    recon = SH.sh_to_equirect(est.total_sh(max(order, 2)), 128)
+    env = est.hdr_map if est.hdr_map is not None else recon
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6),
+                             gridspec_kw={"width_ratios": [2, 2, 1]})
+    ax = axes[0]
+    ax.imshow(_tonemap(env), extent=(0, 1, 1, 0), aspect="auto")
+    all_lights = [ExtractedLight(est.main_direction, est.main_irradiance), *est.lights]
+    powers = np.array([lt.irradiance @ SH.LUMINANCE for lt in all_lights])
+    pmax = powers.max() if powers.size and powers.max() > 0 else 1.0
+    for i, (lt, p) in reversed(list(enumerate(zip(all_lights, powers, strict=True)))):
+        x, y = E.direction_to_equirect(lt.direction[None], 1, 1)[0]
+        ax.scatter([x % 1], [y], s=30 + 300 * p / pmax, facecolors="none",
+                   edgecolors="red" if i == 0 else "yellow", linewidths=1.5)
+    ax.set_title(f"map + {len(all_lights)} lights (red: main)")
+    ax.set_xlabel("u")
+    ax.set_ylabel("v")
+    axes[1].imshow(_tonemap(recon), extent=(0, 1, 1, 0), aspect="auto")
+    axes[1].set_title(f"SH reconstruction (order {max(order, 2)}, lights folded in)")
+    axes[2].imshow(_tonemap(_irradiance_sphere(est)))
+    axes[2].set_title("irradiance E/pi (from +Z)")
+    axes[2].axis("off")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    try:
+        return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=90))
+    finally:
+        plt.close(fig)
+
+
+@app.command()
+def show(
+    source: Annotated[Path, typer.Argument(help="light JSON, or an image to estimate from")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write")] = Path(
+        "light.png"),
+    kind: Annotated[str, typer.Option(help="kind of an image source (see estimate)")
+                    ] = "equirect",
+    lights: Annotated[int, typer.Option(help="lights to extract from an image source")] = 16,
+    ball_center: Annotated[str | None, typer.Option(help="mirror ball centre 'cx,cy'")] = None,
+    ball_radius: Annotated[float | None, typer.Option(help="mirror ball radius (px)")] = None,
+    fisheye_calib: Annotated[Path | None, typer.Option(help="fisheye calibration")] = None,
+    fov: Annotated[float, typer.Option(help="fisheye field of view (deg)")] = 180.0,
+) -> None:
+    """Picture a light estimate: map with the lights, SH reconstruction, irradiance."""
+    try:
+        if source.suffix.lower() == ".json":
+            est = LightEstimate.load(source)
+        else:
+            env, observed, sh_map = load_environment(source, kind, None, ball_center,
+                                                     ball_radius, fisheye_calib, fov)
+            est = LightEstimate.from_envmap(env, n_lights=lights, confidence=observed,
+                                            sh_map=sh_map)
+        render_picture(est, output, title=source.name)
+    except (CliError, ImageReadError, ValueError) as exc:
+        _fail(str(exc))
+    typer.echo(f"wrote {output}")
+
+
+if __name__ == "__main__":
+    app()
