@@ -29,6 +29,7 @@ Algorithms:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -91,32 +92,40 @@ def _rect(S: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
 
 
 class _Tables:
-    """Summed-area tables of an equirect map for O(1) region statistics."""
+    """Summed-area tables of an equirect map for O(1) region statistics (built lazily:
+    median cut needs only the energy table, variance minimisation four more)."""
 
     def __init__(self, image: np.ndarray) -> None:
-        img = np.clip(np.asarray(image, np.float64)[..., :3], 0.0, None)
-        H, W = img.shape[:2]
+        self.img = np.clip(np.asarray(image, np.float64)[..., :3], 0.0, None)
+        H, W = self.img.shape[:2]
         self.H, self.W = H, W
-        omega = equirect_solid_angle(H, W)
-        e = (img @ LUMINANCE) * omega
-        rows = np.arange(H, dtype=np.float64)[:, None] + 0.5
-        cols = np.arange(W, dtype=np.float64)[None, :] + 0.5
-        dirs = equirect_directions(H, W)
-        self.E = _sat(e)
-        self.Er, self.Ec = _sat(e * rows), _sat(e * cols)
-        self.Err, self.Ecc = _sat(e * rows**2), _sat(e * cols**2)
-        self.rgb = _sat(img * omega[..., None])
-        self.dir = _sat(dirs * e[..., None])
-        self.omega = _sat(omega)
+        self.omega = equirect_solid_angle(H, W)
+        self.e = (self.img @ LUMINANCE) * self.omega
+        self.E = _sat(self.e)
+
+    @cached_property
+    def dirs(self) -> np.ndarray:
+        return equirect_directions(self.H, self.W)
+
+    @cached_property
+    def moments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        rows = np.arange(self.H, dtype=np.float64)[:, None] + 0.5
+        cols = np.arange(self.W, dtype=np.float64)[None, :] + 0.5
+        e = self.e
+        return _sat(e * rows), _sat(e * cols), _sat(e * rows**2), _sat(e * cols**2)
 
     def light(self, r0: int, r1: int, c0: int, c1: int) -> ExtractedLight:
-        v = _rect(self.dir, r0, r1, c0, c1)
+        """The region's light; direct sums (the regions partition the map: O(H W) total)."""
+        e = self.e[r0:r1, c0:c1]
+        dirs = self.dirs[r0:r1, c0:c1]
+        v = np.einsum("hw,hwk->k", e, dirs)
         if np.linalg.norm(v) <= 0:  # a black region: its geometric centre
             th = np.pi * (r0 + r1) / (2 * self.H)
             ph = np.pi * (c0 + c1) / self.W
             v = np.array([np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)])
-        return ExtractedLight(direction=v, irradiance=_rect(self.rgb, r0, r1, c0, c1),
-                              solid_angle=float(_rect(self.omega, r0, r1, c0, c1)))
+        om = self.omega[r0:r1, c0:c1]
+        E = np.einsum("hw,hwc->c", om, self.img[r0:r1, c0:c1])
+        return ExtractedLight(direction=v, irradiance=E, solid_angle=float(om.sum()))
 
 
 def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
@@ -136,8 +145,11 @@ def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
         def strip(S):
             return (S[r1, idx] - S[r0, idx])
 
-        s_e, s_ea, s_eaa = strip(t.E), strip(t.Ec), strip(t.Ecc)  # a = along (cols)
-        s_eb, s_ebb = strip(t.Er), strip(t.Err)  # b = across (rows)
+        s_e = strip(t.E)
+        if method == "variance":
+            Er, Ec, Err, Ecc = t.moments
+            s_ea, s_eaa = strip(Ec), strip(Ecc)  # a = along (cols)
+            s_eb, s_ebb = strip(Er), strip(Err)  # b = across (rows)
         a_scale, b_scale = x_scale, 1.0
     else:
         idx = np.arange(r0, r1 + 1)
@@ -145,8 +157,11 @@ def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
         def strip(S):
             return (S[idx, c1] - S[idx, c0])
 
-        s_e, s_ea, s_eaa = strip(t.E), strip(t.Er), strip(t.Err)
-        s_eb, s_ebb = strip(t.Ec), strip(t.Ecc)
+        s_e = strip(t.E)
+        if method == "variance":
+            Er, Ec, Err, Ecc = t.moments
+            s_ea, s_eaa = strip(Er), strip(Err)
+            s_eb, s_ebb = strip(Ec), strip(Ecc)
         a_scale, b_scale = 1.0, x_scale
     n = len(idx) - 1  # number of slices; cut k in 1..n-1 puts slices [0, k) left
     total = s_e[-1] - s_e[0]
