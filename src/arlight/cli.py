@@ -148,7 +148,7 @@ def methods() -> None:
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")] = Path("out/demo"),
-    spp: Spp = 16,
+    spp: Spp = 36,
     method: Annotated[str, typer.Option("--method", "-m", help="method to run")] = "reference",
 ) -> None:
     """Render the bundled demo scene (a virtual bunny on a real table) and print the paths."""

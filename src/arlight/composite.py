@@ -36,4 +36,6 @@ def composite(background: np.ndarray, mixed: np.ndarray, delta: np.ndarray,
     if m.shape[:2] != background.shape[:2]:
         raise ValueError(f"mask shape {m.shape[:2]} does not match image {background.shape[:2]}")
     relit = background + delta
-    return np.where(m > 0, m * mixed + (1.0 - m) * relit, relit)
+    covered = m > 0
+    mixed = np.where(covered, mixed, 0.0)  # uncovered pixels never read mixed (may be inf)
+    return np.where(covered, m * mixed + (1.0 - m) * relit, relit)

@@ -8,6 +8,8 @@ byte-identical. The bit depth follows the input frame (8 or 16 bits; 8 for HDR f
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +33,14 @@ def write_layers(layers: Layers, scene: ARScene, out_dir: str | Path) -> dict[st
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".layers-", dir=out) as tmp:
+        staged = _write_all(layers, scene, Path(tmp))
+        for p in staged.values():  # every file complete before any lands in `out`
+            os.replace(p, out / p.name)
+    return {k: out / p.name for k, p in staged.items()}
+
+
+def _write_all(layers: Layers, scene: ARScene, out: Path) -> dict[str, Path]:
     paths: dict[str, Path] = {}
     images = {"composite": layers.composite, "mixed": layers.mixed, "delta": layers.delta,
               "mask": layers.mask, "background": layers.background}

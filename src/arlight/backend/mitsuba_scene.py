@@ -85,14 +85,16 @@ _PRIMITIVE_CANONICAL = {
 _MITSUBA_TYPE = {"rectangle": "rectangle", "box": "cube", "disk": "disk", "sphere": "sphere"}
 
 
-def shape_object(shape: Shape, index: int) -> mi.Shape | dict[str, Any]:
-    """Mitsuba shape (a dict for primitives, an ``mi.Mesh`` for meshes) with id ``"<i>"``."""
+def shape_object(shape: Shape, index: int) -> mi.Shape:
+    """Loaded Mitsuba shape whose id is ``"<index>"`` (our index into ``ARScene.shapes``)."""
     bsdf = material_dict(shape.material)
     if shape.type == "mesh":
         return _mesh(shape, index, bsdf)
     m = shape.to_world @ _PRIMITIVE_CANONICAL[shape.type](shape.params)
-    return {"type": _MITSUBA_TYPE[shape.type], "id": str(index), "to_world": _transform(m),
-            "bsdf": bsdf}
+    obj = mi.load_dict({"type": _MITSUBA_TYPE[shape.type], "to_world": _transform(m),
+                        "bsdf": bsdf})
+    obj.set_id(str(index))  # some plugins (cube) do not keep an "id" property
+    return obj
 
 
 def _mesh(shape: Shape, index: int, bsdf: dict[str, Any]) -> mi.Mesh:
@@ -120,8 +122,8 @@ def _mesh(shape: Shape, index: int, bsdf: dict[str, Any]) -> mi.Mesh:
     return mesh
 
 
-def light_object(light: Light, index: int) -> dict[str, Any]:
-    """Mitsuba emitter (or emitting shape for area lights) for one real light."""
+def light_object(light: Light, index: int) -> dict[str, Any] | mi.Shape:
+    """Mitsuba emitter dict, or a loaded emitting rectangle for area lights."""
     p = light.params
     if light.type in ("envmap", "sh"):
         rot = mi.ScalarTransform4f().rotate([0, 1, 0], p["rotation_deg"])
@@ -142,9 +144,11 @@ def light_object(light: Light, index: int) -> dict[str, Any]:
                 "irradiance": _rgb(p["irradiance"])}
     if light.type == "area":
         m = p["to_world"] @ np.diag([p["size"][0] / 2, p["size"][1] / 2, 1.0, 1.0])
-        return {"type": "rectangle", "id": f"light{index}", "to_world": _transform(m),
-                "bsdf": {"type": "diffuse", "reflectance": _rgb([0, 0, 0])},
-                "emitter": {"type": "area", "radiance": _rgb(p["radiance"])}}
+        obj = mi.load_dict({"type": "rectangle", "to_world": _transform(m),
+                            "bsdf": {"type": "diffuse", "reflectance": _rgb([0, 0, 0])},
+                            "emitter": {"type": "area", "radiance": _rgb(p["radiance"])}})
+        obj.set_id(f"light{index}")
+        return obj
     raise ValueError(f"unknown light type {light.type!r}")
 
 
@@ -230,3 +234,21 @@ def build_views(scene: ARScene) -> SceneViews:
     mixed = _build_view(objects(True), roles) if scene.has_virtual else real
     return SceneViews(real=real, mixed=mixed, scene=scene,
                       shape_roles=[s.role for s in scene.shapes])
+
+
+def mitsuba_sensor(camera, spp: int) -> mi.Sensor:
+    """Mitsuba's own ``perspective`` sensor for ``camera`` (square pixels; thin lens ignored).
+
+    Used to run Mitsuba's integrators on our scenes as a peer in benchmarks. Mitsuba's camera
+    space is x left, y up, z forward, i.e. OpenCV's with x and y flipped.
+    """
+    w, h = camera.width, camera.height
+    fov_y = float(np.degrees(2 * np.arctan(0.5 * h / camera.fy)))
+    to_world = np.asarray(camera.world_from_camera) @ np.diag([-1.0, -1.0, 1.0, 1.0])
+    return mi.load_dict({
+        "type": "perspective", "fov_axis": "y", "fov": fov_y, "to_world": _transform(to_world),
+        "principal_point_offset_x": (camera.cx - w / 2) / w,
+        "principal_point_offset_y": (camera.cy - h / 2) / h,
+        "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                 "pixel_format": "rgb"},
+        "sampler": {"type": "independent", "sample_count": spp}})

@@ -324,3 +324,7 @@ def schema_markdown() -> str:
     for name, specs in LIGHT_TYPES.items():
         out += [f"## light `type = \"{name}\"`", "", *rows(specs), ""]
     return "\n".join(out)
+
+
+if __name__ == "__main__":  # regenerate the field reference of docs/scene-format.md
+    print(schema_markdown())

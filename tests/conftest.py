@@ -1,0 +1,67 @@
+"""Shared test helpers: small AR scenes built in code."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from arlight.scene.load import parse_scene
+
+LOOK = {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}
+
+
+def diffuse(albedo) -> dict:
+    return {"type": "diffuse", "albedo": albedo}
+
+
+def area_light_scene(width: int = 40, height: int = 30, virtual: bool = True) -> dict:
+    """A diffuse floor and back wall, a real box, a virtual sphere, one area light."""
+    shapes = [
+        {"name": "floor", "role": "real", "type": "rectangle", "size": [3, 3],
+         "normal": [0, 1, 0], "material": diffuse([0.7, 0.7, 0.6])},
+        {"name": "wall", "role": "real", "type": "rectangle", "size": [3, 2],
+         "transform": {"translate": [0, 1, -1]}, "material": diffuse([0.2, 0.6, 0.2])},
+        {"name": "box", "role": "real", "type": "box", "size": [0.4, 0.4, 0.4],
+         "transform": {"translate": [-0.5, 0.2, -0.2]}, "material": diffuse([0.8, 0.2, 0.1])},
+    ]
+    if virtual:
+        shapes.append({"name": "ball", "role": "virtual", "type": "sphere", "radius": 0.25,
+                       "transform": {"translate": [0.15, 0.25, 0.1]},
+                       "material": {"type": "phong", "kd": 0.6, "ks": 0.2, "exponent": 20}})
+    return {"camera": {"resolution": [width, height], "fov_y_deg": 45, "look_at": LOOK},
+            "shapes": shapes,
+            "lights": [{"type": "area", "size": [0.6, 0.6], "normal": [0, -1, 0],
+                        "transform": {"translate": [0.3, 1.8, 0.4]}, "radiance": 12.0}]}
+
+
+def env_mirror_scene(width: int = 40, height: int = 30) -> dict:
+    """An env-lit floor with a real upright mirror and a virtual sphere seen in it."""
+    from arlight.demo import DEMO_DIR
+
+    return {"camera": {"resolution": [width, height], "fov_y_deg": 45, "look_at": LOOK},
+            "shapes": [
+                {"name": "floor", "role": "real", "type": "rectangle", "size": [3, 3],
+                 "normal": [0, 1, 0], "material": diffuse(0.5)},
+                {"name": "mirror", "role": "real", "type": "rectangle", "size": [1.6, 1.0],
+                 "transform": {"translate": [0, 0.5, -0.8]},
+                 "material": {"type": "mirror", "reflectance": 0.9}},
+                {"name": "ball", "role": "virtual", "type": "sphere", "radius": 0.25,
+                 "transform": {"translate": [0.3, 0.25, 0.0]},
+                 "material": diffuse([0.2, 0.3, 0.8])},
+            ],
+            "lights": [{"type": "envmap", "file": str(DEMO_DIR / "lebombo_512x256.hdr"),
+                        "scale": 1.0, "rotation_deg": 30.0}]}
+
+
+@pytest.fixture
+def scene_dict():
+    return area_light_scene()
+
+
+def with_constant_frame(scene, value: float = 0.25):
+    h, w = scene.camera.height, scene.camera.width
+    return scene.with_frame(np.full((h, w, 3), value, np.float32))
+
+
+def load(d: dict, tmp_path=None):
+    return parse_scene(d, base_dir=tmp_path or ".")
