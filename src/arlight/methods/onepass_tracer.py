@@ -1,0 +1,351 @@
+"""Wavefront one-pass differential path tracer in Dr.Jit (Kán thesis §3.3, Fig. 3.5).
+
+Each lane (one camera sample) owns at most two paths:
+
+* slot **A**, a *mixed radiance* path traced in the mixed view ρ. While it has touched no
+  virtual object it is *shared*: every vertex on it is a vertex of the real-only solution too,
+  so its emission and next-event terms go to both ``L_m`` and ``L_r`` (hit rule 1: one mixed
+  and one real shadow ray per light sample). The real shadow ray is only traced where the
+  mixed one is blocked: µ ⊂ ρ, so a ray free in ρ is free in µ.
+* slot **B**, a *real radiance* path traced in the real view µ, born when a shared mixed path
+  first hits a virtual object (hit rule 2): the same ray, re-intersected in µ (so it "passes
+  through" the virtual object), carrying the same throughput and MIS state. From then on A is
+  mixed-only (mixed shadow rays only) and B is real-only (real shadow rays; hit rule 3).
+  Hit rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
+
+The continuation is not a bounce: B takes over A's depth. Random numbers are hashes of
+(lane, depth, dimension), not a sequential stream, so the shared prefix, the mixed suffix and
+the real suffix use exactly the numbers a separate render of ρ and of µ would use at the same
+depth: one-pass equals two-pass *sample by sample* (``mode="twopass"`` runs the same code once
+per view, for the equivalence test and for ray-count comparisons).
+
+Per vertex (as Mitsuba's ``path``/``prb`` integrators): emitter hit with power-heuristic MIS
+against the previous BSDF sample, next-event estimation with MIS via
+``scene.sample_emitter_direction`` (importance-samples environment maps), BSDF sampling
+through ``si.bsdf().sample`` (Mitsuba's ``conductor``/``dielectric`` do exact Fresnel, Snell
+and total internal reflection with stochastic reflect/refract selection), Russian roulette
+from ``rr_depth``. ``env_mode="miss_only"`` is the thesis's map lookup on misses only (no
+light sampling of infinite emitters, MIS weight 1 on a miss), optionally with the lower
+hemisphere mirrored from the upper one (Kán §5.3, for hemispherical fisheye maps).
+
+Camera-image reprojection (Kán §5.2, after Grosch 2005): a mixed path whose last vertices
+were delta-specular with at least one on a virtual object (``wasSpecular``) and that hits a
+real surface with a diffuse lobe takes that point's outgoing radiance from the camera frame
+at its projection (nearest pixel) and ends there, when the point is inside the frame and
+visible from the camera centre in µ; otherwise it is shaded as usual.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
+from arlight.scene.camera import Camera
+
+RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
+             "rays_real_shadow", "rays_reprojection")
+_DIMS_PER_DEPTH = 8  # random dimensions reserved per path depth
+_DIM_NEE, _DIM_BSDF1, _DIM_BSDF2, _DIM_RR = 0, 2, 3, 5
+_LABELS = ("a", "b", "shared", "lm", "lr", "mask", "depth", "counts")
+
+
+@dataclass
+class TracerOptions:
+    """Options of the one-pass tracer.
+
+    Attributes:
+        max_depth: longest path in vertices, Mitsuba's convention (2 = direct light only;
+            -1 = unlimited, terminated by Russian roulette).
+        rr_depth: depth from which Russian roulette starts.
+        env_mode: ``"mis"`` (light sampling of environment maps with MIS) or ``"miss_only"``
+            (Kán: look the map up when a path misses).
+        mirror_lower_hemisphere: with ``miss_only``, directions below the horizon read the
+            map at the mirrored direction (Kán §5.3, fisheye maps cover only the upper half).
+        reproject: camera-image reprojection through virtual specular objects (Kán §5.2).
+    """
+
+    max_depth: int = 8
+    rr_depth: int = 5
+    env_mode: str = "mis"
+    mirror_lower_hemisphere: bool = False
+    reproject: bool = True
+
+
+@dataclass
+class _Path:
+    """State of one path slot per lane."""
+
+    ray: mi.Ray3f
+    beta: mi.Color3f
+    eta: mi.Float
+    active: mi.Bool
+    prev_si: mi.Interaction3f
+    prev_pdf: mi.Float
+    prev_delta: mi.Bool
+    spec_virtual: mi.Bool
+
+    @staticmethod
+    def start(rays: mi.Ray3f, active: bool) -> _Path:
+        n = dr.width(rays.d)
+        return _Path(ray=mi.Ray3f(rays), beta=dr.full(mi.Color3f, 1.0, n),
+                     eta=dr.full(mi.Float, 1.0, n), active=dr.full(mi.Bool, active, n),
+                     prev_si=dr.zeros(mi.Interaction3f, n), prev_pdf=dr.full(mi.Float, 1.0, n),
+                     prev_delta=dr.full(mi.Bool, True, n), spec_virtual=dr.full(mi.Bool, False, n))
+
+    def fields(self) -> list:
+        return [self.ray, self.beta, self.eta, self.active, self.prev_si, self.prev_pdf,
+                self.prev_delta, self.spec_virtual]
+
+    def take(self, other: _Path, where: mi.Bool) -> None:
+        """Lane-wise copy of ``other`` where ``where`` (the fork of hit rule 2)."""
+        self.ray = dr.select(where, other.ray, self.ray)
+        self.beta = dr.select(where, other.beta, self.beta)
+        self.eta = dr.select(where, other.eta, self.eta)
+        self.active = self.active | where
+        self.prev_si = dr.select(where, other.prev_si, self.prev_si)
+        self.prev_pdf = dr.select(where, other.prev_pdf, self.prev_pdf)
+        self.prev_delta = dr.select(where, other.prev_delta, self.prev_delta)
+        self.spec_virtual = dr.select(where, other.spec_virtual, self.spec_virtual)
+
+
+def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
+    """Power heuristic ``a² / (a² + b²)`` (Veach), 0 where undefined."""
+    a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
+    w = a2 / (a2 + b2)
+    return dr.select(dr.isfinite(w), w, 0.0)
+
+
+def lane_keys(lanes: int, seed: mi.UInt32) -> mi.UInt32:
+    """Per-lane 32-bit keys from the lane index and the pass seed."""
+    return mi.sample_tea_32(dr.arange(mi.UInt32, lanes), seed, 4)[0]
+
+
+def _rand1(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Float:
+    """Uniform number for (lane, depth, dimension): TEA hash, order independent."""
+    return mi.sample_tea_float32(key, depth * _DIMS_PER_DEPTH + dim, 6)
+
+
+def _rand2(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Point2f:
+    return mi.Point2f(_rand1(key, depth, dim), _rand1(key, depth, dim + 1))
+
+
+@dataclass
+class TraceResult:
+    """Per-lane radiance of both solutions and the primary-hit mask, plus ray counts."""
+
+    mixed: mi.Color3f
+    real: mi.Color3f
+    mask: mi.Float
+    rays: dict[str, int] = field(default_factory=dict)
+
+
+class _Reprojector:
+    """Frame radiance at the camera projection of world points (Kán §5.2)."""
+
+    def __init__(self, camera: Camera, frame: np.ndarray, real: SceneView):
+        self.cam = camera
+        flat = np.ascontiguousarray(frame.reshape(-1, 3), dtype=np.float32)
+        self.table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
+        m = camera.camera_from_world()
+        self.rows = [[float(m[r][c]) for c in range(4)] for r in range(3)]
+        # Python floats: a NumPy scalar times a Dr.Jit array would try to convert the array
+        self.fx, self.fy = float(camera.fx), float(camera.fy)
+        self.cx, self.cy = float(camera.cx), float(camera.cy)
+        self.center = mi.Point3f(*(float(x) for x in camera.position))
+        self.real = real
+
+    def lookup(self, p: mi.Point3f, active: mi.Bool) -> tuple[mi.Color3f, mi.Bool, mi.Bool]:
+        """(frame radiance, usable, visibility ray traced) for points ``p``."""
+        r = self.rows
+        pc = [r[i][0] * p.x + r[i][1] * p.y + r[i][2] * p.z + r[i][3] for i in range(3)]
+        z = pc[2]
+        u = self.fx * pc[0] / z + self.cx
+        v = self.fy * pc[1] / z + self.cy
+        inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < self.cam.width) & (
+            v < self.cam.height)
+        d = p - self.center
+        dist = dr.norm(d)
+        ray = mi.Ray3f(self.center, d / dist)
+        ray.maxt = dist * (1.0 - 1e-4)
+        occluded = self.real.scene.ray_test(ray, inside)
+        ok = inside & ~occluded
+        col = dr.minimum(mi.UInt32(dr.maximum(u, 0.0)), self.cam.width - 1)
+        row = dr.minimum(mi.UInt32(dr.maximum(v, 0.0)), self.cam.height - 1)
+        val = dr.gather(mi.Color3f, self.table, row * self.cam.width + col, ok)
+        return val, ok, inside
+
+
+class OnePassTracer:
+    """Traces camera rays through the mixed (ρ) and real (µ) views of an AR scene.
+
+    The bounce loop is one symbolic ``dr.while_loop`` (a single compiled kernel per pass,
+    like Mitsuba's own integrators); ray counts are per-lane counters summed after the loop.
+    """
+
+    def __init__(self, mixed: SceneView, real: SceneView, opts: TracerOptions,
+                 camera: Camera | None = None, frame: np.ndarray | None = None):
+        self.mixed, self.real, self.opts = mixed, real, opts
+        self.same_views = mixed is real
+        self.ctx = mi.BSDFContext()
+        self.miss_only = opts.env_mode == "miss_only"
+        self.reproj = (_Reprojector(camera, frame, real)
+                       if opts.reproject and camera is not None and frame is not None
+                       and not self.same_views else None)
+
+    # ------------------------------------------------------------------ public
+    def trace_onepass(self, rays: mi.Ray3f, key: mi.UInt32) -> TraceResult:
+        """``L_m``, ``L_r`` and the mask in one pass (hit rules 1–4)."""
+        return self._trace(self.mixed, rays, key, onepass=True)
+
+    def trace_view(self, view: SceneView, rays: mi.Ray3f, key: mi.UInt32) -> TraceResult:
+        """Radiance of one view alone (the two-pass baseline: same code, same numbers)."""
+        return self._trace(view, rays, key, onepass=False)
+
+    # ----------------------------------------------------------------- helpers
+    def _trace(self, view: SceneView, rays: mi.Ray3f, key: mi.UInt32,
+               onepass: bool) -> TraceResult:
+        n = dr.width(rays.d)
+        fork_enabled = onepass and not self.same_views
+        kind = "mixed" if view is self.mixed else "real"
+        zero_u = dr.zeros(mi.UInt32, n)
+        state = (_Path.start(rays, True), _Path.start(rays, False),
+                 dr.full(mi.Bool, onepass, n), dr.zeros(mi.Color3f, n),
+                 dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n), mi.UInt32(zero_u),
+                 [mi.UInt32(zero_u) for _ in RAY_TYPES])
+
+        def cond(a, b, shared, lm, lr, mask, depth, cnt):
+            return a.active | b.active
+
+        def body(a, b, shared, lm, lr, mask, depth, cnt):
+            c = dict(zip(RAY_TYPES, cnt, strict=True))
+            c[f"rays_{kind}_radiance"] += dr.select(a.active, 1, 0)
+            si_a = view.scene.ray_intersect(a.ray, mi.RayFlags.All, False, a.active)
+            role_a = view.hit_role(si_a)
+            mask = dr.select((depth == 0) & (role_a == ROLE_VIRTUAL), 1.0, mask)
+            if fork_enabled:
+                # hit rule 2: the real continuation takes over the ray in µ
+                fork = a.active & shared & (role_a == ROLE_VIRTUAL)
+                b.take(a, fork)
+                shared = shared & ~fork
+                c["rays_real_radiance"] += dr.select(b.active, 1, 0)
+                si_b = self.real.scene.ray_intersect(b.ray, mi.RayFlags.All, False, b.active)
+                role_b = self.real.hit_role(si_b)
+            lm, lr = self._vertex(view, a, si_a, role_a, key, depth, lm, lr, to_real=shared,
+                                  to_mixed=True, c=c,
+                                  shadow_kind=None if onepass else kind)
+            if fork_enabled:
+                lm, lr = self._vertex(self.real, b, si_b, role_b, key, depth, lm, lr,
+                                      to_real=True, to_mixed=False, c=c)
+            depth = depth + 1
+            return a, b, shared, lm, lr, mask, depth, [c[k] for k in RAY_TYPES]
+
+        a, b, shared, lm, lr, mask, depth, cnt = dr.while_loop(
+            state=state, cond=cond, body=body, labels=_LABELS, label="onepass")
+        dr.eval(lm, lr, mask, cnt)
+        counts = {k: int(dr.sum(v)[0]) for k, v in zip(RAY_TYPES, cnt, strict=True)}
+        if not onepass:
+            lr = lm
+        return TraceResult(lm, lr, mask, counts)
+
+    def _is_env(self, emitter: mi.EmitterPtr) -> mi.Bool:
+        flags = emitter.flags()
+        return (mi.has_flag(flags, mi.EmitterFlags.Infinite)
+                & ~mi.has_flag(flags, mi.EmitterFlags.DeltaDirection))
+
+    def _vertex(self, view: SceneView, st: _Path, si: mi.SurfaceInteraction3f, role: mi.Int32,
+                key: mi.UInt32, depth: mi.UInt32, lm: mi.Color3f, lr: mi.Color3f, *,
+                to_real: mi.Bool | bool, to_mixed: bool, c: dict[str, mi.UInt32],
+                shadow_kind: str | None = None) -> tuple[mi.Color3f, mi.Color3f]:
+        """Shade one path vertex in ``view`` and advance the path state in place.
+
+        ``to_mixed``/``to_real`` say which solutions the vertex feeds; a vertex feeding both
+        traces a mixed shadow ray and, where that is blocked, a real one (hit rule 1).
+        ``shadow_kind`` (two-pass mode) names the counter of this view's shadow rays.
+        """
+        scene = view.scene
+        active = mi.Bool(st.active)
+        w_m = mi.Float(1.0 if to_mixed else 0.0)
+        w_r = dr.select(mi.Bool(to_real), 1.0, 0.0)
+        valid = si.is_valid()
+
+        # -- reprojection of the camera frame (Kán §5.2): ends the path
+        if self.reproj is not None and to_mixed:
+            cand = (active & st.spec_virtual & valid & (role == ROLE_REAL)
+                    & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Diffuse))
+            c["rays_reprojection"] += dr.select(cand, 1, 0)
+            val, ok, _ = self.reproj.lookup(si.p, cand)
+            lm = lm + dr.select(ok, st.beta * val * w_m, 0.0)
+            active &= ~ok
+
+        # -- emitter hit (area light or environment on a miss), MIS vs the previous BSDF
+        if self.opts.mirror_lower_hemisphere:
+            si.wi = dr.select(valid, si.wi, mi.Vector3f(si.wi.x, -dr.abs(si.wi.y), si.wi.z))
+        ds = mi.DirectionSample3f(scene, si=si, ref=st.prev_si)
+        em_pdf = scene.pdf_emitter_direction(st.prev_si, ds, active & ~st.prev_delta)
+        mis = mis_weight(st.prev_pdf, em_pdf)
+        if self.miss_only:
+            mis = dr.select(self._is_env(ds.emitter), 1.0, mis)
+        le = st.beta * mis * ds.emitter.eval(si, active)
+        lm = lm + le * w_m
+        lr = lr + le * w_r
+
+        # -- next-event estimation with separate mixed/real visibility
+        active_next = active & valid
+        if self.opts.max_depth > 0:
+            active_next &= depth + 1 < self.opts.max_depth
+        bsdf = si.bsdf()
+        active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        ds, em_weight = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False,
+                                                       active_em)
+        active_em &= ds.pdf != 0.0
+        if self.miss_only:
+            active_em &= ~self._is_env(ds.emitter)
+        wo = si.to_local(ds.d)
+        f_em, pdf_em = bsdf.eval_pdf(self.ctx, si, wo, active_em)
+        mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, pdf_em))
+        contrib = st.beta * mis_em * f_em * em_weight
+        active_em &= dr.max(contrib) > 0
+        shadow = si.spawn_ray_to(ds.p)
+        if shadow_kind is not None:  # two-pass: this view's own shadow rays
+            c[f"rays_{shadow_kind}_shadow"] += dr.select(active_em, 1, 0)
+            vis = active_em & ~scene.ray_test(shadow, active_em)
+            lm = lm + dr.select(vis, contrib, 0.0) * w_m
+        elif to_mixed:  # slot A: mixed shadow ray; real one only where needed
+            c["rays_mixed_shadow"] += dr.select(active_em, 1, 0)
+            vis_m = active_em & ~self.mixed.scene.ray_test(shadow, active_em)
+            if self.same_views:
+                vis_r = vis_m
+            else:
+                need_r = active_em & mi.Bool(to_real) & ~vis_m
+                c["rays_real_shadow"] += dr.select(need_r, 1, 0)
+                vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
+            lm = lm + dr.select(vis_m, contrib, 0.0) * w_m
+            lr = lr + dr.select(vis_r, contrib, 0.0) * w_r
+        else:  # slot B: real shadow ray
+            c["rays_real_shadow"] += dr.select(active_em, 1, 0)
+            vis_r = active_em & ~self.real.scene.ray_test(shadow, active_em)
+            lr = lr + dr.select(vis_r, contrib, 0.0) * w_r
+
+        # -- BSDF sampling, path update, Russian roulette
+        bs, weight = bsdf.sample(self.ctx, si, _rand1(key, depth, _DIM_BSDF1),
+                                 _rand2(key, depth, _DIM_BSDF2), active_next)
+        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        st.spec_virtual = delta & (st.spec_virtual | (role == ROLE_VIRTUAL))
+        st.ray = dr.select(active_next, si.spawn_ray(si.to_world(bs.wo)), st.ray)
+        st.eta = dr.select(active_next, st.eta * bs.eta, st.eta)
+        st.beta = dr.select(active_next, st.beta * weight, st.beta)
+        st.prev_si = dr.select(active_next, mi.Interaction3f(si), st.prev_si)
+        st.prev_pdf = dr.select(active_next, bs.pdf, st.prev_pdf)
+        st.prev_delta = dr.select(active_next, delta, st.prev_delta)
+        beta_max = dr.max(st.beta)
+        active_next &= beta_max != 0
+        rr = active_next & (depth >= self.opts.rr_depth)
+        q = dr.minimum(beta_max * dr.square(st.eta), 0.95)
+        st.beta = dr.select(rr, st.beta / q, st.beta)
+        active_next &= ~rr | (_rand1(key, depth, _DIM_RR) < q)
+        st.active = active_next
+        return lm, lr
