@@ -125,17 +125,22 @@ class FisheyeCamera:
 
     def _undistort(self, rho: np.ndarray) -> np.ndarray:
         """Solve ``rho = theta_d(theta)`` for theta in [0, pi] by (clamped) Newton steps;
-        radii the model cannot reach get ``theta = inf`` (invalid)."""
-        theta = np.array(rho, dtype=np.float64, copy=True)
+        radii beyond the field of view or unreachable by the model get ``theta = inf``."""
+        rho = np.asarray(rho, dtype=np.float64)
         if not np.any(self.D):
-            return theta
+            return rho.copy()
+        theta = np.full(rho.shape, np.inf)
+        limit = self._distort(np.radians(min(self.fov_deg / 2 + 1.0, 180.0)))
+        todo = rho <= limit
+        r = rho[todo]
+        t = r.copy()
         for _ in range(50):
-            step = (self._distort(theta) - rho) / self._distort_derivative(theta)
-            theta = np.clip(theta - step, 0.0, np.pi)
+            step = (self._distort(t) - r) / self._distort_derivative(t)
+            t = np.clip(t - step, 0.0, np.pi)
             if np.max(np.abs(step), initial=0.0) < 1e-14:
                 break
-        bad = np.abs(self._distort(theta) - rho) > 1e-9 * np.maximum(1.0, rho)
-        theta[bad] = np.inf
+        t[np.abs(self._distort(t) - r) > 1e-9 * np.maximum(1.0, r)] = np.inf
+        theta[todo] = t
         return theta
 
     def project(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
