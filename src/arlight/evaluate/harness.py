@@ -1,0 +1,270 @@
+"""Run methods × scenes: warm wall time, peak memory, counters and image metrics per cell.
+
+    from arlight.evaluate.harness import EvalConfig, run_evaluation
+    results = run_evaluation(EvalConfig(methods=["reference"], scenes=["bunny-box"]))
+
+Every cell (method, scene) is independent: an unknown method or scene, a missing ground-truth
+cache (with ``cache_only``) or a method that raises is recorded in that cell's ``error`` and
+the other cells still run.
+
+Timing: one warm-up call (JIT compilation, kernel caches, scene building), then ``repeats``
+timed calls; the reported time is their median wall time (``time.perf_counter``). The metrics
+are computed on the last timed call's output.
+
+Memory: Dr.Jit/LLVM allocate outside Python's allocator, so ``tracemalloc`` does not see
+them, and ``ru_maxrss`` is a process-lifetime high-water mark that cannot be reset between
+cells. The harness therefore samples the process RSS (``psutil``) every
+:data:`RSS_INTERVAL_S` in a background thread during the warm-up call and reports the peak
+minus the RSS just before it: the extra resident memory the method needs (MiB). Short spikes
+between samples can be missed, and memory freed by an earlier cell and reused is not counted.
+"""
+
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arlight.errors import InputError
+from arlight.evaluate import metrics as M
+from arlight.evaluate.suite import SuiteScene, get_scene
+from arlight.methods import RenderSettings, get_method
+from arlight.synthetic import SyntheticPhoto, content_key, default_cache_dir
+
+RSS_INTERVAL_S = 0.005
+
+
+@dataclass
+class EvalConfig:
+    """What to evaluate and how.
+
+    Attributes:
+        methods: registered method names.
+        scenes: suite scene names.
+        quick: CI resolution (80 px wide) instead of the papers' resolutions.
+        spp: samples per pixel given to each method.
+        gt_spp: samples per pixel of the synthetic frame and ground truth.
+        repeats: timed calls per cell (after one warm-up call); the median is reported.
+        seed: method seed (the ground truth uses its own seeds).
+        max_depth: path depth given to the methods and the ground truth.
+        use_cache: read/write the synthetic-photo cache.
+        cache_only: fail a scene's cells when its ground truth is not cached (no rendering).
+        cache_dir: cache root (default ``$ARLIGHT_CACHE`` or ``~/.cache/arlight``).
+        sweep_spp: spp values for the error-vs-spp / error-vs-time curves (empty: none).
+        options: method options (:attr:`RenderSettings.options`).
+    """
+
+    methods: list[str]
+    scenes: list[str]
+    quick: bool = True
+    spp: int = 16
+    gt_spp: int = 256
+    repeats: int = 3
+    seed: int = 0
+    max_depth: int = 8
+    use_cache: bool = True
+    cache_only: bool = False
+    cache_dir: Path | None = None
+    sweep_spp: list[int] = field(default_factory=list)
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.methods:
+            raise InputError("no methods given", field="methods")
+        if not self.scenes:
+            raise InputError("no scenes given", field="scenes")
+        for name in ("spp", "gt_spp", "repeats"):
+            if getattr(self, name) < 1:
+                raise InputError(f"must be >= 1, got {getattr(self, name)}", field=name)
+        if any(s < 1 for s in self.sweep_spp):
+            raise InputError(f"spp values must be >= 1, got {self.sweep_spp}", field="sweep")
+        if self.cache_only and not self.use_cache:
+            raise InputError("cache_only needs the cache (do not combine with --no-cache)",
+                             field="cache")
+
+
+@dataclass
+class SweepPoint:
+    """One point of an error-vs-spp curve."""
+
+    spp: int
+    seconds: float
+    rmse: float
+    psnr: float
+    flip: float
+
+
+@dataclass
+class CellResult:
+    """The outcome of one (method, scene) cell.
+
+    ``images`` holds ``frame``, ``composite``, ``ground_truth`` (radiance) and ``mask`` for
+    the report; ``metrics`` the whole-image metrics and the same with prefix ``changed_`` on
+    :func:`~arlight.evaluate.metrics.changed_region`; ``stats`` the method's counters.
+    """
+
+    method: str
+    scene: str
+    error: str = ""
+    traceback: str = ""
+    seconds: float = float("nan")
+    seconds_all: list[float] = field(default_factory=list)
+    peak_mib: float = float("nan")
+    stats: dict[str, float] = field(default_factory=dict)
+    metrics: dict[str, float] = field(default_factory=dict)
+    sweep: list[SweepPoint] = field(default_factory=list)
+    resolution: tuple[int, int] = (0, 0)
+    images: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    exposure: float = 0.0
+    transfer_kind: str = "srgb"
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+
+@dataclass
+class EvalResults:
+    """All cells of a run plus the configuration and per-scene descriptions."""
+
+    config: EvalConfig
+    cells: list[CellResult]
+    scenes: dict[str, dict[str, str]] = field(default_factory=dict)
+    seconds_total: float = 0.0
+
+
+class PeakRSS:
+    """Context manager: peak resident memory above the level at entry, in MiB (psutil)."""
+
+    def __init__(self, interval: float = RSS_INTERVAL_S):
+        import psutil
+
+        self._proc = psutil.Process()
+        self._interval = interval
+        self._stop = threading.Event()
+        self.base = 0
+        self.peak = 0
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.peak = max(self.peak, self._proc.memory_info().rss)
+            self._stop.wait(self._interval)
+
+    def __enter__(self) -> PeakRSS:
+        self.base = self.peak = self._proc.memory_info().rss
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.peak = max(self.peak, self._proc.memory_info().rss)
+        self._stop.set()
+        self._thread.join()
+
+    @property
+    def mib(self) -> float:
+        return (self.peak - self.base) / 2**20
+
+
+def photo_cache_path(scene: SuiteScene, config: EvalConfig) -> Path:
+    """Where :func:`arlight.synthetic.synthesize` caches this scene's photo."""
+    key = content_key(scene.world, spp=config.gt_spp, seed=1, max_depth=config.max_depth,
+                      rr_depth=5)
+    return Path(config.cache_dir or default_cache_dir()) / "synthetic" / f"{key}.npz"
+
+
+def scene_photo(scene: SuiteScene, config: EvalConfig) -> SyntheticPhoto:
+    """The scene's frame and ground truth (from the cache, or rendered unless cache_only)."""
+    if config.cache_only and not photo_cache_path(scene, config).is_file():
+        raise InputError(f"ground truth of {scene.name!r} is not cached at "
+                         f"{photo_cache_path(scene, config)}; run without --cache-only "
+                         f"(or `arlight synth`) first", field="cache")
+    return scene.photo(spp=config.gt_spp, seed=1, max_depth=config.max_depth,
+                       cache_dir=config.cache_dir, use_cache=config.use_cache)
+
+
+def _error(exc: BaseException) -> str:
+    return str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+
+
+def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
+                  config: EvalConfig) -> CellResult:
+    """Run one method on one scene: warm-up, timed repeats, metrics, optional spp sweep."""
+    cam = scene.world.camera
+    cell = CellResult(method=method, scene=scene.name, resolution=scene.resolution,
+                      exposure=cam.transfer.exposure, transfer_kind=cam.transfer.kind)
+    try:
+        render = get_method(method)
+        ar = scene.ar_scene(photo)
+
+        def settings(spp: int) -> RenderSettings:
+            return RenderSettings(spp=spp, max_depth=config.max_depth, seed=config.seed,
+                                  options=dict(config.options))
+
+        with PeakRSS() as mem:
+            layers = render(ar, settings(config.spp))
+        cell.peak_mib = mem.mib
+        for _ in range(config.repeats):
+            t0 = time.perf_counter()
+            layers = render(ar, settings(config.spp))
+            cell.seconds_all.append(time.perf_counter() - t0)
+        cell.seconds = statistics.median(cell.seconds_all)
+        cell.stats = {k: float(v) for k, v in layers.stats.items()
+                      if isinstance(v, int | float)}
+        gt, tr = photo.ground_truth, cam.transfer
+        region = M.changed_region(photo.frame, gt, photo.mask, photo.frame_stderr,
+                                  photo.ground_truth_stderr)
+        cell.metrics = {**M.image_metrics(layers.composite, gt, tr),
+                        **M.image_metrics(layers.composite, gt, tr, region, "changed_"),
+                        "changed_fraction": float(region.mean())}
+        cell.images = {"frame": photo.frame, "composite": layers.composite,
+                       "ground_truth": gt, "mask": photo.mask, "region": region}
+        for spp in config.sweep_spp:
+            t0 = time.perf_counter()
+            out = render(ar, settings(spp))
+            dt = time.perf_counter() - t0
+            dc, dg = M.display(out.composite, tr), M.display(gt, tr)
+            cell.sweep.append(SweepPoint(spp, dt, M.rmse(out.composite, gt),
+                                         M.psnr(dc, dg, peak=1.0), M.flip(dc, dg)))
+    except Exception as exc:  # noqa: BLE001 — every failure is reported in its cell
+        cell.error = _error(exc)
+        cell.traceback = traceback.format_exc()
+    return cell
+
+
+def run_evaluation(config: EvalConfig,
+                   log: Callable[[str], None] | None = None) -> EvalResults:
+    """Evaluate every method on every scene; failures stay in their cells."""
+    log = log or (lambda s: None)
+    t_start = time.perf_counter()
+    cells: list[CellResult] = []
+    scenes: dict[str, dict[str, str]] = {}
+    for name in config.scenes:
+        try:
+            scene = get_scene(name, quick=config.quick)
+            scenes[name] = {"description": scene.description,
+                            "paper_figure": scene.paper_figure,
+                            "resolution": "{}×{}".format(*scene.resolution)}
+            log(f"{name}: ground truth ({config.gt_spp} spp, {scenes[name]['resolution']})")
+            photo = scene_photo(scene, config)
+        except Exception as exc:  # noqa: BLE001
+            msg, tb = _error(exc), traceback.format_exc()
+            log(f"{name}: ERROR {msg}")
+            cells += [CellResult(method=m, scene=name, error=msg, traceback=tb)
+                      for m in config.methods]
+            continue
+        for method in config.methods:
+            cell = evaluate_cell(method, scene, photo, config)
+            log(f"{name} × {method}: " + (f"ERROR {cell.error}" if cell.error else
+                f"{cell.seconds * 1e3:.0f} ms, PSNR {cell.metrics['psnr']:.2f} dB, "
+                f"FLIP {cell.metrics['flip']:.4f}"))
+            cells.append(cell)
+    return EvalResults(config=config, cells=cells, scenes=scenes,
+                       seconds_total=time.perf_counter() - t_start)

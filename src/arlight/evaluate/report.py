@@ -1,0 +1,272 @@
+"""Write an evaluation report folder: Markdown + HTML pages, JSON/CSV, image grids, plots.
+
+Layout of ``out/``::
+
+    report.md, index.html     summary tables (Franke's grand-comparison shape per scene)
+    results.json, results.csv every number of every cell
+    grids/<scene>__<method>.png  frame | composite | ground truth | signed error ×4
+    plots/error_vs_spp.png, plots/error_vs_time.png   (when a spp sweep ran)
+    errors/<scene>__<method>.txt tracebacks of failed cells
+
+The error panel is the signed luminance error of the display image, scaled ×4 (Franke Fig.
+5.19): blue → white where the composite is too bright, red → yellow where it is too dark.
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from arlight.evaluate import metrics as M
+from arlight.evaluate.harness import CellResult, EvalResults
+from arlight.io.images import atomic_write
+from arlight.transfer import Transfer
+
+ERROR_GAIN = 4.0
+SUMMARY_KEYS = ("seconds", "psnr", "flip", "ssim", "hdr_flip", "rmse", "changed_psnr",
+                "changed_flip", "peak_mib", "samples")
+
+
+def _fmt(key: str, v: float) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "—"
+    if key == "seconds":
+        return f"{v * 1e3:.0f} ms" if v < 10 else f"{v:.1f} s"
+    if "psnr" in key:
+        return f"≥{M.PSNR_CAP:.0f} dB" if v >= M.PSNR_CAP else f"{v:.2f} dB"
+    if key == "peak_mib":
+        return f"{v:.0f} MiB"
+    if key == "samples":
+        return f"{v:.3g}"
+    return f"{v:.4f}"
+
+
+def _row(cell: CellResult) -> dict[str, float]:
+    return {"seconds": cell.seconds, "peak_mib": cell.peak_mib,
+            "samples": cell.stats.get("samples", math.nan), **cell.metrics}
+
+
+def _md(text: str) -> str:
+    """A Markdown table cell: no newlines, escaped pipes."""
+    return str(text).replace("\n", " ").replace("|", "\\|")
+
+
+def _slug(cell: CellResult) -> str:
+    return f"{cell.scene}__{cell.method}"
+
+
+def _write_text(path: Path, text: str) -> None:
+    with atomic_write(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def _save_fig(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    with atomic_write(path, ".png") as tmp:
+        tmp.write_bytes(buf.getvalue())
+
+
+def write_grid(cell: CellResult, path: Path) -> Path:
+    """Frame | composite | ground truth | ×4 signed error, with a legend for the error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    tr = Transfer(cell.transfer_kind, exposure=cell.exposure)
+    im = cell.images
+    disp = {k: M.display(im[k], tr) for k in ("frame", "composite", "ground_truth")}
+    err = M.signed_error(disp["composite"], disp["ground_truth"])
+    h, w = err.shape
+    fig, axes = plt.subplots(1, 4, figsize=(12.8, 12.8 / 4 * h / w + 0.9),
+                             layout="constrained")
+    titles = ["frame (input)", f"composite ({cell.method})", "ground truth",
+              f"error ×{ERROR_GAIN:g} (blue: too bright, red: too dark)"]
+    panels = [disp["frame"], disp["composite"], disp["ground_truth"],
+              M.heatmap(err, ERROR_GAIN)]
+    for ax, title, img in zip(axes, titles, panels, strict=True):
+        ax.imshow(img, interpolation="nearest")
+        ax.set_title(title, fontsize=9)
+        ax.axis("off")
+    ramp = np.linspace(-1.0, 1.0, 256) / ERROR_GAIN
+    cmap = ListedColormap(M.heatmap(ramp[None, :], ERROR_GAIN)[0] / 255.0)
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(-1 / ERROR_GAIN, 1 / ERROR_GAIN))
+    cb = fig.colorbar(sm, ax=axes[3], orientation="horizontal", fraction=0.08, pad=0.02)
+    cb.set_label("display-luminance error (composite − ground truth)", fontsize=8)
+    fig.suptitle(f"{cell.scene}: {cell.method} — PSNR {_fmt('psnr', cell.metrics['psnr'])}, "
+                 f"FLIP {cell.metrics['flip']:.4f}", fontsize=10)
+    _save_fig(fig, path)
+    return path
+
+
+def write_plots(results: EvalResults, out: Path) -> list[Path]:
+    """Error (RMSE of radiance, log-log) vs spp and vs wall time, one curve per cell."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = [c for c in results.cells if c.ok and c.sweep]
+    if not cells:
+        return []
+    paths = []
+    for xkey, xlabel, name in (("spp", "samples per pixel", "error_vs_spp"),
+                               ("seconds", "wall time (s)", "error_vs_time")):
+        fig, ax = plt.subplots(figsize=(6, 4), layout="constrained")
+        for c in cells:
+            xs = [getattr(p, xkey) for p in c.sweep]
+            ax.loglog(xs, [p.rmse for p in c.sweep], "o-", label=f"{c.method} / {c.scene}")
+        if xkey == "spp":  # Monte Carlo reference slope
+            c0 = cells[0].sweep
+            xs = np.array([p.spp for p in c0], float)
+            ax.loglog(xs, c0[0].rmse * np.sqrt(xs[0] / xs), "k--", lw=0.8, label="∝ 1/√spp")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("RMSE of the composite (W/(sr·m²))")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        path = out / "plots" / f"{name}.png"
+        _save_fig(fig, path)
+        paths.append(path)
+    return paths
+
+
+def _tables(results: EvalResults) -> list[tuple[str, list[str], list[list[str]]]]:
+    """Per scene: (title, header, rows) — Franke's grand comparison shape plus extras."""
+    header = ["method", "time", "PSNR", "FLIP", "SSIM", "HDR-FLIP", "RMSE", "PSNR (changed)",
+              "FLIP (changed)", "peak mem", "samples"]
+    out = []
+    for scene in dict.fromkeys(c.scene for c in results.cells):
+        rows = []
+        for c in (c for c in results.cells if c.scene == scene):
+            if c.ok:
+                r = _row(c)
+                rows.append([c.method, *(_fmt(k, r.get(k, math.nan)) for k in SUMMARY_KEYS)])
+            else:
+                rows.append([c.method, f"error: {c.error}"] + [""] * (len(header) - 2))
+        info = results.scenes.get(scene, {})
+        title = scene + (f" ({info['resolution']}) — {info['paper_figure']}" if info else "")
+        out.append((title, header, rows))
+    return out
+
+
+def _markdown(results: EvalResults, grids: dict[str, str], plots: list[str]) -> str:
+    cfg = results.config
+    lines = ["# arlight evaluation report", "",
+             f"Methods: {', '.join(cfg.methods)}; scenes: {', '.join(cfg.scenes)}; "
+             f"{'quick' if cfg.quick else 'full'} resolution; method spp {cfg.spp}, "
+             f"ground truth spp {cfg.gt_spp}; time = median of {cfg.repeats} warm runs; "
+             f"total {results.seconds_total:.1f} s.", "",
+             "PSNR = 10·log10(R²/MSE) on the display image (R = 1; Franke Eq. 5.28; "
+             f"identical images: {M.PSNR_CAP:.0f} dB). FLIP = mean LDR-FLIP (0 = identical). "
+             "'changed' = pixels the virtual objects cover or significantly relight.", ""]
+    lines += ["## Grand comparison (Franke Fig. 5.19 shape)", "",
+              "| method | scene | time | PSNR | FLIP |", "|---|---|---|---|---|"]
+    for c in results.cells:
+        cols = ([_fmt("seconds", c.seconds), _fmt("psnr", c.metrics["psnr"]),
+                 _fmt("flip", c.metrics["flip"])] if c.ok else [f"error: {c.error}", "", ""])
+        lines.append("| " + " | ".join(_md(x) for x in [c.method, c.scene, *cols]) + " |")
+    lines.append("")
+    for title, header, rows in _tables(results):
+        lines += [f"## {title}", "", "| " + " | ".join(header) + " |",
+                  "|" + "---|" * len(header)]
+        lines += ["| " + " | ".join(_md(x) for x in r) + " |" for r in rows]
+        lines.append("")
+    if grids:
+        lines += ["## Images", ""]
+        lines += [f"![{k}]({v})" for k, v in grids.items()]
+        lines.append("")
+    if plots:
+        lines += ["## Error vs samples and time", ""] + [f"![{p}]({p})" for p in plots] + [""]
+    return "\n".join(lines)
+
+
+def _html(results: EvalResults, grids: dict[str, str], plots: list[str]) -> str:
+    e = html.escape
+    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>arlight evaluation"
+             "</title><style>body{font-family:sans-serif;margin:2em}table{border-collapse:"
+             "collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}"
+             "td:first-child{text-align:left}.err{color:#b00;text-align:left}img{max-width:"
+             "100%}</style></head><body><h1>arlight evaluation report</h1>"]
+    cfg = results.config
+    parts.append(f"<p>{'quick' if cfg.quick else 'full'} resolution; method spp {cfg.spp}; "
+                 f"ground truth spp {cfg.gt_spp}; time = median of {cfg.repeats} warm runs. "
+                 f"PSNR on the display image (R = 1, Franke Eq. 5.28).</p>")
+    for title, header, rows in _tables(results):
+        parts.append(f"<h2>{e(title)}</h2><table><tr>"
+                     + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>")
+        for r in rows:
+            if r[1].startswith("error:"):
+                parts.append(f"<tr><td>{e(r[0])}</td><td class='err' colspan='{len(header) - 1}'>"
+                             f"{e(r[1])}</td></tr>")
+            else:
+                parts.append("<tr>" + "".join(f"<td>{e(x)}</td>" for x in r) + "</tr>")
+        parts.append("</table>")
+    for k, v in grids.items():
+        parts.append(f"<h3>{e(k)}</h3><img src='{e(v)}' alt='{e(k)}'>")
+    for p in plots:
+        parts.append(f"<h3>{e(p)}</h3><img src='{e(p)}' alt='{e(p)}'>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def _json(results: EvalResults) -> str:
+    cfg = asdict(results.config)
+    cfg["cache_dir"] = str(cfg["cache_dir"]) if cfg["cache_dir"] else None
+    cells = []
+    for c in results.cells:
+        d = asdict(c)
+        d.pop("images")
+        d.pop("traceback")
+        cells.append(d)
+
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, list | tuple):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean({"config": cfg, "scenes": results.scenes, "cells": cells,
+                             "seconds_total": results.seconds_total}), indent=2)
+
+
+def write_report(results: EvalResults, out: str | Path) -> dict[str, Path]:
+    """Write the report folder; returns the paths of ``report.md``, ``index.html``, ...."""
+    out = Path(out)
+    grids: dict[str, str] = {}
+    for c in results.cells:
+        if c.ok and c.images:
+            rel = f"grids/{_slug(c)}.png"
+            write_grid(c, out / rel)
+            grids[f"{c.scene} × {c.method}"] = rel
+        if c.traceback:
+            _write_text(out / "errors" / f"{_slug(c)}.txt", c.traceback)
+    plots = [str(p.relative_to(out)) for p in write_plots(results, out)]
+    paths = {"markdown": out / "report.md", "html": out / "index.html",
+             "json": out / "results.json", "csv": out / "results.csv"}
+    _write_text(paths["markdown"], _markdown(results, grids, plots))
+    _write_text(paths["html"], _html(results, grids, plots))
+    _write_text(paths["json"], _json(results))
+    keys = sorted({k for c in results.cells for k in c.metrics})
+    buf = io.StringIO()
+    wr = csv.writer(buf)
+    wr.writerow(["scene", "method", "error", "seconds", "peak_mib", "samples", *keys])
+    for c in results.cells:
+        wr.writerow([c.scene, c.method, c.error, c.seconds, c.peak_mib,
+                     c.stats.get("samples", ""), *(c.metrics.get(k, "") for k in keys)])
+    _write_text(paths["csv"], buf.getvalue())
+    return paths
