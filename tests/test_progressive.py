@@ -1,0 +1,104 @@
+"""Tests of differential progressive path tracing (Kán §4.4, Eq. 4.12; checklist 8, 23)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from arlight.methods import RenderSettings, get_method
+from arlight.progressive import Accumulator, preview, refine, rmse, run_cli
+from arlight.scene.load import parse_scene
+
+
+def small_scene(width: int = 24, height: int = 18):
+    d = {"camera": {"resolution": [width, height], "fov_y_deg": 45,
+                    "look_at": {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}},
+         "shapes": [
+             {"name": "floor", "role": "real", "type": "rectangle", "size": [3, 3],
+              "normal": [0, 1, 0], "material": {"type": "diffuse", "albedo": 0.6}},
+             {"name": "ball", "role": "virtual", "type": "sphere", "radius": 0.3,
+              "transform": {"translate": [0.0, 0.3, 0.0]},
+              "material": {"type": "diffuse", "albedo": [0.7, 0.3, 0.2]}}],
+         "lights": [{"type": "area", "size": [0.6, 0.6], "normal": [0, -1, 0],
+                     "transform": {"translate": [0.3, 1.8, 0.4]}, "radiance": 12.0},
+                    {"type": "constant", "radiance": 0.3}]}
+    scene = parse_scene(d)
+    return scene.with_frame(np.full((height, width, 3), 0.3, np.float32))
+
+
+def test_accumulator_equals_batch_mean():
+    rng = np.random.default_rng(0)
+    frames = rng.random((37, 5, 4, 3)).astype(np.float32) * 10
+    acc = Accumulator()
+    for f in frames:
+        acc.add(f)
+    np.testing.assert_allclose(acc.mean, frames.astype(np.float64).mean(axis=0), rtol=1e-12)
+    assert acc.count == 37
+
+
+def test_preview_is_bitwise_repeatable():
+    scene = small_scene()
+    s = RenderSettings(spp=1, seed=5)
+    a = preview(scene, "onepass", s)
+    b = preview(scene, "onepass", s)
+    np.testing.assert_array_equal(a.composite, b.composite)
+
+
+def test_refinement_is_running_mean_of_fresh_frames():
+    scene = small_scene()
+    steps = list(refine(scene, "onepass", RenderSettings(spp=1, seed=2), frames=5))
+    assert [s.frame for s in steps] == [1, 2, 3, 4, 5]
+    comps = np.stack([s.layers.composite for s in steps]).astype(np.float64)
+    np.testing.assert_allclose(steps[-1].image, comps.mean(axis=0), rtol=1e-12)
+    assert not np.array_equal(comps[0], comps[1])  # fresh random numbers per frame
+
+
+def test_rmse_falls_as_inverse_sqrt_n():
+    scene = small_scene()
+    gt = get_method("onepass")(scene, RenderSettings(spp=2048, seed=999)).composite
+    errs = {}
+    for step in refine(scene, "onepass", RenderSettings(spp=1, seed=7), frames=64):
+        if step.frame in (1, 2, 4, 8, 16, 32, 64):
+            errs[step.frame] = rmse(step.image, gt)
+    n = np.array(sorted(errs), dtype=float)
+    slope = np.polyfit(np.log(n), np.log([errs[k] for k in sorted(errs)]), 1)[0]
+    assert -0.65 < slope < -0.35, slope
+
+
+def test_time_budget_stops(tmp_path):
+    scene = small_scene(8, 6)
+    steps = list(refine(scene, "onepass", RenderSettings(spp=1), time_budget=0.0))
+    assert len(steps) == 1
+
+
+def test_run_cli_writes_snapshots_and_error_curve(tmp_path):
+    from rich.console import Console
+
+    from arlight.io.images import write_exr
+
+    scene = small_scene(16, 12)
+    gt = get_method("onepass")(scene, RenderSettings(spp=256, seed=3)).composite
+    write_exr(tmp_path / "gt.exr", gt)
+    console = Console(record=True, width=100)
+    run_cli(scene, "onepass", RenderSettings(spp=1), tmp_path / "out", 60.0, 3,
+            tmp_path / "gt.exr", console)
+    out = tmp_path / "out"
+    for name in ("progressive_00001.exr", "progressive_00002.png", "progressive_00003.exr",
+                 "error.csv", "error.png"):
+        assert (out / name).is_file(), name
+    lines = (out / "error.csv").read_text().splitlines()
+    assert lines[0] == "frame,seconds,rmse" and len(lines) == 4
+    assert "RMSE" in console.export_text()
+
+
+def test_run_cli_rejects_wrong_ground_truth_size(tmp_path):
+    from rich.console import Console
+
+    from arlight.errors import InputError
+    from arlight.io.images import write_exr
+
+    scene = small_scene(16, 12)
+    write_exr(tmp_path / "gt.exr", np.zeros((5, 5, 3), np.float32))
+    with pytest.raises(InputError, match="ground truth"):
+        run_cli(scene, "onepass", RenderSettings(spp=1), tmp_path / "o", 1.0, 1,
+                tmp_path / "gt.exr", Console())
