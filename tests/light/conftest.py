@@ -35,6 +35,6 @@ def smooth() -> np.ndarray:
 
 @pytest.fixture
 def grace() -> np.ndarray:
-    from arlight.light.imageio import read_image
+    from arlight.io.images import read_linear
 
-    return read_image(DATA / "grace_latlong_256x128.hdr")
+    return read_linear(DATA / "grace_latlong_256x128.hdr")

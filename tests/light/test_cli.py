@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from arlight.io.images import write_exr
 from arlight.light.cli import app
 from arlight.light.envmap import from_equirect
 from arlight.light.estimate import LightEstimate
-from arlight.light.imageio import write_exr
 
 runner = CliRunner()
 

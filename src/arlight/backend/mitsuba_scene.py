@@ -19,7 +19,6 @@ import numpy as np
 
 from arlight.backend.variant import ensure_variant
 from arlight.scene.model import ARScene, Light, Material, Shape
-from arlight.transfer import srgb_decode
 
 ROLE_MISS, ROLE_REAL, ROLE_VIRTUAL = -1, 0, 1
 LIGHT_SHAPE_INDEX = -2  # shape index reported for hits on area-light emitter geometry
@@ -35,14 +34,9 @@ def _rgb(c) -> dict[str, Any]:
 
 def _texture(path: str) -> dict[str, Any]:
     """Albedo texture: LDR files are sRGB-decoded, HDR files are used as linear values."""
-    from arlight.io.images import is_hdr_path, read_hdr, read_ldr
+    from arlight.io.images import read_linear
 
-    if is_hdr_path(path):
-        data = read_hdr(path)
-    else:
-        codes = read_ldr(path)
-        data = srgb_decode(codes / float(np.iinfo(codes.dtype).max))
-    data = np.clip(data, 0.0, 1.0).astype(np.float32)
+    data = np.clip(read_linear(path), 0.0, 1.0).astype(np.float32)
     return {"type": "bitmap", "bitmap": mi.Bitmap(data), "raw": True}
 
 

@@ -92,6 +92,22 @@ def read_image(path: str | Path) -> np.ndarray:
     return read_hdr(path) if is_hdr_path(path) else read_ldr(path)
 
 
+def read_linear(path: str | Path) -> np.ndarray:
+    """Read any image as linear float32 ``(H, W, 3)``.
+
+    HDR files are returned as stored. LDR files are sRGB-decoded (IEC 61966-2-1) to [0, 1]:
+    *relative* radiance of a display-referred picture, clipped where the sensor saturated.
+    For camera frames with a declared transfer function and exposure use
+    :meth:`arlight.transfer.Transfer.to_radiance` on :func:`read_ldr` instead.
+    """
+    if is_hdr_path(path):
+        return read_hdr(path)
+    from arlight.transfer import srgb_decode
+
+    codes = read_ldr(path)
+    return srgb_decode(codes / float(np.iinfo(codes.dtype).max)).astype(np.float32)
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success only."""

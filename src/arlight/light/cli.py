@@ -19,12 +19,12 @@ from typing import Annotated
 import numpy as np
 import typer
 
+from arlight.io.images import atomic_write, read_linear
 from arlight.light import envmap as E
 from arlight.light import sh as SH
 from arlight.light.estimate import LAYOUTS, LightEstimate
 from arlight.light.extract import ExtractedLight
 from arlight.light.fisheye import FisheyeCamera
-from arlight.light.imageio import ImageReadError, atomic_write, read_image
 
 KINDS = ("equirect", "probe", "ball", "fisheye")
 
@@ -63,7 +63,7 @@ def load_environment(image: Path, kind: str, height: int | None = None,
     fraction, map for the SH remainder when it differs -- the mirrored fisheye capture)."""
     if kind not in KINDS:
         raise CliError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
-    img = read_image(image)
+    img = read_linear(image)
     H, W = img.shape[:2]
     if kind == "equirect":
         if W != 2 * H:
@@ -132,7 +132,7 @@ def estimate(
                                         method=method, threshold=threshold,
                                         confidence=observed, sh_map=sh_map)
         est.save(output, layout=layout)
-    except (CliError, ImageReadError, ValueError) as exc:
+    except (CliError, ValueError) as exc:
         _fail(str(exc))
     typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}, "
                f"{len(est.lights)} more lights, SH order {sh_order}")
@@ -188,7 +188,9 @@ def render_picture(est: LightEstimate, path: Path, title: str = "") -> Path:
         fig.suptitle(title)
     fig.tight_layout()
     try:
-        return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=90))
+        with atomic_write(path, ".png") as tmp:
+            fig.savefig(tmp, format="png", dpi=90)
+        return path
     finally:
         plt.close(fig)
 
@@ -216,7 +218,7 @@ def show(
             est = LightEstimate.from_envmap(env, n_lights=lights, confidence=observed,
                                             sh_map=sh_map)
         render_picture(est, output, title=source.name)
-    except (CliError, ImageReadError, ValueError) as exc:
+    except (CliError, ValueError) as exc:
         _fail(str(exc))
     typer.echo(f"wrote {output}")
 

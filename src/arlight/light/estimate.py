@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arlight.io.images import atomic_write
 from arlight.light import sh as SH
 from arlight.light.extract import (
     ExtractedLight,
@@ -56,7 +57,6 @@ from arlight.light.extract import (
     median_cut,
     split_highlights,
 )
-from arlight.light.imageio import atomic_write
 
 LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
 FORMAT_TAG = "arlight.light_estimate"
@@ -275,7 +275,7 @@ class LightEstimate:
 
     def write_hdr_map(self, path: str | Path) -> Path:
         """Write :attr:`hdr_map` as an EXR (atomic)."""
-        from arlight.light.imageio import write_exr
+        from arlight.io.images import write_exr
 
         if self.hdr_map is None:
             raise ValueError("this estimate has no HDR map")
@@ -350,9 +350,9 @@ class LightEstimate:
                 ml = d["main_light"]
                 hdr = None
                 if "hdr_map" in d and base_dir is not None:
-                    from arlight.light.imageio import read_image
+                    from arlight.io.images import read_linear
 
-                    hdr = read_image(Path(base_dir) / d["hdr_map"]["file"])
+                    hdr = read_linear(Path(base_dir) / d["hdr_map"]["file"])
                 return cls(main_direction=ml["direction_to_light"],
                            main_irradiance=ml["irradiance"],
                            sh=np.asarray(d["sh"]["coefficients"], np.float64),
@@ -393,7 +393,9 @@ class LightEstimate:
             hdr_file = f"{path.stem}.hdr.exr"
             self.write_hdr_map(path.parent / hdr_file)
         text = json.dumps(self.to_json(layout, hdr_file=hdr_file), indent=1)
-        return atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+        with atomic_write(path, ".json") as tmp:
+            tmp.write_text(text)
+        return Path(path)
 
     @classmethod
     def load(cls, path: str | Path, layout: str | None = None) -> LightEstimate:
