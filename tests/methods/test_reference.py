@@ -110,3 +110,51 @@ def test_reference_is_unbiased_against_ground_truth(make):
     frac_bad = agreement_fraction(layers.composite * 1.1, se, photo.ground_truth,
                                   photo.ground_truth_stderr)
     assert frac_bad < 0.9
+
+
+def _plane_under_sky(light: dict, albedo: float = 0.6):
+    return {"camera": {"resolution": [12, 9], "fov_y_deg": 30,
+                       "look_at": {"origin": [0, 2, 0.5], "target": [0, 0, 0]}},
+            "shapes": [{"role": "real", "type": "disk", "radius": 50.0, "normal": [0, 1, 0],
+                        "material": {"type": "diffuse", "albedo": albedo}}],
+            "lights": [light]}
+
+
+@pytest.mark.parametrize("light", [
+    {"type": "constant", "radiance": 2.0},
+    {"type": "sh", "coefficients": [[2.0 / 0.28209479177387814] * 3] + [[0.0] * 3] * 8},
+], ids=["constant", "sh-L0"])
+def test_constant_sky_gives_albedo_times_radiance(light):
+    """Kán checklist 13: a plane under a uniform sky of radiance L reflects ρ·L (the disk is
+    so large that the sky below its horizon hardly matters; its solid angle is < 1e-3)."""
+    scene = with_constant_frame(parse_scene(_plane_under_sky(light)), 1.2)
+    layers = reference(scene, RenderSettings(spp=256, max_depth=2, seed=2))
+    expected = 0.6 * 2.0
+    z = np.abs(layers.mixed - expected) / np.maximum(layers.stderr["mixed"], 1e-6)
+    assert np.mean(z.max(axis=2) <= 3.0) >= 0.95
+    assert abs(layers.mixed.mean() - expected) < 0.01
+
+
+def test_angular_probe_and_texture_load_and_render(tmp_path):
+    from arlight.io.images import write_exr
+
+    n = 64
+    yy, xx = np.mgrid[0:n, 0:n]
+    inside = (xx + 0.5 - n / 2) ** 2 + (yy + 0.5 - n / 2) ** 2 <= (n / 2) ** 2
+    probe = np.where(inside[..., None], 3.0, 0.0).astype(np.float32) * np.ones(3, np.float32)
+    write_exr(tmp_path / "probe.exr", probe)
+    tex = np.zeros((4, 8, 3), np.uint8)
+    tex[:, :4, 0] = 255
+    tex[:, 4:, 1] = 255
+    write_png(tmp_path / "tex.png", tex)
+    d = _plane_under_sky({"type": "envmap", "file": "probe.exr", "mapping": "angular"})
+    d["shapes"][0] = {"role": "real", "type": "rectangle", "size": [3, 3], "normal": [0, 1, 0],
+                      "material": {"type": "diffuse", "texture": "tex.png"}}
+    scene = with_constant_frame(parse_scene(d, base_dir=tmp_path))
+    env = scene.lights[0].radiance_map
+    assert env.shape[1] == 2 * env.shape[0]
+    assert np.allclose(np.median(env), 3.0, rtol=0.05)
+    layers = reference(scene, RenderSettings(spp=16, max_depth=2))
+    red = layers.mixed[..., 0] > 4 * layers.mixed[..., 1]
+    green = layers.mixed[..., 1] > 4 * layers.mixed[..., 0]
+    assert red.sum() > 10 and green.sum() > 10
