@@ -11,6 +11,7 @@ each compiles the LLVM kernels). Usage:
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -62,8 +63,9 @@ def main() -> None:
     t_ref, t_path = statistics.median(ref), statistics.median(path)
     rows = [
         f"Demo scene {scene.camera.width}×{scene.camera.height}, {args.spp} spp, max_depth "
-        f"{args.max_depth}, median of {args.repeats} warm runs, llvm_ad_rgb on "
-        f"{mi.variant()} / 2 CPU cores, `python benchmarks/bench_reference.py --write`.",
+        f"{args.max_depth}, median of {args.repeats} warm runs, Mitsuba variant "
+        f"{mi.variant()}, {os.cpu_count()} CPU cores, "
+        "`python benchmarks/bench_reference.py --write`.",
         "",
         "| renderer | seconds | Msamples/s | Mpaths/s |",
         "|---|---|---|---|",
