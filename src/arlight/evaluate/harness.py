@@ -9,7 +9,8 @@ the other cells still run.
 
 Timing: one warm-up call (JIT compilation, kernel caches, scene building), then ``repeats``
 timed calls; the reported time is their median wall time (``time.perf_counter``). The metrics
-are computed on the last timed call's output.
+are computed on the last timed call's output. Each point of the spp sweep is also warmed up
+once before its timed call (Dr.Jit compiles kernels per sample count).
 
 Memory: Dr.Jit/LLVM allocate outside Python's allocator, so ``tracemalloc`` does not see
 them, and ``ru_maxrss`` is a process-lifetime high-water mark that cannot be reset between
@@ -227,6 +228,7 @@ def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
         cell.images = {"frame": photo.frame, "composite": layers.composite,
                        "ground_truth": gt, "mask": photo.mask, "region": region}
         for spp in config.sweep_spp:
+            render(ar, settings(spp))  # warm-up: kernels are compiled per sample count
             t0 = time.perf_counter()
             out = render(ar, settings(spp))
             dt = time.perf_counter() - t0
