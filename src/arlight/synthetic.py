@@ -52,10 +52,25 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("ARLIGHT_CACHE", Path.home() / ".cache" / "arlight"))
 
 
+def _renderer_fingerprint() -> bytes:
+    """Mitsuba's version and the source of the modules that produce the images, so a change
+    to the renderer invalidates cached photographs."""
+    import mitsuba as mi
+
+    from arlight.backend import camera_rays, mitsuba_scene, passes, phong
+    from arlight.methods import reference
+
+    h = hashlib.sha256(mi.__version__.encode())
+    for mod in (camera_rays, mitsuba_scene, passes, phong, reference):
+        h.update(Path(mod.__file__).read_bytes())
+    h.update(Path(__file__).read_bytes())
+    return h.digest()
+
+
 def content_key(world: ARScene, **settings) -> str:
     """SHA-256 over the world's dictionary, the bytes of every file it references, the
-    settings and the arlight version."""
-    h = hashlib.sha256()
+    settings, the arlight version and the renderer's source (:func:`_renderer_fingerprint`)."""
+    h = hashlib.sha256(_renderer_fingerprint())
     h.update(json.dumps(world.raw, sort_keys=True, default=str).encode())
     for path in sorted(_referenced_files(world.raw)):
         h.update(path.encode())
