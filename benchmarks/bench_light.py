@@ -18,16 +18,16 @@ from __future__ import annotations
 
 import argparse
 import platform
-import re
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
+from results import write_section
 
+from arlight.io.images import read_linear
 from arlight.light import extract, sh
 from arlight.light.envmap import equirect_directions, equirect_solid_angle, resize_equirect
-from arlight.light.imageio import read_image
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## Light estimation (issue 5)"
@@ -100,7 +100,7 @@ def main() -> None:
     ap.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
     args = ap.parse_args()
 
-    grace = read_image(ROOT / "src/arlight/data/light/grace_latlong_256x128.hdr")
+    grace = read_linear(ROOT / "src/arlight/data/light/grace_latlong_256x128.hdr")
     img = resize_equirect(grace, 512)  # 1024 x 512
     # the two contenders must agree before their times mean anything
     np.testing.assert_allclose(sh.project_equirect(img, 2), baseline_project_l2(img),
@@ -128,12 +128,7 @@ def main() -> None:
     text = "\n".join(lines)
     print(text)
     if args.write:
-        path = ROOT / "benchmarks" / "RESULTS.md"
-        old = path.read_text() if path.exists() else "# Benchmark results\n\n"
-        pattern = re.compile(re.escape(SECTION) + r".*?(?=^## |\Z)", re.S | re.M)
-        new = pattern.sub(lambda _: text, old) if pattern.search(old) else (
-            old.rstrip("\n") + "\n\n" + text)
-        path.write_text(new)
+        write_section(text)
 
 
 if __name__ == "__main__":

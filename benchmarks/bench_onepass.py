@@ -24,19 +24,17 @@ reprojection replaces proxy shading by the frame, a different — noisier-frame 
 from __future__ import annotations
 
 import argparse
-import re
 import statistics
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
+from results import write_section
 
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.model import ARScene
 
 HEADING = "## One-pass differential path tracing (issue 3)"
-RESULTS = Path(__file__).with_name("RESULTS.md")
 
 
 def scaled(scene: ARScene, factor: int) -> ARScene:
@@ -147,14 +145,6 @@ def table(rows: list[dict], args) -> str:
               "(one radiance + one shadow ray per vertex per solution, as Mitsuba's `path` "
               "does for `reference`). RMSEs have the ground truth's own variance removed.", ""]
     return "\n".join(lines)
-
-
-def write_section(text: str) -> None:
-    old = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else "# Benchmark results\n"
-    pattern = re.compile(re.escape(HEADING) + r".*?(?=\n## |\Z)", re.S)
-    new = pattern.sub(text.rstrip("\n"), old) if pattern.search(old) else (
-        old.rstrip("\n") + "\n\n" + text)
-    RESULTS.write_text(new.rstrip("\n") + "\n", encoding="utf-8")
 
 
 def main() -> None:

@@ -14,17 +14,16 @@ import argparse
 import os
 import statistics
 import time
-from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
+from results import write_section
 
 from arlight.backend.mitsuba_scene import build_views, mitsuba_sensor
 from arlight.demo import demo_scene_path
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.load import load_scene
 
-RESULTS = Path(__file__).with_name("RESULTS.md")
 HEADING = "## Reference method throughput (issue 2)"
 
 
@@ -50,7 +49,7 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--max-depth", type=int, default=8)
-    ap.add_argument("--write", action="store_true", help=f"update {RESULTS.name}")
+    ap.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
     args = ap.parse_args()
     scene = load_scene(demo_scene_path())
     n = scene.camera.width * scene.camera.height * args.spp
@@ -78,22 +77,10 @@ def main() -> None:
         f"second: {2 * t_path / t_ref:.3f}). Two solutions per sample, so ≈ 0.5 is the "
         "expected cost of two-pass differential rendering.",
     ]
-    text = "\n".join(rows)
+    text = "\n".join([HEADING, "", *rows])
     print(text)
     if args.write:
-        write_section(HEADING, text)
-
-
-def write_section(heading: str, body: str) -> None:
-    """Replace (or append) one ``## `` section of RESULTS.md."""
-    old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
-    parts = old.split("\n## ")
-    head, sections = parts[0], ["## " + p for p in parts[1:]]
-    new = f"{heading}\n\n{body}\n"
-    sections = [new if s.startswith(heading) else s.rstrip("\n") + "\n" for s in sections]
-    if not any(s.startswith(heading) for s in sections):
-        sections.append(new)
-    RESULTS.write_text(head.rstrip("\n") + "\n\n" + "\n".join(sections))
+        write_section(text)
 
 
 if __name__ == "__main__":
