@@ -158,3 +158,12 @@ def test_camera_needs_exactly_one_pose_and_projection(tmp_path):
     d = area_light_scene()
     d["camera"]["intrinsics"] = {"fx": 1, "fy": 1, "cx": 0, "cy": 0}
     _expect_error(tmp_path, d, "camera", "exactly one of `fov_y_deg` and `intrinsics`")
+
+
+@pytest.mark.parametrize("suffix", ["ply", "obj", "glb", "stl", "off"])
+def test_mesh_formats(tmp_path, suffix):
+    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / f"m.{suffix}")
+    d = area_light_scene()
+    d["shapes"].append({"role": "virtual", "type": "mesh", "file": f"m.{suffix}"})
+    sc = parse_scene(d, base_dir=tmp_path)
+    assert sc.shapes[-1].mesh.faces.shape == (80, 3)
