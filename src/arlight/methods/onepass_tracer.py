@@ -1,23 +1,30 @@
 """Wavefront one-pass differential path tracer in Dr.Jit (Kán thesis §3.3, Fig. 3.5).
 
-Each lane (one camera sample) owns at most two paths:
+Each lane (one camera sample) owns at most two paths, traced in two phases:
 
-* slot **A**, a *mixed radiance* path traced in the mixed view ρ. While it has touched no
-  virtual object it is *shared*: every vertex on it is a vertex of the real-only solution too,
-  so its emission and next-event terms go to both ``L_m`` and ``L_r`` (hit rule 1: one mixed
-  and one real shadow ray per light sample). The real shadow ray is only traced where the
-  mixed one is blocked: µ ⊂ ρ, so a ray free in ρ is free in µ.
-* slot **B**, a *real radiance* path traced in the real view µ, born when a shared mixed path
-  first hits a virtual object (hit rule 2): the same ray, re-intersected in µ (so it "passes
-  through" the virtual object), carrying the same throughput and MIS state. From then on A is
-  mixed-only (mixed shadow rays only) and B is real-only (real shadow rays; hit rule 3).
+* **Phase 1**, one symbolic loop over the *mixed radiance* path traced in the mixed view ρ.
+  While it has touched no virtual object it is *shared*: every vertex on it is a vertex of
+  the real-only solution too, so its emission and next-event terms go to both ``L_m`` and
+  ``L_r`` (hit rule 1: one mixed and one real shadow ray per light sample). The real shadow
+  ray is only traced where the mixed one is blocked: µ ⊂ ρ, so a ray free in ρ is free in µ.
+  When a shared path first hits a virtual object (hit rule 2) the lane is marked *forked* and
+  the state the real path needs to go on from there is recorded in per-lane arrays: the ray
+  (re-intersected in µ it "passes through" the virtual object), throughput, η, depth and MIS
+  state (previous interaction, BSDF pdf, whether that bounce was delta). The mixed path then
+  goes on mixed-only (mixed shadow rays only).
+* **Phase 2**, the *real radiance* continuations: the forked lanes are compacted
+  (``dr.compress``), their fork states gathered, and a second symbolic loop traces only them
+  in the real view µ (real shadow rays; hit rule 3), adding their radiance to ``L_r`` of
+  their lane (gather the lane's ``L_r``, accumulate, scatter back). The real path's work is
+  thus paid for only by the (typically 10–30 %) lanes that fork, not by every SIMD packet.
   Hit rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
 
-The continuation is not a bounce: B takes over A's depth. Random numbers are hashes of
-(lane, depth, dimension), not a sequential stream, so the shared prefix, the mixed suffix and
-the real suffix use exactly the numbers a separate render of ρ and of µ would use at the same
-depth: one-pass equals two-pass *sample by sample* (``mode="twopass"`` runs the same code once
-per view, for the equivalence test and for ray-count comparisons).
+The continuation is not a bounce: it takes over the mixed path's depth. Random numbers are
+hashes of (lane key, depth, dimension), not a sequential stream, so the shared prefix, the
+mixed suffix and the real suffix (phase 2 gathers the lane's key) use exactly the numbers a
+separate render of ρ and of µ would use at the same depth: one-pass equals two-pass *sample
+by sample* (``mode="twopass"`` runs phase 1 once per view, for the equivalence test and for
+ray-count comparisons).
 
 Per vertex (as Mitsuba's ``path``/``prb`` integrators): emitter hit with power-heuristic MIS
 against the previous BSDF sample, next-event estimation with MIS via
@@ -50,7 +57,6 @@ RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
              "rays_real_shadow", "rays_reprojection")
 _DIMS_PER_DEPTH = 8  # random dimensions reserved per path depth
 _DIM_NEE, _DIM_BSDF1, _DIM_BSDF2, _DIM_RR = 0, 2, 3, 5
-_LABELS = ("a", "b", "shared", "lm", "lr", "mask", "depth", "counts")
 
 
 @dataclass
@@ -101,7 +107,7 @@ class _Path:
                 self.prev_delta, self.spec_virtual]
 
     def take(self, other: _Path, where: mi.Bool) -> None:
-        """Lane-wise copy of ``other`` where ``where`` (the fork of hit rule 2)."""
+        """Lane-wise copy of ``other`` where ``where`` (recording the fork of hit rule 2)."""
         self.ray = dr.select(where, other.ray, self.ray)
         self.beta = dr.select(where, other.beta, self.beta)
         self.eta = dr.select(where, other.eta, self.eta)
@@ -110,6 +116,18 @@ class _Path:
         self.prev_pdf = dr.select(where, other.prev_pdf, self.prev_pdf)
         self.prev_delta = dr.select(where, other.prev_delta, self.prev_delta)
         self.spec_virtual = dr.select(where, other.spec_virtual, self.spec_virtual)
+
+    def gather(self, index: mi.UInt32) -> _Path:
+        """The states of lanes ``index`` as a new, all-active path (phase-2 compaction)."""
+
+        def g(x):
+            return dr.gather(type(x), x, index)
+
+        m = dr.width(index)
+        return _Path(ray=g(self.ray), beta=g(self.beta), eta=g(self.eta),
+                     active=dr.full(mi.Bool, True, m), prev_si=g(self.prev_si),
+                     prev_pdf=g(self.prev_pdf), prev_delta=g(self.prev_delta),
+                     spec_virtual=dr.full(mi.Bool, False, m))
 
 
 def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
@@ -182,8 +200,9 @@ class _Reprojector:
 class OnePassTracer:
     """Traces camera rays through the mixed (ρ) and real (µ) views of an AR scene.
 
-    The bounce loop is one symbolic ``dr.while_loop`` (a single compiled kernel per pass,
-    like Mitsuba's own integrators); ray counts are per-lane counters summed after the loop.
+    Two symbolic ``dr.while_loop`` s per pass (one compiled kernel each, cached across passes,
+    like Mitsuba's own integrators) and one compaction between them; ray counts are per-lane
+    counters summed after each loop.
     """
 
     def __init__(self, mixed: SceneView, real: SceneView, opts: TracerOptions,
@@ -195,6 +214,7 @@ class OnePassTracer:
         self.reproj = (_Reprojector(camera, frame, real)
                        if opts.reproject and camera is not None and frame is not None
                        and not self.same_views else None)
+        self.last_forked = 0  # lanes traced by phase 2 in the latest pass (profiling)
 
     # ------------------------------------------------------------------ public
     def trace_onepass(self, rays: mi.Ray3f, key: mi.UInt32) -> TraceResult:
@@ -210,46 +230,87 @@ class OnePassTracer:
                onepass: bool) -> TraceResult:
         n = dr.width(rays.d)
         fork_enabled = onepass and not self.same_views
+        # which solutions phase-1 vertices feed: shared lanes (fork_enabled), all (onepass
+        # without virtual objects: every path is shared) or only this view's (two-pass)
+        to_real_const = onepass and self.same_views
         kind = "mixed" if view is self.mixed else "real"
         zero_u = dr.zeros(mi.UInt32, n)
-        state = (_Path.start(rays, True), _Path.start(rays, False),
-                 dr.full(mi.Bool, onepass, n), dr.zeros(mi.Color3f, n),
-                 dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n), mi.UInt32(zero_u),
-                 [mi.UInt32(zero_u) for _ in RAY_TYPES])
+        fork = _Path.start(rays, False)  # fork states; active = forked
+        state = (_Path.start(rays, True), dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n),
+                 dr.zeros(mi.Float, n), mi.UInt32(zero_u),
+                 [mi.UInt32(zero_u) for _ in RAY_TYPES], fork, mi.UInt32(zero_u))
 
-        def cond(a, b, shared, lm, lr, mask, depth, cnt):
-            return a.active | b.active
+        def cond(a, lm, lr, mask, depth, cnt, fork, fork_depth):
+            return a.active
 
-        def body(a, b, shared, lm, lr, mask, depth, cnt):
+        def body(a, lm, lr, mask, depth, cnt, fork, fork_depth):
             c = dict(zip(RAY_TYPES, cnt, strict=True))
             c[f"rays_{kind}_radiance"] += dr.select(a.active, 1, 0)
             si_a = view.scene.ray_intersect(a.ray, mi.RayFlags.All, False, a.active)
             role_a = view.hit_role(si_a)
             mask = dr.select((depth == 0) & (role_a == ROLE_VIRTUAL), 1.0, mask)
             if fork_enabled:
-                # hit rule 2: the real continuation takes over the ray in µ
-                fork = a.active & shared & (role_a == ROLE_VIRTUAL)
-                b.take(a, fork)
-                shared = shared & ~fork
-                c["rays_real_radiance"] += dr.select(b.active, 1, 0)
-                si_b = self.real.scene.ray_intersect(b.ray, mi.RayFlags.All, False, b.active)
-                role_b = self.real.hit_role(si_b)
-            lm, lr = self._vertex(view, a, si_a, role_a, key, depth, lm, lr, to_real=shared,
+                # hit rule 2: record the real continuation (same ray, state and depth)
+                forks = a.active & ~fork.active & (role_a == ROLE_VIRTUAL)
+                fork.take(a, forks)
+                fork_depth = dr.select(forks, depth, fork_depth)
+                to_real = ~fork.active
+            else:
+                to_real = to_real_const
+            lm, lr = self._vertex(view, a, si_a, role_a, key, depth, lm, lr, to_real=to_real,
                                   to_mixed=True, c=c,
                                   shadow_kind=None if onepass else kind)
-            if fork_enabled:
-                lm, lr = self._vertex(self.real, b, si_b, role_b, key, depth, lm, lr,
-                                      to_real=True, to_mixed=False, c=c)
             depth = depth + 1
-            return a, b, shared, lm, lr, mask, depth, [c[k] for k in RAY_TYPES]
+            return a, lm, lr, mask, depth, [c[k] for k in RAY_TYPES], fork, fork_depth
 
-        a, b, shared, lm, lr, mask, depth, cnt = dr.while_loop(
-            state=state, cond=cond, body=body, labels=_LABELS, label="onepass")
-        dr.eval(lm, lr, mask, cnt)
+        a, lm, lr, mask, depth, cnt, fork, fork_depth = dr.while_loop(
+            state=state, cond=cond, body=body, label="onepass_mixed")
+        dr.eval(lm, lr, mask, cnt, *((fork.fields(), fork_depth) if fork_enabled else ()))
         counts = {k: int(dr.sum(v)[0]) for k, v in zip(RAY_TYPES, cnt, strict=True)}
+        self.last_forked = 0
+        if fork_enabled:
+            lr = self._trace_forks(fork, fork_depth, key, lr, counts)
         if not onepass:
             lr = lm
         return TraceResult(lm, lr, mask, counts)
+
+    def _trace_forks(self, fork: _Path, fork_depth: mi.UInt32, key: mi.UInt32,
+                     lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
+        """Phase 2: the real continuations of the forked lanes only (hit rules 2–3).
+
+        Compacts the forked lanes, traces them in µ from their recorded state and returns
+        ``lr`` with their radiance added (accumulated onto the lane's shared-prefix ``L_r``,
+        in the same order as a separate render of µ). ``counts`` gains their rays.
+        """
+        idx = dr.compress(fork.active)
+        m = dr.width(idx)
+        self.last_forked = m
+        if m == 0:
+            return lr
+        zero_u = dr.zeros(mi.UInt32, m)
+        key_b = dr.gather(mi.UInt32, key, idx)
+        state = (fork.gather(idx), dr.gather(mi.Color3f, lr, idx),
+                 dr.gather(mi.UInt32, fork_depth, idx), mi.UInt32(zero_u), mi.UInt32(zero_u))
+
+        def cond(b, lr_b, depth, n_rad, n_shadow):
+            return b.active
+
+        def body(b, lr_b, depth, n_rad, n_shadow):
+            c = {"rays_real_shadow": n_shadow}
+            n_rad += dr.select(b.active, 1, 0)
+            si_b = self.real.scene.ray_intersect(b.ray, mi.RayFlags.All, False, b.active)
+            _, lr_b = self._vertex(self.real, b, si_b, self.real.hit_role(si_b), key_b, depth,
+                                   None, lr_b, to_real=True, to_mixed=False, c=c)
+            return b, lr_b, depth + 1, n_rad, c["rays_real_shadow"]
+
+        _, lr_b, _, n_rad, n_shadow = dr.while_loop(state=state, cond=cond, body=body,
+                                                   label="onepass_real")
+        lr = mi.Color3f(lr)
+        dr.scatter(lr, lr_b, idx)
+        dr.eval(lr, n_rad, n_shadow)
+        counts["rays_real_radiance"] += int(dr.sum(n_rad)[0])
+        counts["rays_real_shadow"] += int(dr.sum(n_shadow)[0])
+        return lr
 
     def _is_env(self, emitter: mi.EmitterPtr) -> mi.Bool:
         flags = emitter.flags()
@@ -257,20 +318,27 @@ class OnePassTracer:
                 & ~mi.has_flag(flags, mi.EmitterFlags.DeltaDirection))
 
     def _vertex(self, view: SceneView, st: _Path, si: mi.SurfaceInteraction3f, role: mi.Int32,
-                key: mi.UInt32, depth: mi.UInt32, lm: mi.Color3f, lr: mi.Color3f, *,
+                key: mi.UInt32, depth: mi.UInt32, lm: mi.Color3f | None, lr: mi.Color3f, *,
                 to_real: mi.Bool | bool, to_mixed: bool, c: dict[str, mi.UInt32],
-                shadow_kind: str | None = None) -> tuple[mi.Color3f, mi.Color3f]:
+                shadow_kind: str | None = None) -> tuple[mi.Color3f | None, mi.Color3f]:
         """Shade one path vertex in ``view`` and advance the path state in place.
 
-        ``to_mixed``/``to_real`` say which solutions the vertex feeds; a vertex feeding both
-        traces a mixed shadow ray and, where that is blocked, a real one (hit rule 1).
-        ``shadow_kind`` (two-pass mode) names the counter of this view's shadow rays.
+        ``to_mixed`` (Python bool) and ``to_real`` (bool or per-lane mask) say which
+        solutions the vertex feeds; a vertex feeding both traces a mixed shadow ray and,
+        where that is blocked, a real one (hit rule 1). ``shadow_kind`` (two-pass mode) names
+        the counter of this view's shadow rays. ``lm`` may be None when ``to_mixed`` is off.
         """
         scene = view.scene
         active = mi.Bool(st.active)
-        w_m = mi.Float(1.0 if to_mixed else 0.0)
-        w_r = dr.select(mi.Bool(to_real), 1.0, 0.0)
         valid = si.is_valid()
+
+        def add(acc, val, where):
+            """``acc + val`` where ``where`` (True, False or a per-lane mask)."""
+            if where is False:
+                return acc
+            if where is True:
+                return acc + val
+            return acc + dr.select(where, val, 0.0)
 
         # -- reprojection of the camera frame (Kán §5.2): ends the path
         if self.reproj is not None and to_mixed:
@@ -278,7 +346,7 @@ class OnePassTracer:
                     & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Diffuse))
             c["rays_reprojection"] += dr.select(cand, 1, 0)
             val, ok, _ = self.reproj.lookup(si.p, cand)
-            lm = lm + dr.select(ok, st.beta * val * w_m, 0.0)
+            lm = lm + dr.select(ok, st.beta * val, 0.0)
             active &= ~ok
 
         # -- emitter hit (area light or environment on a miss), MIS vs the previous BSDF
@@ -290,8 +358,8 @@ class OnePassTracer:
         if self.miss_only:
             mis = dr.select(self._is_env(ds.emitter), 1.0, mis)
         le = st.beta * mis * ds.emitter.eval(si, active)
-        lm = lm + le * w_m
-        lr = lr + le * w_r
+        lm = add(lm, le, to_mixed)
+        lr = add(lr, le, to_real)
 
         # -- next-event estimation with separate mixed/real visibility
         active_next = active & valid
@@ -313,28 +381,31 @@ class OnePassTracer:
         if shadow_kind is not None:  # two-pass: this view's own shadow rays
             c[f"rays_{shadow_kind}_shadow"] += dr.select(active_em, 1, 0)
             vis = active_em & ~scene.ray_test(shadow, active_em)
-            lm = lm + dr.select(vis, contrib, 0.0) * w_m
+            lm = add(lm, contrib, vis)
         elif to_mixed:  # slot A: mixed shadow ray; real one only where needed
             c["rays_mixed_shadow"] += dr.select(active_em, 1, 0)
             vis_m = active_em & ~self.mixed.scene.ray_test(shadow, active_em)
             if self.same_views:
                 vis_r = vis_m
             else:
-                need_r = active_em & mi.Bool(to_real) & ~vis_m
+                need_r = active_em & ~vis_m
+                if to_real is not True:
+                    need_r &= to_real
                 c["rays_real_shadow"] += dr.select(need_r, 1, 0)
                 vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
-            lm = lm + dr.select(vis_m, contrib, 0.0) * w_m
-            lr = lr + dr.select(vis_r, contrib, 0.0) * w_r
+            lm = add(lm, contrib, vis_m)
+            lr = add(lr, contrib, vis_r if to_real is True else vis_r & to_real)
         else:  # slot B: real shadow ray
             c["rays_real_shadow"] += dr.select(active_em, 1, 0)
             vis_r = active_em & ~self.real.scene.ray_test(shadow, active_em)
-            lr = lr + dr.select(vis_r, contrib, 0.0) * w_r
+            lr = add(lr, contrib, vis_r)
 
         # -- BSDF sampling, path update, Russian roulette
         bs, weight = bsdf.sample(self.ctx, si, _rand1(key, depth, _DIM_BSDF1),
                                  _rand2(key, depth, _DIM_BSDF2), active_next)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        st.spec_virtual = delta & (st.spec_virtual | (role == ROLE_VIRTUAL))
+        if to_mixed:
+            st.spec_virtual = delta & (st.spec_virtual | (role == ROLE_VIRTUAL))
         st.ray = dr.select(active_next, si.spawn_ray(si.to_world(bs.wo)), st.ray)
         st.eta = dr.select(active_next, st.eta * bs.eta, st.eta)
         st.beta = dr.select(active_next, st.beta * weight, st.beta)
