@@ -44,6 +44,7 @@ visible from the camera centre in µ; otherwise it is shaded as usual.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import drjit as dr
@@ -214,7 +215,9 @@ class OnePassTracer:
         self.reproj = (_Reprojector(camera, frame, real)
                        if opts.reproject and camera is not None and frame is not None
                        and not self.same_views else None)
-        self.last_forked = 0  # lanes traced by phase 2 in the latest pass (profiling)
+        # profiling, summed over passes: lanes, forked lanes, seconds of phase 1 and phase 2
+        self.profile = {"lanes": 0, "forked_lanes": 0, "phase1_seconds": 0.0,
+                        "phase2_seconds": 0.0}
 
     # ------------------------------------------------------------------ public
     def trace_onepass(self, rays: mi.Ray3f, key: mi.UInt32) -> TraceResult:
@@ -229,6 +232,7 @@ class OnePassTracer:
     def _trace(self, view: SceneView, rays: mi.Ray3f, key: mi.UInt32,
                onepass: bool) -> TraceResult:
         n = dr.width(rays.d)
+        t0 = time.perf_counter()
         fork_enabled = onepass and not self.same_views
         # which solutions phase-1 vertices feed: shared lanes (fork_enabled), all (onepass
         # without virtual objects: every path is shared) or only this view's (two-pass)
@@ -267,9 +271,12 @@ class OnePassTracer:
             state=state, cond=cond, body=body, label="onepass_mixed")
         dr.eval(lm, lr, mask, cnt, *((fork.fields(), fork_depth) if fork_enabled else ()))
         counts = {k: int(dr.sum(v)[0]) for k, v in zip(RAY_TYPES, cnt, strict=True)}
-        self.last_forked = 0
+        t1 = time.perf_counter()
+        self.profile["lanes"] += n
+        self.profile["phase1_seconds"] += t1 - t0
         if fork_enabled:
             lr = self._trace_forks(fork, fork_depth, key, lr, counts)
+            self.profile["phase2_seconds"] += time.perf_counter() - t1
         if not onepass:
             lr = lm
         return TraceResult(lm, lr, mask, counts)
@@ -284,7 +291,7 @@ class OnePassTracer:
         """
         idx = dr.compress(fork.active)
         m = dr.width(idx)
-        self.last_forked = m
+        self.profile["forked_lanes"] += m
         if m == 0:
             return lr
         zero_u = dr.zeros(mi.UInt32, m)
@@ -373,7 +380,10 @@ class OnePassTracer:
         if self.miss_only:
             active_em &= ~self._is_env(ds.emitter)
         wo = si.to_local(ds.d)
-        f_em, pdf_em = bsdf.eval_pdf(self.ctx, si, wo, active_em)
+        # one BSDF call for the NEE evaluation and the bounce sample (as Mitsuba's ``path``)
+        f_em, pdf_em, bs, weight = bsdf.eval_pdf_sample(
+            self.ctx, si, wo, _rand1(key, depth, _DIM_BSDF1), _rand2(key, depth, _DIM_BSDF2),
+            active_next)
         mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, pdf_em))
         contrib = st.beta * mis_em * f_em * em_weight
         active_em &= dr.max(contrib) > 0
@@ -401,8 +411,6 @@ class OnePassTracer:
             lr = add(lr, contrib, vis_r)
 
         # -- BSDF sampling, path update, Russian roulette
-        bs, weight = bsdf.sample(self.ctx, si, _rand1(key, depth, _DIM_BSDF1),
-                                 _rand2(key, depth, _DIM_BSDF2), active_next)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         if to_mixed:
             st.spec_virtual = delta & (st.spec_virtual | (role == ROLE_VIRTUAL))
