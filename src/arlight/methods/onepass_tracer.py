@@ -16,16 +16,15 @@ Each lane (one camera sample) owns at most two paths, traced in two phases:
   (``dr.compress``), their fork states gathered, and a second symbolic loop traces only them
   in the real view µ (real shadow rays; hit rule 3), adding their radiance to ``L_r`` of
   their lane (gather the lane's ``L_r``, accumulate, scatter back). The real path's work is
-  thus paid for only by the lanes that fork (4–8 % on the benchmark scenes), not by every
-  SIMD packet.
+  thus paid for only by the (typically 10–30 %) lanes that fork, not by every SIMD packet.
   Hit rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
 
 The continuation is not a bounce: it takes over the mixed path's depth. Random numbers are
-hashes of (lane key, depth) (:func:`vertex_samples`), not a sequential stream, so the shared
-prefix, the mixed suffix and the real suffix (phase 2 gathers the lane's key) use exactly the
-numbers a separate render of ρ and of µ would use at the same depth: one-pass equals two-pass
-*sample by sample* (``mode="twopass"`` runs phase 1 once per view, for the equivalence test
-and for ray-count comparisons).
+hashes of (lane key, depth, dimension), not a sequential stream, so the shared prefix, the
+mixed suffix and the real suffix (phase 2 gathers the lane's key) use exactly the numbers a
+separate render of ρ and of µ would use at the same depth: one-pass equals two-pass *sample
+by sample* (``mode="twopass"`` runs phase 1 once per view, for the equivalence test and for
+ray-count comparisons).
 
 Per vertex (as Mitsuba's ``path``/``prb`` integrators): emitter hit with power-heuristic MIS
 against the previous BSDF sample, next-event estimation with MIS via
@@ -57,6 +56,8 @@ from arlight.scene.camera import Camera
 
 RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
              "rays_real_shadow", "rays_reprojection")
+_DIMS_PER_DEPTH = 8  # random dimensions reserved per path depth
+_DIM_NEE, _DIM_BSDF1, _DIM_BSDF2, _DIM_RR = 0, 2, 3, 5
 
 
 @dataclass
@@ -142,24 +143,13 @@ def lane_keys(lanes: int, seed: mi.UInt32) -> mi.UInt32:
     return mi.sample_tea_32(dr.arange(mi.UInt32, lanes), seed, 4)[0]
 
 
-def _unit(v: mi.UInt32) -> mi.Float:
-    """Float in [0, 1) from the 23 high bits of ``v``."""
-    return dr.reinterpret_array(mi.Float, (v >> 9) | 0x3F800000) - 1.0
+def _rand1(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Float:
+    """Uniform number for (lane, depth, dimension): TEA hash, order independent."""
+    return mi.sample_tea_float32(key, depth * _DIMS_PER_DEPTH + dim, 6)
 
 
-def vertex_samples(key: mi.UInt32, depth: mi.UInt32
-                   ) -> tuple[mi.Point2f, mi.Float, mi.Point2f, mi.Float]:
-    """Random numbers of one path vertex: (NEE 2D, BSDF lobe 1D, BSDF 2D, roulette 1D).
-
-    Three TEA hashes (Zafar et al. 2010; 4 rounds, Mitsuba's default) of (lane key,
-    3·depth + j), each giving two 32-bit words. The numbers depend on (lane, depth) only, not
-    on the order in which paths are traced. (Six 6-round hashes, one per number, cost about
-    20 % of the render time.)
-    """
-    words = [mi.sample_tea_32(key, depth * 3 + j, 4) for j in range(3)]
-    (a, b), (c, d), (e, f) = words
-    return (mi.Point2f(_unit(a), _unit(b)), _unit(c), mi.Point2f(_unit(d), _unit(e)),
-            _unit(f))
+def _rand2(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Point2f:
+    return mi.Point2f(_rand1(key, depth, dim), _rand1(key, depth, dim + 1))
 
 
 @dataclass
@@ -383,9 +373,8 @@ class OnePassTracer:
         if self.opts.max_depth > 0:
             active_next &= depth + 1 < self.opts.max_depth
         bsdf = si.bsdf()
-        u_nee, u_lobe, u_bsdf, u_rr = vertex_samples(key, depth)
         active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds, em_weight = scene.sample_emitter_direction(si, u_nee, False,
+        ds, em_weight = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False,
                                                        active_em)
         active_em &= ds.pdf != 0.0
         if self.miss_only:
@@ -393,7 +382,7 @@ class OnePassTracer:
         wo = si.to_local(ds.d)
         # one BSDF call for the NEE evaluation and the bounce sample (as Mitsuba's ``path``)
         f_em, pdf_em, bs, weight = bsdf.eval_pdf_sample(
-            self.ctx, si, wo, u_lobe, u_bsdf,
+            self.ctx, si, wo, _rand1(key, depth, _DIM_BSDF1), _rand2(key, depth, _DIM_BSDF2),
             active_next)
         mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, pdf_em))
         contrib = st.beta * mis_em * f_em * em_weight
@@ -436,6 +425,6 @@ class OnePassTracer:
         rr = active_next & (depth >= self.opts.rr_depth)
         q = dr.minimum(beta_max * dr.square(st.eta), 0.95)
         st.beta = dr.select(rr, st.beta / q, st.beta)
-        active_next &= ~rr | (u_rr < q)
+        active_next &= ~rr | (_rand1(key, depth, _DIM_RR) < q)
         st.active = active_next
         return lm, lr
