@@ -45,3 +45,13 @@ def test_frame_excludes_and_ground_truth_includes_virtual(tmp_path):
     diff = np.abs(p.ground_truth - p.frame)[covered].max(axis=1)
     se = np.hypot(p.ground_truth_stderr, p.frame_stderr)[covered].max(axis=1)
     assert np.mean(diff > 3 * se) > 0.5
+
+
+def test_resized_scene_box_filters_frame_and_changes_cache_key():
+    world = parse_scene(area_light_scene(16, 12))
+    frame = np.arange(12 * 16 * 3, dtype=np.float32).reshape(12, 16, 3)
+    small = world.with_frame(frame).resized(8, 6)
+    assert small.frame.shape == (6, 8, 3)
+    assert np.allclose(small.frame[0, 0], frame[:2, :2].mean(axis=(0, 1)))
+    assert small.raw["camera"]["resolution"] == [8, 6]
+    assert content_key(small, spp=4) != content_key(world, spp=4)

@@ -72,6 +72,10 @@ def content_key(world: ARScene, **settings) -> str:
     settings, the arlight version and the renderer's source (:func:`_renderer_fingerprint`)."""
     h = hashlib.sha256(_renderer_fingerprint())
     h.update(json.dumps(world.raw, sort_keys=True, default=str).encode())
+    cam = world.camera  # the camera actually used, even if raw was edited by hand
+    h.update(json.dumps([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
+                         np.asarray(cam.world_from_camera).tolist(), cam.aperture_radius,
+                         cam.focus_distance, cam.aperture_shape]).encode())
     for path in sorted(_referenced_files(world.raw)):
         h.update(path.encode())
         h.update(Path(path).read_bytes())

@@ -35,3 +35,11 @@ def test_thin_lens_rays_meet_on_focal_plane():
     t = (0.0 - o[:, 2]) / d[:, 2]  # focal plane z = 0 in world
     p = o + t[:, None] * d
     assert np.allclose(p, p[0], atol=1e-9)
+
+
+def test_resized_camera_keeps_ray_directions():
+    cam = Camera(640, 480, 500.0, 510.0, 322.0, 239.0, look_at([1, 2, 3], [0, 0, 0]))
+    small = cam.resized(160, 120)
+    _, d_big = cam.pixel_rays(np.array([[320.0, 240.0], [0.0, 0.0], [640.0, 480.0]]))
+    _, d_small = small.pixel_rays(np.array([[80.0, 60.0], [0.0, 0.0], [160.0, 120.0]]))
+    assert np.allclose(d_big, d_small)

@@ -21,13 +21,12 @@ Each scene is a folder ``arlight/data/scenes/<name>/`` with
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from arlight.errors import InputError
-from arlight.scene.load import parse_scene
+from arlight.scene.load import load_scene
 from arlight.scene.model import ARScene
 from arlight.synthetic import SyntheticPhoto, synthesize
 
@@ -84,19 +83,11 @@ def list_scenes() -> list[str]:
 
 
 def _read(path: Path, quick: bool) -> tuple[ARScene, dict]:
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"syntax error: {exc}", file=str(path)) from exc
+    scene = load_scene(path)
     if quick:
-        cam = data.get("camera", {})
-        w, h = cam.get("resolution", [QUICK_WIDTH, QUICK_WIDTH])
-        if "intrinsics" in cam:
-            raise InputError("suite scenes give the field of view (fov_y_deg), not intrinsics, "
-                             "so that --quick can rescale them", file=str(path),
-                             field="camera.intrinsics")
-        cam["resolution"] = [QUICK_WIDTH, max(1, round(QUICK_WIDTH * h / w))]
-    return parse_scene(data, base_dir=path.parent, file=str(path)), data
+        w, h = scene.resolution
+        scene = scene.resized(QUICK_WIDTH, max(1, round(QUICK_WIDTH * h / w)))
+    return scene, scene.raw
 
 
 def _paper_figure(path: Path) -> str:

@@ -10,7 +10,7 @@ kept, the origin moves to a point ``O'`` on the aperture, and the ray is ``I −
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -74,6 +74,13 @@ class Camera:
         """Camera with square pixels, centred principal point and vertical field of view."""
         f = 0.5 * height / np.tan(np.radians(fov_y_deg) / 2.0)
         return Camera(width, height, f, f, width / 2.0, height / 2.0, **kwargs)
+
+    def resized(self, width: int, height: int) -> Camera:
+        """The same camera with another image size: intrinsics scale with the image, so
+        every pixel keeps looking in the same direction (field of view unchanged)."""
+        sx, sy = width / self.width, height / self.height
+        return replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
+                       cx=self.cx * sx, cy=self.cy * sy)
 
     @property
     def K(self) -> np.ndarray:  # noqa: N802 - the usual name of the intrinsic matrix

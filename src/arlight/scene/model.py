@@ -8,6 +8,7 @@ absolute paths) in ``params``; :mod:`arlight.scene.schema` documents every field
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -113,6 +114,28 @@ class ARScene:
     def without_virtual(self) -> ARScene:
         """The same scene with every virtual shape removed."""
         return replace(self, shapes=self.real_shapes)
+
+    def resized(self, width: int, height: int) -> ARScene:
+        """The scene seen by the same camera at another resolution.
+
+        The frame, if any, is box-filtered; that needs the old size to be an integer
+        multiple of the new one (a ValueError says otherwise).
+        """
+        cam = self.camera.resized(width, height)
+        raw = copy.deepcopy(self.raw)
+        raw_cam = raw.setdefault("camera", {})
+        raw_cam["resolution"] = [width, height]
+        if "intrinsics" in raw_cam:
+            raw_cam["intrinsics"] = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
+        out = replace(self, camera=cam, frame=None, frame_codes=None, raw=raw)
+        if self.frame is None:
+            return out
+        h, w = self.camera.height, self.camera.width
+        if h % height or w % width or h // height != w // width:
+            raise ValueError(f"cannot box-filter a {w}×{h} frame to {width}×{height}")
+        k = h // height
+        small = self.frame.reshape(height, k, width, k, 3).mean(axis=(1, 3))
+        return out.with_frame(small.astype(np.float32))
 
     def with_frame(self, frame: np.ndarray, codes: np.ndarray | None = None) -> ARScene:
         """The same scene with another background frame (linear radiance ``(H, W, 3)``)."""
