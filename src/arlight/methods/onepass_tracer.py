@@ -118,6 +118,23 @@ class _Path:
         self.prev_delta = dr.select(where, other.prev_delta, self.prev_delta)
         self.spec_virtual = dr.select(where, other.spec_virtual, self.spec_virtual)
 
+    @staticmethod
+    def storage(n: int) -> _Path:
+        """Uninitialised, evaluated per-lane arrays that :meth:`store` scatters into."""
+        st = _Path(ray=dr.empty(mi.Ray3f, n), beta=dr.empty(mi.Color3f, n),
+                   eta=dr.empty(mi.Float, n), active=dr.full(mi.Bool, False, n),
+                   prev_si=dr.empty(mi.Interaction3f, n), prev_pdf=dr.empty(mi.Float, n),
+                   prev_delta=dr.empty(mi.Bool, n), spec_virtual=dr.full(mi.Bool, False, n))
+        dr.eval(st.fields())
+        return st
+
+    def store(self, other: _Path, index: mi.UInt32, where: mi.Bool) -> None:
+        """Scatter ``other``'s state to lanes ``index`` where ``where`` (recording the fork of
+        hit rule 2; a side effect of the loop, so the fork states are not loop variables and
+        cost memory traffic only for the lanes that fork)."""
+        for name in ("ray", "beta", "eta", "prev_si", "prev_pdf", "prev_delta"):
+            dr.scatter(getattr(self, name), getattr(other, name), index, where)
+
     def gather(self, index: mi.UInt32) -> _Path:
         """The states of lanes ``index`` as a new, all-active path (phase-2 compaction)."""
 
@@ -239,15 +256,18 @@ class OnePassTracer:
         to_real_const = onepass and self.same_views
         kind = "mixed" if view is self.mixed else "real"
         zero_u = dr.zeros(mi.UInt32, n)
-        fork = _Path.start(rays, False)  # fork states; active = forked
+        if fork_enabled:  # fork states of hit rule 2, written by the loop where lanes fork
+            fork, fork_depth = _Path.storage(n), dr.empty(mi.UInt32, n)
+            dr.eval(fork_depth)
+            lane = dr.arange(mi.UInt32, n)
         state = (_Path.start(rays, True), dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n),
                  dr.zeros(mi.Float, n), mi.UInt32(zero_u),
-                 [mi.UInt32(zero_u) for _ in RAY_TYPES], fork, mi.UInt32(zero_u))
+                 [mi.UInt32(zero_u) for _ in RAY_TYPES], dr.full(mi.Bool, False, n))
 
-        def cond(a, lm, lr, mask, depth, cnt, fork, fork_depth):
+        def cond(a, lm, lr, mask, depth, cnt, forked):
             return a.active
 
-        def body(a, lm, lr, mask, depth, cnt, fork, fork_depth):
+        def body(a, lm, lr, mask, depth, cnt, forked):
             c = dict(zip(RAY_TYPES, cnt, strict=True))
             c[f"rays_{kind}_radiance"] += dr.select(a.active, 1, 0)
             si_a = view.scene.ray_intersect(a.ray, mi.RayFlags.All, False, a.active)
@@ -255,26 +275,28 @@ class OnePassTracer:
             mask = dr.select((depth == 0) & (role_a == ROLE_VIRTUAL), 1.0, mask)
             if fork_enabled:
                 # hit rule 2: record the real continuation (same ray, state and depth)
-                forks = a.active & ~fork.active & (role_a == ROLE_VIRTUAL)
-                fork.take(a, forks)
-                fork_depth = dr.select(forks, depth, fork_depth)
-                to_real = ~fork.active
+                forks = a.active & ~forked & (role_a == ROLE_VIRTUAL)
+                fork.store(a, lane, forks)
+                dr.scatter(fork_depth, depth, lane, forks)
+                forked = forked | forks
+                to_real = ~forked
             else:
                 to_real = to_real_const
             lm, lr = self._vertex(view, a, si_a, role_a, key, depth, lm, lr, to_real=to_real,
                                   to_mixed=True, c=c,
                                   shadow_kind=None if onepass else kind)
             depth = depth + 1
-            return a, lm, lr, mask, depth, [c[k] for k in RAY_TYPES], fork, fork_depth
+            return a, lm, lr, mask, depth, [c[k] for k in RAY_TYPES], forked
 
-        a, lm, lr, mask, depth, cnt, fork, fork_depth = dr.while_loop(
+        a, lm, lr, mask, depth, cnt, forked = dr.while_loop(
             state=state, cond=cond, body=body, label="onepass_mixed")
-        dr.eval(lm, lr, mask, cnt, *((fork.fields(), fork_depth) if fork_enabled else ()))
+        dr.eval(lm, lr, mask, cnt, forked)
         counts = {k: int(dr.sum(v)[0]) for k, v in zip(RAY_TYPES, cnt, strict=True)}
         t1 = time.perf_counter()
         self.profile["lanes"] += n
         self.profile["phase1_seconds"] += t1 - t0
         if fork_enabled:
+            fork.active = forked
             lr = self._trace_forks(fork, fork_depth, key, lr, counts)
             self.profile["phase2_seconds"] += time.perf_counter() - t1
         if not onepass:
