@@ -104,6 +104,10 @@ def test_stats_and_ray_counts():
     # real continuation rays only where a path hit a virtual object
     assert 0 < st["rays_real_radiance"] < st["rays_mixed_radiance"]
     assert st["rays_per_sample"] == pytest.approx(st["rays_total"] / n)
+    # phase 2 traces exactly the forked lanes: at least one real radiance ray each
+    assert 0 < st["forked_lanes"] <= st["rays_real_radiance"]
+    assert st["forked_fraction"] == pytest.approx(st["forked_lanes"] / n)
+    assert st["phase1_seconds"] > 0 and st["phase2_seconds"] > 0
     assert set(layers.stderr) >= {"mixed", "real", "delta", "composite"}
 
 
@@ -115,6 +119,7 @@ def test_no_virtual_object_returns_frame_exactly():
     np.testing.assert_array_equal(layers.composite, frame)
     assert not np.any(layers.delta) and not np.any(layers.mask)
     assert layers.stats["rays_real_radiance"] == 0 and layers.stats["rays_real_shadow"] == 0
+    assert layers.stats["forked_lanes"] == 0
 
 
 def test_agrees_with_reference_monte_carlo():

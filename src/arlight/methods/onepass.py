@@ -21,7 +21,10 @@ Options (``RenderSettings.options``):
 Stats: ``seconds``, ``samples``, ``spp``, ``samples_per_second`` and ray counts per ray type
 (``rays_mixed_radiance``, ``rays_real_radiance``, ``rays_mixed_shadow``,
 ``rays_real_shadow``, ``rays_reprojection`` — the camera-visibility tests of §5.2),
-``rays_total`` and ``rays_per_sample``.
+``rays_total`` and ``rays_per_sample``; in one-pass mode also ``forked_lanes`` /
+``forked_fraction`` (samples whose path hit a virtual object and so were continued by the
+tracer's second phase) and ``phase1_seconds`` / ``phase2_seconds`` (mixed/shared loop vs the
+compacted real continuations, synchronised wall time).
 """
 
 from __future__ import annotations
@@ -124,6 +127,11 @@ def render_onepass(scene: ARScene, settings: RenderSettings) -> Layers:
     stats = {"seconds": res.seconds, "samples": float(samples), "spp": float(settings.spp),
              "samples_per_second": samples / max(res.seconds, 1e-9),
              **ray_stats(counts, samples)}
+    if mode == "onepass":
+        prof = tracer.profile
+        stats.update(forked_lanes=float(prof["forked_lanes"]),
+                     forked_fraction=prof["forked_lanes"] / max(samples, 1),
+                     phase1_seconds=prof["phase1_seconds"], phase2_seconds=prof["phase2_seconds"])
     stderr = {k: mom[k].stderr for k in ("mixed", "real", "delta", "composite")}
     delta = mom["delta"].mean
     if not scene.has_virtual:
