@@ -16,7 +16,8 @@ Each lane (one camera sample) owns at most two paths, traced in two phases:
   (``dr.compress``), their fork states gathered, and a second symbolic loop traces only them
   in the real view µ (real shadow rays; hit rule 3), adding their radiance to ``L_r`` of
   their lane (gather the lane's ``L_r``, accumulate, scatter back). The real path's work is
-  thus paid for only by the (typically 10–30 %) lanes that fork, not by every SIMD packet.
+  thus paid for only by the lanes that fork (4–8 % on the benchmark scenes), not by every
+  SIMD packet.
   Hit rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
 
 The continuation is not a bounce: it takes over the mixed path's depth. Random numbers are
