@@ -108,17 +108,6 @@ class _Path:
         return [self.ray, self.beta, self.eta, self.active, self.prev_si, self.prev_pdf,
                 self.prev_delta, self.spec_virtual]
 
-    def take(self, other: _Path, where: mi.Bool) -> None:
-        """Lane-wise copy of ``other`` where ``where`` (recording the fork of hit rule 2)."""
-        self.ray = dr.select(where, other.ray, self.ray)
-        self.beta = dr.select(where, other.beta, self.beta)
-        self.eta = dr.select(where, other.eta, self.eta)
-        self.active = self.active | where
-        self.prev_si = dr.select(where, other.prev_si, self.prev_si)
-        self.prev_pdf = dr.select(where, other.prev_pdf, self.prev_pdf)
-        self.prev_delta = dr.select(where, other.prev_delta, self.prev_delta)
-        self.spec_virtual = dr.select(where, other.spec_virtual, self.spec_virtual)
-
     @staticmethod
     def storage(n: int) -> _Path:
         """Uninitialised, evaluated per-lane arrays that :meth:`store` scatters into."""
