@@ -1,10 +1,12 @@
 """Pixel estimates from many samples, in passes, with per-pixel standard errors.
 
 A render of ``spp`` samples per pixel is split into passes of ``spp_per_pass`` samples so
-memory stays bounded; each pass is one wavefront of ``spp_per_pass · W · H`` lanes laid out
-sample-major (lane ``l`` → sample ``l // P``, pixel ``l % P``). A *kernel* turns the lanes'
-camera rays into named per-lane values (radiance, mask, ...); :func:`run_passes` sums them
-and their squares per pixel, so every layer comes with the standard error of its mean.
+memory stays bounded; each pass is one wavefront of ``n · W · H`` lanes laid out
+pixel-major (lane ``l`` → pixel ``l // n``, sample ``l % n``), so a pixel's samples are
+neighbours (coherent rays) and the per-pixel sums are block reductions done by Dr.Jit in
+the same kernel. A *kernel* turns the lanes' camera rays into named per-lane values
+(radiance, mask, ...); :func:`run_passes` sums them and their squares per pixel, so every
+layer comes with the standard error of its mean.
 """
 
 from __future__ import annotations
@@ -60,10 +62,11 @@ class PassResult:
     lanes: int = 0
 
 
-def _to_numpy(x, n_samples: int, height: int, width: int) -> np.ndarray:
+def _to_image(x, height: int, width: int) -> np.ndarray:
+    """Per-pixel Dr.Jit values (Float or 3-vector) -> ``(H, W, C)`` float64."""
     a = np.array(x, dtype=np.float64)
     a = a[:, None] if a.ndim == 1 else a.T  # Dr.Jit 3-vectors convert channel-major (3, N)
-    return a.reshape(n_samples, height, width, a.shape[-1])
+    return a.reshape(height, width, a.shape[-1])
 
 
 def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
@@ -91,20 +94,21 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             n = min(per_pass, spp - k0)
             lanes = n * n_pix
             idx = dr.arange(mi.UInt32, lanes)
-            pixel = idx % n_pix
-            k = idx // n_pix + dr.opaque(mi.UInt32, k0)
+            pixel = idx // n
+            k = idx % n + dr.opaque(mi.UInt32, k0)
             rays = generate_rays(camera, pixel, k, spp, dr.opaque(mi.UInt32, seed))
             pass_seed = dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + k0 * 0x85EBCA77) & 0xFFFFFFFF)
             outputs = kernel(rays, pixel, pass_seed, lanes)
-            dr.eval(*outputs.values())
-            for name, value in outputs.items():
-                arr = _to_numpy(value, n, h, w)
+            sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n))
+                    for name, v in outputs.items()}
+            dr.eval(sums)
+            for name, (total, total_sq) in sums.items():
                 mom = result.moments.get(name)
                 if mom is None:
-                    mom = result.moments[name] = PixelMoments(
-                        np.zeros(arr.shape[1:]), np.zeros(arr.shape[1:]))
-                mom.total += arr.sum(axis=0)
-                mom.total_sq += np.square(arr).sum(axis=0)
+                    shape = (h, w, 1 if isinstance(total, mi.Float) else 3)
+                    mom = result.moments[name] = PixelMoments(np.zeros(shape), np.zeros(shape))
+                mom.total += _to_image(total, h, w)
+                mom.total_sq += _to_image(total_sq, h, w)
                 mom.count += n
             result.lanes += lanes
             k0 += n
