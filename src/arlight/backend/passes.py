@@ -99,6 +99,7 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             rays = generate_rays(camera, pixel, k, spp, dr.opaque(mi.UInt32, seed))
             pass_seed = dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + k0 * 0x85EBCA77) & 0xFFFFFFFF)
             outputs = kernel(rays, pixel, pass_seed, lanes)
+            dr.eval(outputs)  # one render kernel; the reductions below read its results
             sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n))
                     for name, v in outputs.items()}
             dr.eval(sums)
