@@ -74,8 +74,9 @@ def main() -> None:
         f"{n / t_path / 1e6:.3f} |",
         "",
         f"Ratio reference / path samples per second: **{t_path / t_ref:.3f}** (paths per "
-        f"second: {2 * t_path / t_ref:.3f}). Two solutions per sample, so ≈ 0.5 is the "
-        "expected cost of two-pass differential rendering.",
+        f"second: {2 * t_path / t_ref:.3f}). `reference` traces two solutions per sample, so "
+        "0.5 would be the cost of the two path tracings alone; the rest is its mask ray and "
+        "the per-pixel moments (sum and sum of squares) of five layers for standard errors.",
     ]
     text = "\n".join([HEADING, "", *rows])
     print(text)
