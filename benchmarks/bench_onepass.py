@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from dataclasses import replace
 
 import numpy as np
 from results import write_section
@@ -42,17 +41,8 @@ HEADING = "## One-pass differential path tracing (issue 3)"
 
 def scaled(scene: ARScene, factor: int) -> ARScene:
     """The scene at 1/factor resolution (intrinsics scaled; frame box-filtered)."""
-    if factor == 1:
-        return scene
-    c = scene.camera
-    cam = replace(c, width=c.width // factor, height=c.height // factor, fx=c.fx / factor,
-                  fy=c.fy / factor, cx=c.cx / factor, cy=c.cy / factor)
-    out = replace(scene, camera=cam, frame=None, frame_codes=None)
-    if scene.frame is not None:
-        f = scene.frame[:cam.height * factor, :cam.width * factor]
-        f = f.reshape(cam.height, factor, cam.width, factor, 3).mean(axis=(1, 3))
-        out = out.with_frame(f.astype(np.float32))
-    return out
+    w, h = scene.resolution
+    return scene.resized(w // factor, h // factor) if factor > 1 else scene
 
 
 def load_scenes(factor: int, frame_spp: int) -> dict[str, ARScene]:
