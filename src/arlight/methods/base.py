@@ -86,6 +86,38 @@ class Layers:
                       composite=composite(bg, mixed, delta, mask).astype(np.float32), **kwargs)
 
 
+def differential_samples(mixed, real, mask, background) -> dict:
+    """Per-sample layers of a differential Monte Carlo method (Dr.Jit arrays per lane).
+
+    ``delta = L_m − L_r`` per sample (paired, so its standard error is that of the
+    difference) and the per-sample composite ``m·L_m + (1 − m)(I_c + delta)``, whose moments
+    give the composite's standard error. Feed the dict to :func:`arlight.backend.passes.
+    run_passes` and its result to :func:`layers_from_passes`.
+    """
+    delta = mixed - real
+    comp = mask * mixed + (1.0 - mask) * (background + delta)
+    return {"mixed": mixed, "real": real, "delta": delta, "mask": mask, "composite": comp}
+
+
+def layers_from_passes(frame: np.ndarray, result, **stats: float) -> Layers:
+    """Layers from the moments of :func:`differential_samples` (a ``PassResult``).
+
+    Layers are the per-pixel means, ``stderr`` their standard errors; ``stats`` gets the
+    timing and sample counts (``seconds``, ``samples``, ``spp``, ``samples_per_second``) plus
+    the method's own entries.
+    """
+    mom = result.moments
+    samples = result.lanes
+    spp = mom["mixed"].count
+    base = {"seconds": result.seconds, "samples": float(samples), "spp": float(spp),
+            "samples_per_second": samples / max(result.seconds, 1e-9)}
+    return Layers.assemble(frame, mom["mixed"].mean, mom["delta"].mean,
+                           mom["mask"].mean[..., 0], real=mom["real"].mean,
+                           stderr={k: mom[k].stderr for k in ("mixed", "real", "delta",
+                                                              "composite")},
+                           stats={**base, **stats})
+
+
 def require_frame(scene: ARScene) -> np.ndarray:
     """The scene's background frame, or an error naming the scene file."""
     if scene.frame is None:

@@ -38,7 +38,13 @@ from arlight.backend.mitsuba_scene import build_views
 from arlight.backend.passes import run_passes
 from arlight.errors import InputError
 from arlight.methods import register
-from arlight.methods.base import Layers, RenderSettings, require_frame
+from arlight.methods.base import (
+    Layers,
+    RenderSettings,
+    differential_samples,
+    layers_from_passes,
+    require_frame,
+)
 from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions, lane_keys
 from arlight.methods.reference import frame_gather
 from arlight.scene.model import ARScene
@@ -115,30 +121,22 @@ def render_onepass(scene: ARScene, settings: RenderSettings) -> Layers:
         for p in parts:
             for k, v in p.items():
                 counts[k] += v
-        delta = lm - lr
-        comp = m * lm + (1.0 - m) * (background(pixel) + delta)
-        return {"mixed": lm, "real": lr, "delta": delta, "mask": m, "composite": comp}
+        return differential_samples(lm, lr, m, background(pixel))
 
     res = run_passes(scene.camera, settings.spp, kernel, seed=settings.seed,
                      spp_per_pass=settings.spp_per_pass,
                      progress="onepass" if settings.progress else None)
-    mom = res.moments
-    samples = res.lanes
-    stats = {"seconds": res.seconds, "samples": float(samples), "spp": float(settings.spp),
-             "samples_per_second": samples / max(res.seconds, 1e-9),
-             **ray_stats(counts, samples)}
+    stats = ray_stats(counts, res.lanes)
     if mode == "onepass":
         prof = tracer.profile
         stats.update(forked_lanes=float(prof["forked_lanes"]),
-                     forked_fraction=prof["forked_lanes"] / max(samples, 1),
+                     forked_fraction=prof["forked_lanes"] / max(res.lanes, 1),
                      phase1_seconds=prof["phase1_seconds"], phase2_seconds=prof["phase2_seconds"])
-    stderr = {k: mom[k].stderr for k in ("mixed", "real", "delta", "composite")}
-    delta = mom["delta"].mean
+    layers = layers_from_passes(frame, res, **stats)
     if not scene.has_virtual:
         # Every path is shared, so L_m == L_r per sample and delta is exactly zero.
-        assert not np.any(delta), "one-pass delta must vanish without virtual objects"
-    return Layers.assemble(frame, mom["mixed"].mean, delta, mom["mask"].mean[..., 0],
-                           real=mom["real"].mean, stderr=stderr, stats=stats)
+        assert not np.any(layers.delta), "one-pass delta must vanish without virtual objects"
+    return layers
 
 
 __all__ = ["render_onepass", "ray_stats", "tracer_options"]

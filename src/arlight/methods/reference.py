@@ -22,7 +22,13 @@ import numpy as np
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, build_views
 from arlight.backend.passes import run_passes
 from arlight.methods import register
-from arlight.methods.base import Layers, RenderSettings, require_frame
+from arlight.methods.base import (
+    Layers,
+    RenderSettings,
+    differential_samples,
+    layers_from_passes,
+    require_frame,
+)
 from arlight.scene.model import ARScene
 
 
@@ -64,31 +70,15 @@ def render_reference(scene: ARScene, settings: RenderSettings) -> Layers:
 
     def kernel(rays, pixel, seed, lanes):
         real = trace_radiance(integrator, views.real, rays, seed, lanes)
-        if not scene.has_virtual:
-            return {"real": real}
+        if not scene.has_virtual:  # µ = ρ: one path serves both, the delta is exactly 0
+            return differential_samples(real, real, dr.zeros(mi.Float, lanes),
+                                        background(pixel))
         mixed = trace_radiance(integrator, views.mixed, rays, seed, lanes)
-        m = virtual_coverage(views.mixed, rays)
-        delta = mixed - real
-        comp = m * mixed + (1.0 - m) * (background(pixel) + delta)
-        return {"mixed": mixed, "real": real, "delta": delta, "mask": m, "composite": comp}
+        return differential_samples(mixed, real, virtual_coverage(views.mixed, rays),
+                                    background(pixel))
 
     res = run_passes(scene.camera, settings.spp, kernel, seed=settings.seed,
                      spp_per_pass=settings.spp_per_pass,
                      progress="reference" if settings.progress else None)
-    mom = res.moments
-    real = mom["real"].mean
-    samples = res.lanes
-    stats = {"seconds": res.seconds, "samples": float(samples), "spp": float(settings.spp),
-             "samples_per_second": samples / max(res.seconds, 1e-9),
-             "paths_traced": float(samples * (2 if scene.has_virtual else 1))}
-    if not scene.has_virtual:
-        zeros = np.zeros_like(frame)
-        return Layers.assemble(frame, real, zeros, zeros[..., 0], real=real,
-                               stderr={"real": mom["real"].stderr, "mixed": mom["real"].stderr,
-                                       "composite": np.zeros_like(frame)},
-                               stats=stats)
-    return Layers.assemble(frame, mom["mixed"].mean, mom["delta"].mean, mom["mask"].mean[..., 0],
-                           real=real,
-                           stderr={k: mom[k].stderr for k in ("mixed", "real", "delta",
-                                                              "composite")},
-                           stats=stats)
+    paths = res.lanes * (2 if scene.has_virtual else 1)
+    return layers_from_passes(frame, res, paths_traced=float(paths))
