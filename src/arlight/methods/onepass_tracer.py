@@ -8,16 +8,19 @@ Each lane (one camera sample) owns at most two paths, traced in two phases:
   ``L_r`` (hit rule 1: one mixed and one real shadow ray per light sample). The real shadow
   ray is only traced where the mixed one is blocked: µ ⊂ ρ, so a ray free in ρ is free in µ.
   When a shared path first hits a virtual object (hit rule 2) the lane is marked *forked* and
-  the state the real path needs to go on from there is recorded in per-lane arrays: the ray
-  (re-intersected in µ it "passes through" the virtual object), throughput, η, depth and MIS
-  state (previous interaction, BSDF pdf, whether that bounce was delta). The mixed path then
-  goes on mixed-only (mixed shadow rays only).
+  its fork depth kept (two scalars per lane: the loop carries no other extra state). The
+  mixed path then goes on mixed-only (mixed shadow rays only).
 * **Phase 2**, the *real radiance* continuations: the forked lanes are compacted
-  (``dr.compress``), their fork states gathered, and a second symbolic loop traces only them
-  in the real view µ (real shadow rays; hit rule 3), adding their radiance to ``L_r`` of
-  their lane (gather the lane's ``L_r``, accumulate, scatter back). The real path's work is
-  thus paid for only by the lanes that fork (4–8 % on the benchmark scenes), not by every
-  SIMD packet.
+  (``dr.compress``) and a second symbolic loop traces only them in the real view µ from
+  their camera rays. Before its fork a lane's path met only real surfaces, so in µ it
+  retraces phase 1's shared prefix bit for bit (same rays, same real shapes, same random
+  numbers) — there it only updates the path state, its light being in ``L_r`` already; from
+  the fork depth on (the ray that hit the virtual object now passes through it: the
+  continuation ray) it gathers light with real shadow rays (hit rule 3), added to ``L_r`` of
+  its lane (gather, accumulate, scatter back). Most forks are camera rays (no prefix). The
+  real path's work is thus paid for only by the lanes that fork (4–8 % on the benchmark
+  scenes), not by every SIMD packet, and phase 1 stays as lean as a plain mixed path
+  (recording full fork states there, a masked scatter per iteration, cost ~30 %).
   Hit rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
 
 The continuation is not a bounce: it takes over the mixed path's depth. Random numbers are
@@ -103,39 +106,6 @@ class _Path:
                      eta=dr.full(mi.Float, 1.0, n), active=dr.full(mi.Bool, active, n),
                      prev_si=dr.zeros(mi.Interaction3f, n), prev_pdf=dr.full(mi.Float, 1.0, n),
                      prev_delta=dr.full(mi.Bool, True, n), spec_virtual=dr.full(mi.Bool, False, n))
-
-    def fields(self) -> list:
-        return [self.ray, self.beta, self.eta, self.active, self.prev_si, self.prev_pdf,
-                self.prev_delta, self.spec_virtual]
-
-    @staticmethod
-    def storage(n: int) -> _Path:
-        """Uninitialised, evaluated per-lane arrays that :meth:`store` scatters into."""
-        st = _Path(ray=dr.empty(mi.Ray3f, n), beta=dr.empty(mi.Color3f, n),
-                   eta=dr.empty(mi.Float, n), active=dr.full(mi.Bool, False, n),
-                   prev_si=dr.empty(mi.Interaction3f, n), prev_pdf=dr.empty(mi.Float, n),
-                   prev_delta=dr.empty(mi.Bool, n), spec_virtual=dr.full(mi.Bool, False, n))
-        dr.eval(st.fields())
-        return st
-
-    def store(self, other: _Path, index: mi.UInt32, where: mi.Bool) -> None:
-        """Scatter ``other``'s state to lanes ``index`` where ``where`` (recording the fork of
-        hit rule 2; a side effect of the loop, so the fork states are not loop variables and
-        cost memory traffic only for the lanes that fork)."""
-        for name in ("ray", "beta", "eta", "prev_si", "prev_pdf", "prev_delta"):
-            dr.scatter(getattr(self, name), getattr(other, name), index, where)
-
-    def gather(self, index: mi.UInt32) -> _Path:
-        """The states of lanes ``index`` as a new, all-active path (phase-2 compaction)."""
-
-        def g(x):
-            return dr.gather(type(x), x, index)
-
-        m = dr.width(index)
-        return _Path(ray=g(self.ray), beta=g(self.beta), eta=g(self.eta),
-                     active=dr.full(mi.Bool, True, m), prev_si=g(self.prev_si),
-                     prev_pdf=g(self.prev_pdf), prev_delta=g(self.prev_delta),
-                     spec_virtual=dr.full(mi.Bool, False, m))
 
 
 def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
@@ -246,28 +216,24 @@ class OnePassTracer:
         to_real_const = onepass and self.same_views
         kind = "mixed" if view is self.mixed else "real"
         zero_u = dr.zeros(mi.UInt32, n)
-        if fork_enabled:  # fork states of hit rule 2, written by the loop where lanes fork
-            fork, fork_depth = _Path.storage(n), dr.empty(mi.UInt32, n)
-            dr.eval(fork_depth)
-            lane = dr.arange(mi.UInt32, n)
         state = (_Path.start(rays, True), dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n),
                  dr.zeros(mi.Float, n), mi.UInt32(zero_u),
-                 [mi.UInt32(zero_u) for _ in RAY_TYPES], dr.full(mi.Bool, False, n))
+                 [mi.UInt32(zero_u) for _ in RAY_TYPES], dr.full(mi.Bool, False, n),
+                 mi.UInt32(zero_u))
 
-        def cond(a, lm, lr, mask, depth, cnt, forked):
+        def cond(a, lm, lr, mask, depth, cnt, forked, fork_depth):
             return a.active
 
-        def body(a, lm, lr, mask, depth, cnt, forked):
+        def body(a, lm, lr, mask, depth, cnt, forked, fork_depth):
             c = dict(zip(RAY_TYPES, cnt, strict=True))
             c[f"rays_{kind}_radiance"] += dr.select(a.active, 1, 0)
             si_a = view.scene.ray_intersect(a.ray, mi.RayFlags.All, False, a.active)
             role_a = view.hit_role(si_a)
             mask = dr.select((depth == 0) & (role_a == ROLE_VIRTUAL), 1.0, mask)
             if fork_enabled:
-                # hit rule 2: record the real continuation (same ray, state and depth)
+                # hit rule 2: the lane forks here; phase 2 continues its real path
                 forks = a.active & ~forked & (role_a == ROLE_VIRTUAL)
-                fork.store(a, lane, forks)
-                dr.scatter(fork_depth, depth, lane, forks)
+                fork_depth = dr.select(forks, depth, fork_depth)
                 forked = forked | forks
                 to_real = ~forked
             else:
@@ -276,40 +242,47 @@ class OnePassTracer:
                                   to_mixed=True, c=c,
                                   shadow_kind=None if onepass else kind)
             depth = depth + 1
-            return a, lm, lr, mask, depth, [c[k] for k in RAY_TYPES], forked
+            return a, lm, lr, mask, depth, [c[k] for k in RAY_TYPES], forked, fork_depth
 
-        a, lm, lr, mask, depth, cnt, forked = dr.while_loop(
+        a, lm, lr, mask, depth, cnt, forked, fork_depth = dr.while_loop(
             state=state, cond=cond, body=body, label="onepass_mixed")
-        dr.eval(lm, lr, mask, cnt, forked)
+        dr.eval(lm, lr, mask, cnt, forked, fork_depth)
         counts = {k: int(dr.sum(v)[0]) for k, v in zip(RAY_TYPES, cnt, strict=True)}
         t1 = time.perf_counter()
         self.profile["lanes"] += n
         self.profile["phase1_seconds"] += t1 - t0
         if fork_enabled:
-            fork.active = forked
-            lr = self._trace_forks(fork, fork_depth, key, lr, counts)
+            lr = self._trace_forks(rays, forked, fork_depth, key, lr, counts)
             self.profile["phase2_seconds"] += time.perf_counter() - t1
         if not onepass:
             lr = lm
         return TraceResult(lm, lr, mask, counts)
 
-    def _trace_forks(self, fork: _Path, fork_depth: mi.UInt32, key: mi.UInt32,
-                     lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
+    def _trace_forks(self, rays: mi.Ray3f, forked: mi.Bool, fork_depth: mi.UInt32,
+                     key: mi.UInt32, lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
         """Phase 2: the real continuations of the forked lanes only (hit rules 2–3).
 
-        Compacts the forked lanes, traces them in µ from their recorded state and returns
-        ``lr`` with their radiance added (accumulated onto the lane's shared-prefix ``L_r``,
-        in the same order as a separate render of µ). ``counts`` gains their rays.
+        Compacts the forked lanes and traces them in µ from their camera rays. Random numbers
+        depend only on (lane, depth, dimension), and before its fork a lane's path only met
+        real surfaces, so in µ it retraces exactly the shared prefix of phase 1 (bit for bit:
+        same rays, same real shapes, same numbers); that prefix updates the path state only —
+        its light is already in ``L_r`` — and the real path gathers light from the fork depth
+        on (the virtual hit there is passed through: the continuation ray of rule 2). Most
+        forks happen at the camera ray, where there is no prefix. Keeping no per-lane fork
+        state in phase 1 keeps its loop as lean as a plain mixed path. ``counts`` gains the
+        rays traced here.
         """
-        idx = dr.compress(fork.active)
+        idx = dr.compress(forked)
         m = dr.width(idx)
         self.profile["forked_lanes"] += m
         if m == 0:
             return lr
         zero_u = dr.zeros(mi.UInt32, m)
         key_b = dr.gather(mi.UInt32, key, idx)
-        state = (fork.gather(idx), dr.gather(mi.Color3f, lr, idx),
-                 dr.gather(mi.UInt32, fork_depth, idx), mi.UInt32(zero_u), mi.UInt32(zero_u))
+        start_depth = dr.gather(mi.UInt32, fork_depth, idx)
+        state = (_Path.start(dr.gather(mi.Ray3f, rays, idx), True),
+                 dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u), mi.UInt32(zero_u),
+                 mi.UInt32(zero_u))
 
         def cond(b, lr_b, depth, n_rad, n_shadow):
             return b.active
@@ -319,7 +292,8 @@ class OnePassTracer:
             n_rad += dr.select(b.active, 1, 0)
             si_b = self.real.scene.ray_intersect(b.ray, mi.RayFlags.All, False, b.active)
             _, lr_b = self._vertex(self.real, b, si_b, self.real.hit_role(si_b), key_b, depth,
-                                   None, lr_b, to_real=True, to_mixed=False, c=c)
+                                   None, lr_b, to_real=depth >= start_depth, to_mixed=False,
+                                   c=c)
             return b, lr_b, depth + 1, n_rad, c["rays_real_shadow"]
 
         _, lr_b, _, n_rad, n_shadow = dr.while_loop(state=state, cond=cond, body=body,
@@ -417,7 +391,9 @@ class OnePassTracer:
                 vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
             lm = add(lm, contrib, vis_m)
             lr = add(lr, contrib, vis_r if to_real is True else vis_r & to_real)
-        else:  # slot B: real shadow ray
+        else:  # slot B: real shadow ray (none on a retraced prefix, where to_real is off)
+            if to_real is not True:
+                active_em &= to_real
             c["rays_real_shadow"] += dr.select(active_em, 1, 0)
             vis_r = active_em & ~self.real.scene.ray_test(shadow, active_em)
             lr = add(lr, contrib, vis_r)
