@@ -122,12 +122,17 @@ def write_plots(results: EvalResults, out: Path) -> list[Path]:
     if not cells:
         return []
     paths = []
+    scenes = sorted({c.scene for c in cells})
+    methods = sorted({c.method for c in cells})
+    colour = {s: plt.get_cmap("tab10")(i % 10) for i, s in enumerate(scenes)}  # per scene
+    style = {m: ("o-", "s--", "^:", "D-.")[i % 4] for i, m in enumerate(methods)}  # per method
     for xkey, xlabel, name in (("spp", "samples per pixel", "error_vs_spp"),
                                ("seconds", "wall time (s)", "error_vs_time")):
         fig, ax = plt.subplots(figsize=(6, 4), layout="constrained")
         for c in cells:
             xs = [getattr(p, xkey) for p in c.sweep]
-            ax.loglog(xs, [p.rmse for p in c.sweep], "o-", label=f"{c.method} / {c.scene}")
+            ax.loglog(xs, [p.rmse for p in c.sweep], style[c.method], color=colour[c.scene],
+                      ms=4, label=f"{c.method} / {c.scene}")
         if xkey == "spp":  # Monte Carlo reference slope
             c0 = cells[0].sweep
             xs = np.array([p.spp for p in c0], float)
