@@ -90,8 +90,9 @@ def render(
     layers = get_method(method)(sc, settings)
     paths = write_layers(layers, sc, out)
     s = layers.stats
+    rays = f", {s['rays_per_sample']:.2f} rays/sample" if "rays_per_sample" in s else ""
     console.print(f"[green]{method}[/]: {s.get('seconds', 0):.2f} s, "
-                  f"{s.get('samples_per_second', 0) / 1e6:.2f} Msamples/s")
+                  f"{s.get('samples_per_second', 0) / 1e6:.2f} Msamples/s{rays}")
     console.print(f"composite: {paths['composite_png']}  (layers: {out}/*.exr)")
 
 
