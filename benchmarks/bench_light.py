@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from results import write_section
+from results import publish
 
 from arlight.io.images import read_linear
 from arlight.light import extract, sh
@@ -126,9 +126,7 @@ def main() -> None:
     lines += ["", "Baselines: per-pixel closed-form L2 basis matrix product; recursive median "
               "cut re-summing sub-arrays. Both are checked to give the same result first.", ""]
     text = "\n".join(lines)
-    print(text)
-    if args.write:
-        write_section(text)
+    publish(text, args.write)
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ import statistics
 import time
 
 import numpy as np
-from results import write_section
+from results import publish
 
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.model import ARScene
@@ -178,11 +178,8 @@ def main() -> None:
     t0 = time.perf_counter()
     rows = [bench_scene(n, s, args.gt_spp, args.repeats)
             for n, s in load_scenes(factor, 256).items()]
-    text = table(rows, args)
-    print(text)
+    publish(table(rows, args), args.write)
     print(f"total {time.perf_counter() - t0:.0f} s")
-    if args.write:
-        write_section(text)
 
 
 if __name__ == "__main__":

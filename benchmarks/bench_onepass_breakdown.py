@@ -21,7 +21,7 @@ import argparse
 import os
 
 import mitsuba as mi
-from results import write_section
+from results import publish
 
 from arlight.backend.mitsuba_scene import build_views
 from arlight.backend.passes import run_passes
@@ -93,9 +93,7 @@ def main() -> None:
               "records, phase 2); `mitsuba mixed + mitsuba real` is what `reference` pays "
               "for the same two solutions."]
     text = "\n".join(lines)
-    print(text)
-    if args.write:
-        write_section(text)
+    publish(text, args.write)
 
 
 if __name__ == "__main__":

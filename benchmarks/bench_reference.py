@@ -17,7 +17,7 @@ import time
 
 import drjit as dr
 import mitsuba as mi
-from results import write_section
+from results import publish
 
 from arlight.backend.mitsuba_scene import build_views, mitsuba_sensor
 from arlight.demo import demo_scene_path
@@ -79,9 +79,7 @@ def main() -> None:
         "the per-pixel moments (sum and sum of squares) of five layers for standard errors.",
     ]
     text = "\n".join([HEADING, "", *rows])
-    print(text)
-    if args.write:
-        write_section(text)
+    publish(text, args.write)
 
 
 if __name__ == "__main__":

@@ -26,3 +26,10 @@ def write_section(text: str, path: Path = RESULTS) -> Path:
         new = old.rstrip("\n") + "\n\n" + text
     path.write_text(new.rstrip("\n") + "\n", encoding="utf-8")
     return path
+
+
+def publish(text: str, write: bool) -> None:
+    """Print a benchmark's section and, with ``write``, store it in RESULTS.md."""
+    print(text)
+    if write:
+        write_section(text)

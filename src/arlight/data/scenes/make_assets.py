@@ -69,4 +69,7 @@ def main(assets: Path) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1] if len(sys.argv) > 1 else "/work/shared/assets"))
+    if len(sys.argv) != 2:
+        sys.exit("usage: python make_assets.py ASSETS_DIR  (the shared assets folder with "
+                 "meshes/ and hdri/)")
+    main(Path(sys.argv[1]))
