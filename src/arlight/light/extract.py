@@ -33,7 +33,7 @@ from functools import cached_property
 
 import numpy as np
 
-from arlight.light.envmap import equirect_directions, equirect_solid_angle
+from arlight.light.envmap import equirect_solid_angle
 from arlight.light.sh import LUMINANCE
 
 
@@ -87,8 +87,9 @@ def _sat(a: np.ndarray) -> np.ndarray:
     return S
 
 
-def _rect(S: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
-    return S[r1, c1] - S[r0, c1] - S[r1, c0] + S[r0, c0]
+def _cumulative(slices: np.ndarray) -> np.ndarray:
+    """``[0, s0, s0 + s1, ...]``: cumulative energy of the slices along a split axis."""
+    return np.concatenate([[0.0], np.cumsum(slices, dtype=np.float64)])
 
 
 class _Tables:
@@ -99,13 +100,17 @@ class _Tables:
         self.img = np.clip(np.asarray(image, np.float64)[..., :3], 0.0, None)
         H, W = self.img.shape[:2]
         self.H, self.W = H, W
-        self.omega = equirect_solid_angle(H, W)
-        self.e = (self.img @ LUMINANCE) * self.omega
-        self.E = _sat(self.e)
+        # everything about a pixel's direction and solid angle is separable in row (θ)
+        # and column (φ), so region sums never need an (H, W, 3) direction array
+        self.omega_row = equirect_solid_angle(H, W)[:, 0]
+        theta = (np.arange(H) + 0.5) * np.pi / H
+        phi = (np.arange(W) + 0.5) * 2 * np.pi / W
+        self.sin_t, self.cos_t = np.sin(theta), np.cos(theta)
+        self.sin_p, self.cos_p = np.sin(phi), np.cos(phi)
+        self.e = (self.img @ LUMINANCE) * self.omega_row[:, None]
 
-    @cached_property
-    def dirs(self) -> np.ndarray:
-        return equirect_directions(self.H, self.W)
+    def energy(self, r0: int, r1: int, c0: int, c1: int) -> float:
+        return float(self.e[r0:r1, c0:c1].sum())
 
     @cached_property
     def moments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -115,17 +120,22 @@ class _Tables:
         return _sat(e * rows), _sat(e * cols), _sat(e * rows**2), _sat(e * cols**2)
 
     def light(self, r0: int, r1: int, c0: int, c1: int) -> ExtractedLight:
-        """The region's light; direct sums (the regions partition the map: O(H W) total)."""
+        """The region's light; direct sums (the regions partition the map: O(H W) total).
+
+        Direction: ``Σ e d`` with ``d = (sinθ sinφ, cosθ, −sinθ cosφ)``, summed column-wise
+        first (``e @ sinφ`` etc.), then over rows; irradiance ``Σ ω L``.
+        """
         e = self.e[r0:r1, c0:c1]
-        dirs = self.dirs[r0:r1, c0:c1]
-        v = np.einsum("hw,hwk->k", e, dirs)
+        st, ct = self.sin_t[r0:r1], self.cos_t[r0:r1]
+        v = np.array([st @ (e @ self.sin_p[c0:c1]), ct @ e.sum(axis=1),
+                      -(st @ (e @ self.cos_p[c0:c1]))])
         if np.linalg.norm(v) <= 0:  # a black region: its geometric centre
             th = np.pi * (r0 + r1) / (2 * self.H)
             ph = np.pi * (c0 + c1) / self.W
             v = np.array([np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)])
-        om = self.omega[r0:r1, c0:c1]
-        E = np.einsum("hw,hwc->c", om, self.img[r0:r1, c0:c1])
-        return ExtractedLight(direction=v, irradiance=E, solid_angle=float(om.sum()))
+        om = self.omega_row[r0:r1]
+        E = om @ self.img[r0:r1, c0:c1].sum(axis=1)
+        return ExtractedLight(direction=v, irradiance=E, solid_angle=float(om.sum() * (c1 - c0)))
 
 
 def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
@@ -145,7 +155,7 @@ def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
         def strip(S):
             return (S[r1, idx] - S[r0, idx])
 
-        s_e = strip(t.E)
+        s_e = _cumulative(t.e[r0:r1, c0:c1].sum(axis=0))
         if method == "variance":
             Er, Ec, Err, Ecc = t.moments
             s_ea, s_eaa = strip(Ec), strip(Ecc)  # a = along (cols)
@@ -157,7 +167,7 @@ def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
         def strip(S):
             return (S[idx, c1] - S[idx, c0])
 
-        s_e = strip(t.E)
+        s_e = _cumulative(t.e[r0:r1, c0:c1].sum(axis=1))
         if method == "variance":
             Er, Ec, Err, Ecc = t.moments
             s_ea, s_eaa = strip(Er), strip(Err)
@@ -205,8 +215,7 @@ def median_cut(image: np.ndarray, n_lights: int = 16, method: str = "median_cut"
     regions = [(0, t.H, 0, t.W)]
     while len(regions) < n_lights:
         need = n_lights - len(regions)
-        order = sorted(range(len(regions)),
-                       key=lambda i: -float(_rect(t.E, *regions[i])))
+        order = sorted(range(len(regions)), key=lambda i: -t.energy(*regions[i]))
         chosen = set(order[:need])
         new: list[tuple[int, int, int, int]] = []
         progressed = False
