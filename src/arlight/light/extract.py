@@ -93,8 +93,8 @@ def _cumulative(slices: np.ndarray) -> np.ndarray:
 
 
 class _Tables:
-    """Summed-area tables of an equirect map for O(1) region statistics (built lazily:
-    median cut needs only the energy table, variance minimisation four more)."""
+    """Per-pixel energy of an equirect map, separable direction/solid-angle factors, and
+    (lazily, for variance minimisation only) summed-area tables of the energy moments."""
 
     def __init__(self, image: np.ndarray) -> None:
         self.img = np.clip(np.asarray(image, np.float64)[..., :3], 0.0, None)
