@@ -13,7 +13,6 @@ Errors in the input print one line naming the file and field and exit with statu
 
 from __future__ import annotations
 
-import importlib
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -22,6 +21,8 @@ import typer
 from rich.console import Console
 
 from arlight.errors import ArlightError
+from arlight.evaluate import cli as eval_cli
+from arlight.light import cli as light_cli
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="arlight: photorealistic AR — insert virtual objects into real frames "
@@ -81,11 +82,9 @@ def render(
     settings = RenderSettings(spp=spp, seed=seed, max_depth=max_depth, progress=True,
                               options=_parse_options(option or []))
     if progressive:
-        try:
-            prog = importlib.import_module("arlight.progressive")
-        except ModuleNotFoundError as exc:
-            raise ArlightError("progressive mode is not available in this build") from exc
-        prog.run_cli(sc, method, settings, out, time_budget, frames, ground_truth, console)
+        from arlight.progressive import run_cli
+
+        run_cli(sc, method, settings, out, time_budget, frames, ground_truth, console)
         return
     layers = get_method(method)(sc, settings)
     paths = write_layers(layers, sc, out)
@@ -158,24 +157,10 @@ def demo(
     run_demo(out, spp=spp, method=method, console=console)
 
 
-def _mount_optional() -> None:
-    """Attach command groups that live in their own packages, when present."""
-    try:
-        light_cli = importlib.import_module("arlight.light.cli")
-        app.add_typer(light_cli.app, name="light", help="light estimation: SH, environment "
-                      "maps, probes, fisheye cameras, light extraction")
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("arlight.light.cli", "arlight.light"):
-            raise
-    try:
-        eval_cli = importlib.import_module("arlight.evaluate.cli")
-        app.command("eval")(eval_cli.eval_command)
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("arlight.evaluate.cli", "arlight.evaluate"):
-            raise
-
-
-_mount_optional()
+# command groups that live in their own packages
+app.add_typer(light_cli.app, name="light", help="light estimation: SH, environment maps, "
+              "probes, fisheye cameras, light extraction")
+app.command("eval")(eval_cli.eval_command)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ to our shape index, so a hit can be told real or virtual inside a JIT kernel.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
@@ -187,8 +187,6 @@ class SceneViews:
 
     real: SceneView
     mixed: SceneView
-    scene: ARScene
-    shape_roles: list[str] = field(default_factory=list)
 
 
 def _build_view(objects: dict[str, Any], roles: dict[str, int]) -> SceneView:
@@ -226,8 +224,7 @@ def build_views(scene: ARScene) -> SceneViews:
 
     real = _build_view(objects(False), roles)
     mixed = _build_view(objects(True), roles) if scene.has_virtual else real
-    return SceneViews(real=real, mixed=mixed, scene=scene,
-                      shape_roles=[s.role for s in scene.shapes])
+    return SceneViews(real=real, mixed=mixed)
 
 
 def mitsuba_sensor(camera, spp: int) -> mi.Sensor:

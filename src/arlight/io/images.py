@@ -87,11 +87,6 @@ def read_ldr(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(arr[..., :3])
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an HDR image as float32 radiance or an LDR image as raw code values."""
-    return read_hdr(path) if is_hdr_path(path) else read_ldr(path)
-
-
 def read_linear(path: str | Path) -> np.ndarray:
     """Read any image as linear float32 ``(H, W, 3)``.
 

@@ -43,11 +43,7 @@ def register(name: str) -> Callable[[RenderFn], RenderFn]:
 
 def _load_builtins() -> None:
     for mod in BUILTIN_MODULES:
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:  # a real import error inside an existing module
-                raise
+        importlib.import_module(mod)
 
 
 def available_methods() -> dict[str, str]:

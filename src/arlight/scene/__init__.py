@@ -1,8 +1,7 @@
 """AR scenes: camera, frame, real proxy, virtual objects and lights; the scene file format."""
 
 from arlight.scene.camera import Camera
-from arlight.scene.load import load_scene, parse_scene, scene_to_dict
+from arlight.scene.load import load_scene, parse_scene
 from arlight.scene.model import ARScene, Light, Material, Shape
 
-__all__ = ["ARScene", "Camera", "Light", "Material", "Shape", "load_scene", "parse_scene",
-           "scene_to_dict"]
+__all__ = ["ARScene", "Camera", "Light", "Material", "Shape", "load_scene", "parse_scene"]

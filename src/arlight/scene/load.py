@@ -48,7 +48,9 @@ def parse_scene(data: dict[str, Any], base_dir: str | Path = ".",
     v.check_keys(data, TOP_LEVEL, "")
     if data.get("format", FORMAT) != FORMAT:
         raise v.fail("format", f"unsupported format {data['format']!r}; expected {FORMAT!r}")
-    camera = _camera(v, v.table(data.get("camera", None) or _missing(v, "camera"), "camera"))
+    if "camera" not in data:
+        raise v.fail("camera", "missing required table")
+    camera = _camera(v, v.table(data["camera"], "camera"))
     materials = _materials(v, data.get("materials", {}))
     shapes = [_shape(v, s, i, materials) for i, s in enumerate(_array(v, data, "shapes"))]
     names = [s.name for s in shapes]
@@ -63,10 +65,6 @@ def parse_scene(data: dict[str, Any], base_dir: str | Path = ".",
         scene = _attach_frame(v, scene, frame_tab["image"])
     scene.raw = _canonical_raw(data, v.base_dir)
     return scene
-
-
-def _missing(v: Validator, field: str):
-    raise v.fail(field, "missing required table")
 
 
 def _array(v: Validator, data: dict, key: str) -> list[dict]:
@@ -324,17 +322,3 @@ def _canonical_raw(data: dict, base_dir: Path) -> dict:
         return node
 
     return fix(data)
-
-
-def scene_to_dict(scene: ARScene) -> dict[str, Any]:
-    """The scene's validated dictionary with absolute paths (``json.dump``-able)."""
-    return dict(scene.raw)
-
-
-def save_scene(scene_dict: dict[str, Any], path: str | Path) -> Path:
-    """Write a scene dictionary as JSON (atomically). Paths inside are kept as given."""
-    from arlight.io.images import atomic_write
-
-    with atomic_write(path, ".json") as tmp:
-        tmp.write_text(json.dumps(scene_dict, indent=2), encoding="utf-8")
-    return Path(path)

@@ -83,7 +83,7 @@ class ARScene:
         frame_codes: the raw code values when the frame came from an LDR file, kept so that
             an unchanged frame is written back byte-identical.
         source: the scene file, when loaded from one.
-        raw: the validated scene dictionary (what :func:`scene_to_dict` writes).
+        raw: the scene dictionary as read, with file paths made absolute.
     """
 
     camera: Camera
