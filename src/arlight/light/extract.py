@@ -153,26 +153,20 @@ def _split(t: _Tables, reg: tuple[int, int, int, int], method: str
         idx = np.arange(c0, c1 + 1)
 
         def strip(S):
-            return (S[r1, idx] - S[r0, idx])
-
-        s_e = _cumulative(t.e[r0:r1, c0:c1].sum(axis=0))
-        if method == "variance":
-            Er, Ec, Err, Ecc = t.moments
-            s_ea, s_eaa = strip(Ec), strip(Ecc)  # a = along (cols)
-            s_eb, s_ebb = strip(Er), strip(Err)  # b = across (rows)
-        a_scale, b_scale = x_scale, 1.0
+            return S[r1, idx] - S[r0, idx]
     else:
         idx = np.arange(r0, r1 + 1)
 
         def strip(S):
-            return (S[idx, c1] - S[idx, c0])
+            return S[idx, c1] - S[idx, c0]
 
-        s_e = _cumulative(t.e[r0:r1, c0:c1].sum(axis=1))
-        if method == "variance":
-            Er, Ec, Err, Ecc = t.moments
-            s_ea, s_eaa = strip(Er), strip(Err)
-            s_eb, s_ebb = strip(Ec), strip(Ecc)
-        a_scale, b_scale = 1.0, x_scale
+    s_e = _cumulative(t.e[r0:r1, c0:c1].sum(axis=0 if split_cols else 1))
+    a_scale, b_scale = (x_scale, 1.0) if split_cols else (1.0, x_scale)
+    if method == "variance":  # a = along the split axis, b = across it
+        Er, Ec, Err, Ecc = t.moments
+        along, across = ((Ec, Ecc), (Er, Err)) if split_cols else ((Er, Err), (Ec, Ecc))
+        s_ea, s_eaa = (strip(S) for S in along)
+        s_eb, s_ebb = (strip(S) for S in across)
     n = len(idx) - 1  # number of slices; cut k in 1..n-1 puts slices [0, k) left
     total = s_e[-1] - s_e[0]
     ks = np.arange(1, n)
