@@ -14,9 +14,9 @@ def diffuse(albedo) -> dict:
     return {"type": "diffuse", "albedo": albedo}
 
 
-def area_light_scene(width: int = 40, height: int = 30, virtual: bool = True) -> dict:
-    """A diffuse floor and back wall, a real box, a virtual sphere, one area light."""
-    shapes = [
+def real_room() -> list[dict]:
+    """The real part of the small test scenes: a diffuse floor, a green back wall, a red box."""
+    return [
         {"name": "floor", "role": "real", "type": "rectangle", "size": [3, 3],
          "normal": [0, 1, 0], "material": diffuse([0.7, 0.7, 0.6])},
         {"name": "wall", "role": "real", "type": "rectangle", "size": [3, 2],
@@ -24,6 +24,11 @@ def area_light_scene(width: int = 40, height: int = 30, virtual: bool = True) ->
         {"name": "box", "role": "real", "type": "box", "size": [0.4, 0.4, 0.4],
          "transform": {"translate": [-0.5, 0.2, -0.2]}, "material": diffuse([0.8, 0.2, 0.1])},
     ]
+
+
+def area_light_scene(width: int = 40, height: int = 30, virtual: bool = True) -> dict:
+    """The real room, a virtual sphere, one area light."""
+    shapes = real_room()
     if virtual:
         shapes.append({"name": "ball", "role": "virtual", "type": "sphere", "radius": 0.25,
                        "transform": {"translate": [0.15, 0.25, 0.1]},

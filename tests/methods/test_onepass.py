@@ -9,27 +9,15 @@ from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.load import parse_scene
 from arlight.stats import agreement_fraction
-
-LOOK = {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}
-
-
-def _diffuse(albedo) -> dict:
-    return {"type": "diffuse", "albedo": albedo}
+from tests.conftest import LOOK, real_room
 
 
 def table_scene(width: int = 40, height: int = 30, virtual: bool = True,
                 lights: str = "area+env", glass_ior: float = 1.5,
                 aperture: float = 0.0) -> dict:
-    """Real floor, wall and cube; virtual Phong ball, glass sphere and metal ring (Kán Fig. 4.5
-    in miniature); an area light and a constant sky, or a point light."""
-    shapes = [
-        {"name": "floor", "role": "real", "type": "rectangle", "size": [3, 3],
-         "normal": [0, 1, 0], "material": _diffuse([0.7, 0.7, 0.6])},
-        {"name": "wall", "role": "real", "type": "rectangle", "size": [3, 2],
-         "transform": {"translate": [0, 1, -1]}, "material": _diffuse([0.2, 0.6, 0.2])},
-        {"name": "cube", "role": "real", "type": "box", "size": [0.4, 0.4, 0.4],
-         "transform": {"translate": [-0.5, 0.2, -0.2]}, "material": _diffuse([0.8, 0.2, 0.1])},
-    ]
+    """The real room of tests/conftest.py; virtual Phong ball, glass sphere and metal ring
+    (Kán Fig. 4.5 in miniature); an area light and a constant sky, or a point light."""
+    shapes = real_room()
     if virtual:
         shapes += [
             {"name": "ball", "role": "virtual", "type": "sphere", "radius": 0.22,
