@@ -1,4 +1,12 @@
-"""In-memory AR scene: the validated content of a scene file.
+"""In-memory AR scene: the validated content of a scene file, split into world and view.
+
+* :class:`World` — what stays the same from frame to frame: the real proxy, the virtual
+  objects in their rest pose, materials and lights.
+* :class:`FrameView` — one frame of that world: the camera (intrinsics, pose, lens,
+  transfer), the background image, optional depth, per-frame object transforms, a timestamp.
+  A video is one world and many views.
+* :class:`ARScene` — a world seen in one view (what a scene file holds); ``scene.world`` and
+  ``scene.view`` split it, :meth:`ARScene.compose` joins them.
 
 Every shape carries a role, ``"real"`` (part of the proxy of the real world) or ``"virtual"``
 (inserted). Lights are real: they stand for the real illumination (estimated or measured).
@@ -70,6 +78,80 @@ class Light:
     radiance_map: np.ndarray | None = None
 
 
+def _posed_shapes(shapes: list[Shape], transforms: dict[str, np.ndarray]) -> list[Shape]:
+    unknown = sorted(set(transforms) - {s.name for s in shapes})
+    if unknown:
+        raise ValueError(f"object transform for unknown shape {unknown[0]!r}")
+    return [replace(s, to_world=np.asarray(transforms[s.name], np.float64) @ s.to_world)
+            if s.name in transforms else s for s in shapes]
+
+
+@dataclass
+class World:
+    """The static part of an AR scene: real proxy, virtual objects, materials, lights.
+
+    Attributes:
+        shapes: real and virtual shapes in their rest pose (world coordinates, metres).
+        lights: the real illumination.
+        source: the file the world was loaded from, if any.
+        raw: the scene dictionary as read (paths absolute); used for hashing and saving.
+    """
+
+    shapes: list[Shape]
+    lights: list[Light]
+    source: Path | None = None
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def real_shapes(self) -> list[Shape]:
+        return [s for s in self.shapes if s.role == "real"]
+
+    @property
+    def virtual_shapes(self) -> list[Shape]:
+        return [s for s in self.shapes if s.role == "virtual"]
+
+    @property
+    def has_virtual(self) -> bool:
+        return any(s.is_virtual for s in self.shapes)
+
+    def posed(self, transforms: dict[str, np.ndarray]) -> World:
+        """The world with ``transforms[name]`` (4×4, world space) applied on the left of the
+        named shapes' object-to-world matrices; ValueError for an unknown name."""
+        if not transforms:
+            return self
+        return replace(self, shapes=_posed_shapes(self.shapes, transforms))
+
+
+@dataclass
+class FrameView:
+    """One frame of a world: what changes from frame to frame.
+
+    Attributes:
+        camera: the calibrated camera of this frame (intrinsics, pose, lens, transfer).
+        frame: the background image ``I_c``, linear radiance ``(H, W, 3)`` float32, or None.
+        frame_codes: raw code values of an LDR frame (for byte-identical output), or None.
+        depth: optional depth ``(H, W)`` float32, metres along the camera's +z axis; NaN or
+            0 where unknown (RGB-D input).
+        object_transforms: shape name -> 4×4 world-space transform applied to that shape's
+            rest pose in this frame (rigid motion of a tracked or animated object).
+        timestamp: capture time in seconds, or None.
+    """
+
+    camera: Camera
+    frame: np.ndarray | None = None
+    frame_codes: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    object_transforms: dict[str, np.ndarray] = field(default_factory=dict)
+    timestamp: float | None = None
+
+    def __post_init__(self) -> None:
+        h, w = self.camera.height, self.camera.width
+        if self.frame is not None and self.frame.shape != (h, w, 3):
+            raise ValueError(f"frame shape {self.frame.shape} != camera resolution {(h, w, 3)}")
+        if self.depth is not None and self.depth.shape != (h, w):
+            raise ValueError(f"depth shape {self.depth.shape} != camera resolution {(h, w)}")
+
+
 @dataclass
 class ARScene:
     """Camera, background frame, real proxy, virtual objects and lights.
@@ -84,6 +166,11 @@ class ARScene:
             an unchanged frame is written back byte-identical.
         source: the scene file, when loaded from one.
         raw: the scene dictionary as read, with file paths made absolute.
+        depth: optional depth image ``(H, W)`` in metres (see :class:`FrameView`).
+        timestamp: capture time in seconds, or None.
+
+    ``shapes`` are posed for this frame; :attr:`world` and :attr:`view` split the scene into
+    its static and per-frame parts.
     """
 
     camera: Camera
@@ -93,6 +180,27 @@ class ARScene:
     frame_codes: np.ndarray | None = None
     source: Path | None = None
     raw: dict[str, Any] = field(default_factory=dict)
+    depth: np.ndarray | None = None
+    timestamp: float | None = None
+
+    @property
+    def world(self) -> World:
+        """The static part (shapes as posed in this scene, lights)."""
+        return World(shapes=self.shapes, lights=self.lights, source=self.source, raw=self.raw)
+
+    @property
+    def view(self) -> FrameView:
+        """The per-frame part (camera, frame, depth, timestamp; shapes are already posed)."""
+        return FrameView(camera=self.camera, frame=self.frame, frame_codes=self.frame_codes,
+                         depth=self.depth, timestamp=self.timestamp)
+
+    @classmethod
+    def compose(cls, world: World, view: FrameView) -> ARScene:
+        """The world seen in ``view``, with the view's object transforms applied."""
+        return cls(camera=view.camera, shapes=world.posed(view.object_transforms).shapes,
+                   lights=world.lights, frame=view.frame, frame_codes=view.frame_codes,
+                   source=world.source, raw=world.raw, depth=view.depth,
+                   timestamp=view.timestamp)
 
     @property
     def real_shapes(self) -> list[Shape]:
@@ -118,8 +226,9 @@ class ARScene:
     def resized(self, width: int, height: int) -> ARScene:
         """The scene seen by the same camera at another resolution.
 
-        The frame, if any, is box-filtered; that needs the old size to be an integer
-        multiple of the new one (a ValueError says otherwise).
+        The frame and depth, if any, are box-filtered (depth over its known, positive values);
+        that needs the old size to be an integer multiple of the new one (a ValueError says
+        otherwise).
         """
         cam = self.camera.resized(width, height)
         raw = copy.deepcopy(self.raw)
@@ -127,13 +236,22 @@ class ARScene:
         raw_cam["resolution"] = [width, height]
         if "intrinsics" in raw_cam:
             raw_cam["intrinsics"] = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
-        out = replace(self, camera=cam, frame=None, frame_codes=None, raw=raw)
-        if self.frame is None:
+        out = replace(self, camera=cam, frame=None, frame_codes=None, depth=None, raw=raw)
+        if self.frame is None and self.depth is None:
             return out
         h, w = self.camera.height, self.camera.width
         if h % height or w % width or h // height != w // width:
             raise ValueError(f"cannot box-filter a {w}×{h} frame to {width}×{height}")
         k = h // height
+        if self.depth is not None:
+            d = self.depth.reshape(height, k, width, k)
+            known = np.isfinite(d) & (d > 0)
+            n = known.sum(axis=(1, 3))
+            total = np.where(known, d, 0.0).sum(axis=(1, 3))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out.depth = np.where(n > 0, total / n, np.nan).astype(np.float32)
+        if self.frame is None:
+            return out
         small = self.frame.reshape(height, k, width, k, 3).mean(axis=(1, 3))
         return out.with_frame(small.astype(np.float32))
 
