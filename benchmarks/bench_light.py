@@ -4,7 +4,7 @@ Both contenders run in the same process on the same 1024x512 map (the bundled Gr
 upsampled), interleaved, several repeats; the ratio of the medians is reported (these
 machines are noisy, absolute times are not comparable across runs).
 
-* SH projection to 9 coefficients: ``arlight.light.sh.project_equirect`` (separable
+* SH projection to 9 coefficients: ``arlight.sphere.sh.project_equirect`` (separable
   Fourier x Legendre sums, exact pixel integrals) vs. the straightforward per-pixel
   ``Y (H*W x 9) ^T @ (L * dOmega)`` with the closed-form L2 polynomials.
 * 16-light median cut: ``arlight.light.extract.median_cut`` (summed-area tables, O(1) region
@@ -27,7 +27,7 @@ from results import publish
 
 from arlight.io.images import read_linear
 from arlight.light import extract, sh
-from arlight.light.envmap import equirect_directions, equirect_solid_angle, resize_equirect
+from arlight.sphere.envmap import equirect_directions, equirect_solid_angle, resize_equirect
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## Light estimation (issue 5)"

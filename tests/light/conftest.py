@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arlight.light.envmap import equirect_directions
+from arlight.sphere.envmap import equirect_directions
 
 DATA = Path(__file__).resolve().parents[2] / "src" / "arlight" / "data" / "light"
 

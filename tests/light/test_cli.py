@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from arlight.io.images import write_exr
 from arlight.light.cli import app
-from arlight.light.envmap import from_equirect
 from arlight.light.estimate import LightEstimate
+from arlight.sphere.envmap import from_equirect
 
 runner = CliRunner()
 
@@ -83,7 +83,7 @@ def test_module_help_runs():
 
 
 def test_fisheye_kind_with_json_calibration(tmp_path, make_smooth):
-    from arlight.light.fisheye import FisheyeCamera
+    from arlight.sphere.fisheye import FisheyeCamera
 
     cam = FisheyeCamera.equidistant((200, 200), fov_deg=180)
     img, _ = from_equirect(make_smooth(64), "fisheye", (200, 200), camera=cam)

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from arlight.light import sh
 from arlight.light.estimate import LightEstimate, arcore_shader_factors, sh_to_foreign
+from arlight.sphere import sh
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:
@@ -33,7 +33,7 @@ def test_from_envmap_partitions_the_energy(grace, est):
 
 
 def test_irradiance_close_to_brute_force(grace, est):
-    from arlight.light.envmap import equirect_directions, equirect_solid_angle
+    from arlight.sphere.envmap import equirect_directions, equirect_solid_angle
 
     n = random_dirs(40, seed=2)
     d = equirect_directions(grace.shape[0]).reshape(-1, 3)

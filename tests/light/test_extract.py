@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from arlight.light import extract as X
-from arlight.light import sh
-from arlight.light.envmap import equirect_directions, equirect_solid_angle
+from arlight.sphere import sh
+from arlight.sphere.envmap import equirect_directions, equirect_solid_angle
 
 
 def disk_map(height: int = 64, center=(0.3, 0.8, -0.5), radius_deg: float = 8.0,

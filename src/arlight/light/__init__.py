@@ -1,8 +1,8 @@
-"""Light estimation: spherical harmonics, environment maps and their mappings, fisheye
-cameras, importance sampling, light extraction and the :class:`LightEstimate` exchange type.
+"""Light estimation: importance sampling, light extraction and the :class:`LightEstimate`
+exchange type, on top of the sphere maths in :mod:`arlight.sphere` (spherical harmonics,
+environment-map mappings, fisheye cameras).
 
-Modules: :mod:`~arlight.light.sh`, :mod:`~arlight.light.envmap`,
-:mod:`~arlight.light.fisheye`, :mod:`~arlight.light.sampling`,
-:mod:`~arlight.light.extract`, :mod:`~arlight.light.estimate`, :mod:`~arlight.light.cli`.
+Modules: :mod:`~arlight.light.sampling`, :mod:`~arlight.light.extract`,
+:mod:`~arlight.light.estimate`, :mod:`~arlight.light.cli`.
 See ``docs/light.md``.
 """

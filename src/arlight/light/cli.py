@@ -20,11 +20,11 @@ import numpy as np
 import typer
 
 from arlight.io.images import atomic_write, read_linear
-from arlight.light import envmap as E
-from arlight.light import sh as SH
 from arlight.light.estimate import LAYOUTS, LightEstimate
 from arlight.light.extract import ExtractedLight
-from arlight.light.fisheye import FisheyeCamera
+from arlight.sphere import envmap as E
+from arlight.sphere import sh as SH
+from arlight.sphere.fisheye import FisheyeCamera
 
 KINDS = ("equirect", "probe", "ball", "fisheye")
 

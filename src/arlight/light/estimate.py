@@ -50,13 +50,13 @@ from pathlib import Path
 import numpy as np
 
 from arlight.io.images import atomic_write
-from arlight.light import sh as SH
 from arlight.light.extract import (
     ExtractedLight,
     auto_threshold,
     median_cut,
     split_highlights,
 )
+from arlight.sphere import sh as SH
 
 LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
 FORMAT_TAG = "arlight.light_estimate"

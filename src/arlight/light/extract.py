@@ -33,8 +33,8 @@ from functools import cached_property
 
 import numpy as np
 
-from arlight.light.envmap import equirect_solid_angle
-from arlight.light.sh import LUMINANCE
+from arlight.sphere.envmap import equirect_solid_angle
+from arlight.sphere.sh import LUMINANCE
 
 
 @dataclass

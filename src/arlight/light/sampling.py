@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from arlight.light.envmap import direction_to_equirect
-from arlight.light.sh import LUMINANCE
+from arlight.sphere.envmap import direction_to_equirect
+from arlight.sphere.sh import LUMINANCE
 
 
 class EnvmapSampler:

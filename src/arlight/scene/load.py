@@ -266,7 +266,7 @@ def _light(v: Validator, tab: dict, i: int) -> Light:
         if np.any(img < 0):
             raise v.fail(f"{field}.file", f"negative radiance in {params['file']}")
         if params["mapping"] != "equirect":
-            from arlight.light.envmap import to_equirect
+            from arlight.sphere.envmap import to_equirect
 
             img = to_equirect(img, params["mapping"])
         radiance_map = np.ascontiguousarray(img, dtype=np.float32)
@@ -274,7 +274,7 @@ def _light(v: Validator, tab: dict, i: int) -> Light:
         n = len(params["coefficients"])
         if int(round(np.sqrt(n))) ** 2 != n:
             raise v.fail(f"{field}.coefficients", f"expected (L+1)² rows, got {n}")
-        from arlight.light.sh import sh_to_equirect
+        from arlight.sphere.sh import sh_to_equirect
 
         radiance_map = np.maximum(sh_to_equirect(np.array(params["coefficients"]),
                                                  params["resolution"]), 0).astype(np.float32)

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from arlight.light import envmap as E
 from arlight.light import extract as X
-from arlight.light.fisheye import FisheyeCamera
+from arlight.sphere import envmap as E
+from arlight.sphere.fisheye import FisheyeCamera
 
 
 def angle_deg(a, b):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arlight.light import envmap as E
-from arlight.light import sh
 from arlight.light.sampling import EnvmapSampler
+from arlight.sphere import envmap as E
+from arlight.sphere import sh
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:

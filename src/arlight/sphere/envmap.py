@@ -15,7 +15,7 @@ pixel is (0.5, 0.5)):
   ``world_from_camera`` (default: camera looking along world -Z with +Y up). A pixel at
   normalised offset ``(a, b)`` from the centre sees the ball normal
   ``n = (a, b, -sqrt(1-a^2-b^2))`` and the reflected ray ``r = v - 2 (v.n) n``.
-* ``"fisheye"``: :class:`arlight.light.fisheye.FisheyeCamera` (equidistant or OpenCV
+* ``"fisheye"``: :class:`arlight.sphere.fisheye.FisheyeCamera` (equidistant or OpenCV
   fisheye), optionally mirroring the upper hemisphere into the lower one (Kan 2014 Sec. 5.3).
 
 :func:`to_equirect` resamples any of them onto our equirect grid (bilinear with
@@ -28,7 +28,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from arlight.light.fisheye import FisheyeCamera
+from arlight.sphere.fisheye import FisheyeCamera
 
 MAPPINGS = ("equirect", "angular", "ball", "fisheye")
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from arlight.light import sh
-from arlight.light.envmap import equirect_directions, equirect_solid_angle, rotate_equirect
+from arlight.sphere import sh
+from arlight.sphere.envmap import equirect_directions, equirect_solid_angle, rotate_equirect
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:
