@@ -144,3 +144,33 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
     with atomic_write(path, ".png") as tmp:
         iio.imwrite(tmp, image, extension=".png")
     return Path(path)
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    """Read a depth image as float32 ``(H, W)``: metres along the camera's +z axis.
+
+    ``.npy`` files hold a 2-D float array; image files (EXR, PFM, ...) are read through
+    Mitsuba's Bitmap and their first channel is used (a single-channel ``Y``/``Z`` EXR is the
+    usual form). NaN and 0 mark unknown depth; negative or infinite values are errors.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", file=str(path))
+    try:
+        if path.suffix.lower() == ".npy":
+            arr = np.load(path, allow_pickle=False)
+        else:
+            mi = _bitmap_module()
+            bmp = mi.Bitmap(str(path))
+            arr = np.array(bmp.convert(component_format=mi.Struct.Type.Float32), copy=True)
+    except Exception as exc:  # NumPy and Mitsuba raise their own types
+        raise InputError(f"cannot read depth image ({exc})", file=str(path)) from exc
+    arr = np.asarray(arr, dtype=np.float32)
+    if arr.ndim == 3:
+        arr = arr[..., 0]
+    if arr.ndim != 2:
+        raise InputError(f"expected a 2-D depth image, got shape {arr.shape}", file=str(path))
+    if np.any(np.isinf(arr)) or np.any(arr < 0):
+        raise InputError("depth must be >= 0 metres (NaN or 0 = unknown); found negative or "
+                         "infinite values", file=str(path))
+    return arr

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -18,17 +19,16 @@ import numpy as np
 from arlight.errors import InputError
 from arlight.scene import schema
 from arlight.scene.camera import Camera, look_at
-from arlight.scene.model import ARScene, Light, Material, MeshData, Shape
+from arlight.scene.model import ARScene, FrameView, Light, Material, MeshData, Shape, World
 from arlight.scene.schema import Validator
 from arlight.transfer import Transfer
 
 FORMAT = "arlight-scene/1"
 TOP_LEVEL = {"format", "camera", "frame", "materials", "shapes", "lights", "description"}
-DEFAULT_MATERIAL = {"type": "diffuse", "albedo": 0.5}
+PATH_KEYS = ("file", "image", "texture", "depth")  # fields holding paths (made absolute in raw)
 
 
-def load_scene(path: str | Path) -> ARScene:
-    """Load and validate a scene file; raise :class:`InputError` naming file and field."""
+def _read_file(path: str | Path) -> tuple[dict[str, Any], Path]:
     path = Path(path)
     if not path.is_file():
         raise InputError("scene file not found", file=str(path))
@@ -37,20 +37,53 @@ def load_scene(path: str | Path) -> ARScene:
         data = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"syntax error: {exc}", file=str(path)) from exc
+    return data, path
+
+
+def load_scene(path: str | Path) -> ARScene:
+    """Load and validate a scene file; raise :class:`InputError` naming file and field."""
+    data, path = _read_file(path)
     return parse_scene(data, base_dir=path.parent, file=str(path))
 
 
-def parse_scene(data: dict[str, Any], base_dir: str | Path = ".",
-                file: str = "<scene>") -> ARScene:
-    """Validate a scene dictionary (as read from TOML/JSON) and build an :class:`ARScene`."""
+def load_world(path: str | Path) -> World:
+    """Load the static world of a scene file (a file without ``[camera]`` is allowed)."""
+    data, path = _read_file(path)
+    return parse_world(data, base_dir=path.parent, file=str(path))
+
+
+def load_view(path: str | Path) -> FrameView:
+    """Load one frame's view (``[camera]`` and optional ``[frame]``) from a scene file."""
+    data, path = _read_file(path)
+    return parse_view(data, base_dir=path.parent, file=str(path))
+
+
+def _validator(data: Any, base_dir: str | Path, file: str) -> Validator:
     v = Validator(file, Path(base_dir).resolve())
     v.table(data, "")
     v.check_keys(data, TOP_LEVEL, "")
     if data.get("format", FORMAT) != FORMAT:
         raise v.fail("format", f"unsupported format {data['format']!r}; expected {FORMAT!r}")
-    if "camera" not in data:
-        raise v.fail("camera", "missing required table")
-    camera = _camera(v, v.table(data["camera"], "camera"))
+    return v
+
+
+def parse_scene(data: dict[str, Any], base_dir: str | Path = ".",
+                file: str = "<scene>") -> ARScene:
+    """Validate a scene dictionary (as read from TOML/JSON) and build an :class:`ARScene`:
+    the world (:func:`parse_world`) seen in the view (:func:`parse_view`)."""
+    world = parse_world(data, base_dir, file)
+    view = parse_view(data, base_dir, file)
+    try:
+        return ARScene.compose(world, view)
+    except ValueError as exc:
+        raise InputError(str(exc), file=file, field="frame.object_transforms") from exc
+
+
+def parse_world(data: dict[str, Any], base_dir: str | Path = ".",
+                file: str = "<scene>") -> World:
+    """The static world of a scene dictionary: ``[materials]``, ``[[shapes]]``,
+    ``[[lights]]`` (``[camera]`` and ``[frame]`` are not read here)."""
+    v = _validator(data, base_dir, file)
     materials = _materials(v, data.get("materials", {}))
     shapes = [_shape(v, s, i, materials) for i, s in enumerate(_array(v, data, "shapes"))]
     names = [s.name for s in shapes]
@@ -58,13 +91,32 @@ def parse_scene(data: dict[str, Any], base_dir: str | Path = ".",
     if dup:
         raise v.fail("shapes", f"duplicate shape name {sorted(dup)[0]!r}")
     lights = [_light(v, x, i) for i, x in enumerate(_array(v, data, "lights"))]
-    scene = ARScene(camera=camera, shapes=shapes, lights=lights,
-                    source=Path(file) if file != "<scene>" else None)
-    if "frame" in data:
-        frame_tab = v.fields(v.table(data["frame"], "frame"), schema.FRAME_FIELDS, "frame")
-        scene = _attach_frame(v, scene, frame_tab["image"])
-    scene.raw = _canonical_raw(data, v.base_dir)
-    return scene
+    return World(shapes=shapes, lights=lights,
+                 source=Path(file) if file != "<scene>" else None,
+                 raw=_canonical_raw(data, v.base_dir))
+
+
+def parse_view(data: dict[str, Any], base_dir: str | Path = ".",
+               file: str = "<scene>") -> FrameView:
+    """One frame's view of a scene dictionary: ``[camera]`` and the optional ``[frame]``
+    (background image, depth, timestamp, object transforms)."""
+    v = _validator(data, base_dir, file)
+    if "camera" not in data:
+        raise v.fail("camera", "missing required table")
+    view = FrameView(camera=_camera(v, v.table(data["camera"], "camera")))
+    if "frame" not in data:
+        return view
+    tab = v.fields(v.table(data["frame"], "frame"), schema.FRAME_FIELDS, "frame")
+    if tab["image"] is not None:
+        view.frame, view.frame_codes = _read_frame(v, view.camera, tab["image"])
+    if tab["depth"] is not None:
+        view.depth = _read_depth(v, view.camera, tab["depth"])
+    view.timestamp = tab["timestamp"]
+    objects = v.table(tab["object_transforms"], "frame.object_transforms")
+    view.object_transforms = {
+        name: transform_matrix(v, t, f"frame.object_transforms.{name}")
+        for name, t in objects.items()}
+    return view
 
 
 def _array(v: Validator, data: dict, key: str) -> list[dict]:
@@ -125,10 +177,19 @@ def _material(v: Validator, tab: dict, name: str, field: str) -> Material:
         raise v.fail(f"{field}.type", f"unknown material type {mtype!r}; expected one of "
                      f"{', '.join(schema.MATERIAL_TYPES)}")
     params = v.fields(tab, schema.MATERIAL_TYPES[mtype], field, extra={"type"})
-    if mtype == "phong" and any(a + b > 1.0 + 1e-9 for a, b in zip(params["kd"], params["ks"],
-                                                                     strict=True)):
-        raise v.fail(f"{field}.ks", "k_d + k_s must not exceed 1 (energy conservation)")
+    check = _MATERIAL_CHECKS.get(mtype)
+    if check is not None:
+        check(v, params, field)
     return Material(name=name, type=mtype, params=params)
+
+
+def _check_phong(v: Validator, p: dict, field: str) -> None:
+    if any(a + b > 1.0 + 1e-9 for a, b in zip(p["kd"], p["ks"], strict=True)):
+        raise v.fail(f"{field}.ks", "k_d + k_s must not exceed 1 (energy conservation)")
+
+
+# Checks across fields that a field table cannot express, one entry per material type.
+_MATERIAL_CHECKS: dict[str, Callable[[Validator, dict, str], None]] = {"phong": _check_phong}
 
 
 def _materials(v: Validator, tab: Any) -> dict[str, Material]:
@@ -254,44 +315,74 @@ def _light(v: Validator, tab: dict, i: int) -> Light:
         raise v.fail(f"{field}.type", f"unknown light type {ltype!r}; expected one of "
                      f"{', '.join(schema.LIGHT_TYPES)}")
     params = v.fields(tab, schema.LIGHT_TYPES[ltype], field, extra={"type", "name"})
-    name = tab.get("name", f"light{i}")
-    radiance_map = None
-    if ltype == "envmap":
-        from arlight.io.images import read_hdr
+    finish = _LIGHT_FINISH.get(ltype)
+    params, radiance_map = finish(v, params, field) if finish else (params, None)
+    return Light(name=tab.get("name", f"light{i}"), type=ltype, params=params,
+                 radiance_map=radiance_map)
 
-        try:
-            img = read_hdr(params["file"])
-        except InputError as exc:
-            raise v.fail(f"{field}.file", exc.message + f" ({params['file']})") from exc
-        if np.any(img < 0):
-            raise v.fail(f"{field}.file", f"negative radiance in {params['file']}")
-        if params["mapping"] != "equirect":
-            from arlight.sphere.envmap import to_equirect
 
-            img = to_equirect(img, params["mapping"])
-        radiance_map = np.ascontiguousarray(img, dtype=np.float32)
-    elif ltype == "sh":
-        n = len(params["coefficients"])
-        if int(round(np.sqrt(n))) ** 2 != n:
-            raise v.fail(f"{field}.coefficients", f"expected (L+1)² rows, got {n}")
-        from arlight.sphere.sh import sh_to_equirect
+LightParts = tuple[dict[str, Any], np.ndarray | None]
 
-        radiance_map = np.maximum(sh_to_equirect(np.array(params["coefficients"]),
-                                                 params["resolution"]), 0).astype(np.float32)
-    elif ltype == "directional" and np.linalg.norm(params["direction"]) == 0:
+
+def _envmap_light(v: Validator, p: dict, field: str) -> LightParts:
+    """Reads the map and resamples angular probes to equirect (Mitsuba's layout)."""
+    from arlight.io.images import read_hdr
+
+    try:
+        img = read_hdr(p["file"])
+    except InputError as exc:
+        raise v.fail(f"{field}.file", exc.message + f" ({p['file']})") from exc
+    if np.any(img < 0):
+        raise v.fail(f"{field}.file", f"negative radiance in {p['file']}")
+    if p["mapping"] != "equirect":
+        from arlight.sphere.envmap import to_equirect
+
+        img = to_equirect(img, p["mapping"])
+    return p, np.ascontiguousarray(img, dtype=np.float32)
+
+
+def _sh_light(v: Validator, p: dict, field: str) -> LightParts:
+    """Renders the SH radiance into an equirect map (negative lobes clamped to 0)."""
+    n = len(p["coefficients"])
+    if int(round(np.sqrt(n))) ** 2 != n:
+        raise v.fail(f"{field}.coefficients", f"expected (L+1)² rows, got {n}")
+    from arlight.sphere.sh import sh_to_equirect
+
+    env = sh_to_equirect(np.array(p["coefficients"]), p["resolution"])
+    return p, np.maximum(env, 0).astype(np.float32)
+
+
+def _directional_light(v: Validator, p: dict, field: str) -> LightParts:
+    if np.linalg.norm(p["direction"]) == 0:
         raise v.fail(f"{field}.direction", "direction must not be zero")
-    elif ltype == "spot" and params["beam_width_deg"] > params["cutoff_deg"]:
+    return p, None
+
+
+def _spot_light(v: Validator, p: dict, field: str) -> LightParts:
+    if p["beam_width_deg"] > p["cutoff_deg"]:
         raise v.fail(f"{field}.beam_width_deg", "must not exceed cutoff_deg")
-    if ltype == "area":
-        m = transform_matrix(v, params["transform"], f"{field}.transform")
-        params = {**params, "to_world": (m @ z_to(params["normal"], v, f"{field}.normal"))}
-    return Light(name=name, type=ltype, params=params, radiance_map=radiance_map)
+    return p, None
 
 
-def _attach_frame(v: Validator, scene: ARScene, path: str) -> ARScene:
+def _area_light(v: Validator, p: dict, field: str) -> LightParts:
+    """Adds ``to_world``: the transform times the rotation of +z onto ``normal``."""
+    m = transform_matrix(v, p["transform"], f"{field}.transform")
+    return {**p, "to_world": m @ z_to(p["normal"], v, f"{field}.normal")}, None
+
+
+# What a light type needs beyond its field table (files, cross-field checks, derived
+# values), one entry per light type; types without an entry need nothing more.
+_LIGHT_FINISH: dict[str, Callable[[Validator, dict, str], LightParts]] = {
+    "envmap": _envmap_light, "sh": _sh_light, "directional": _directional_light,
+    "spot": _spot_light, "area": _area_light,
+}
+
+
+def _read_frame(v: Validator, cam: Camera, path: str) -> tuple[np.ndarray,
+                                                              np.ndarray | None]:
+    """The frame as linear radiance and, for LDR files, its raw code values."""
     from arlight.io.images import is_hdr_path, read_hdr, read_ldr
 
-    cam = scene.camera
     try:
         if is_hdr_path(path):
             codes, frame = None, read_hdr(path)
@@ -305,7 +396,20 @@ def _attach_frame(v: Validator, scene: ARScene, path: str) -> ARScene:
                      f"resolution is {cam.width}×{cam.height} ({path})")
     if np.any(frame < 0):
         raise v.fail("frame.image", f"negative radiance in {path}")
-    return scene.with_frame(frame, codes)
+    return frame.astype(np.float32), codes
+
+
+def _read_depth(v: Validator, cam: Camera, path: str) -> np.ndarray:
+    from arlight.io.images import read_depth
+
+    try:
+        depth = read_depth(path)
+    except InputError as exc:
+        raise v.fail("frame.depth", f"{exc.message} ({path})") from exc
+    if depth.shape != (cam.height, cam.width):
+        raise v.fail("frame.depth", f"depth is {depth.shape[1]}×{depth.shape[0]} but the camera "
+                     f"resolution is {cam.width}×{cam.height} ({path})")
+    return depth
 
 
 def _canonical_raw(data: dict, base_dir: Path) -> dict:
@@ -316,7 +420,7 @@ def _canonical_raw(data: dict, base_dir: Path) -> dict:
             return {k: fix(x, k) for k, x in node.items()}
         if isinstance(node, list):
             return [fix(x) for x in node]
-        if key in ("file", "image", "texture") and isinstance(node, str):
+        if key in PATH_KEYS and isinstance(node, str):
             p = Path(node)
             return str(p if p.is_absolute() else (base_dir / p).resolve())
         return node

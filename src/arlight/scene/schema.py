@@ -184,8 +184,14 @@ CAMERA_FIELDS: dict[str, Field] = {
 }
 
 FRAME_FIELDS: dict[str, Field] = {
-    "image": Field("path", REQUIRED, "LDR (PNG/JPEG, decoded through the camera's transfer "
+    "image": Field("path", None, "LDR (PNG/JPEG, decoded through the camera's transfer "
                    "function) or HDR (EXR/.hdr, linear radiance) image of the camera's size"),
+    "depth": Field("path", None, "depth image of the camera's size (single-channel EXR or a "
+                   "2-D `.npy`), distance along the camera's +z axis; NaN or 0 = unknown", "m"),
+    "timestamp": Field("float", None, "capture time of the frame", "s"),
+    "object_transforms": Field("table", {}, "per-frame pose of named shapes: `{name = "
+                               "transform}` (see Transforms), applied on the left of the "
+                               "shape's own transform (a world-space motion)"),
 }
 
 
