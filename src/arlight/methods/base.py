@@ -1,21 +1,35 @@
-"""What every method consumes and produces: render settings and the layer stack.
+"""What every method consumes and produces, and the interface a method implements.
 
-A method is a function ``render(scene, settings) -> Layers`` registered by name (see
-:mod:`arlight.methods`). It computes ``mixed`` (I_m, virtual objects under the real light)
-and ``delta`` (I_m − I_r, how the real scene changes); the composite always comes from
-:func:`arlight.composite.composite`, so nothing downstream knows which method ran.
+* :class:`RenderSettings` — samples, depth, seed and the method's options.
+* :class:`Layers` — ``mixed`` (I_m, virtual objects under the real light), ``delta``
+  (I_m − I_r, how the real scene changes), ``mask``, the composite (always from
+  :func:`arlight.composite.composite` through :meth:`Layers.assemble`), timings and counters.
+* :class:`Method` — the protocol: a :class:`~arlight.methods.spec.MethodSpec` (name, typed
+  options, capabilities), ``prepare(world, settings) -> state`` for scene-level work,
+  ``render(state, view, settings) -> Layers`` per frame, and the one-shot
+  ``method(scene, settings)`` that calls both.
+* :class:`BaseMethod` — the usual way to implement it: write ``prepare_world`` and
+  ``render_view``; option validation, capability checks, posed worlds, the ``time_prepare``
+  / ``seconds`` stats and ``Layers.method`` are done once here. See
+  ``docs/methods/writing-a-method.md``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from arlight.composite import composite
 from arlight.errors import InputError
-from arlight.scene.model import ARScene
+from arlight.methods.spec import MethodSpec, Options
+from arlight.scene.model import ARScene, FrameView, World
+from arlight.timing import StageTimer
 
 
 @dataclass
@@ -30,7 +44,8 @@ class RenderSettings:
         seed: master seed; equal seeds give bitwise identical renders.
         spp_per_pass: samples per wavefront pass (None: as many as fit in ~2M lanes).
         progress: show a progress bar.
-        options: method-specific options (documented by each method).
+        options: method options, validated against the method's ``spec.options`` (unknown
+            keys are errors; defaults fill the rest; ``arlight methods NAME`` lists them).
     """
 
     spp: int = 64
@@ -48,6 +63,36 @@ class RenderSettings:
             raise InputError(f"must be -1 or >= 1, got {self.max_depth}", field="max_depth")
 
 
+def _check_image(layer: str, value: Any, shape: tuple[int, ...], where: str,
+                 strict_dtype: bool, finite: bool = True) -> np.ndarray:
+    """``value`` as a float32 array of ``shape``, or a ValueError naming the layer.
+
+    ``strict_dtype``: only float32 passes (else any floating type, converted). ``finite``:
+    reject NaN and ±inf (else only NaN).
+    """
+    a = np.asarray(value)
+    want = "(H, W, 3)" if len(shape) == 3 else "(H, W)"
+    if a.shape != shape:
+        raise ValueError(f"{where}: layer {layer!r} has shape {a.shape}; expected {want} = "
+                         f"{shape}")
+    if a.dtype != np.float32 and (strict_dtype or a.dtype.kind != "f"):
+        extra = "" if strict_dtype else " (other float types are converted)"
+        raise ValueError(f"{where}: layer {layer!r} has dtype {a.dtype}; expected float32"
+                         f"{extra}")
+    a = a.astype(np.float32, copy=False)
+    bad = np.isnan(a) if not finite else ~np.isfinite(a)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        kind = "non-finite" if finite else "NaN"
+        raise ValueError(f"{where}: layer {layer!r} has {int(bad.sum())} {kind} values "
+                         f"(first at {idx}: {a[idx]})")
+    return a
+
+
+def _image_shape(layer: str, h: int, w: int) -> tuple[int, ...]:
+    return (h, w) if layer == "mask" else (h, w, 3)
+
+
 @dataclass
 class Layers:
     """The result of a method; images are ``(H, W, 3)`` float32 linear radiance.
@@ -59,8 +104,10 @@ class Layers:
         mask: ``M`` in [0, 1] ``(H, W)`` — virtual coverage, averaged over samples.
         composite: ``M·I_m + (1 − M)·(I_c + delta)`` (Kán Eq. 2.20).
         real: ``I_r`` where the method computes it, else None.
-        stderr: per-pixel standard errors of Monte Carlo layers, by layer name.
-        stats: timings (``seconds``), counts (``samples``, ``rays``) and rates.
+        stderr: per-pixel standard errors of Monte Carlo layers, by layer name (+inf where
+            a pixel has a single sample).
+        stats: ``seconds`` (wall time of the call), ``time_<stage>`` (seconds per stage, see
+            :mod:`arlight.timing`), counts (``samples``, ``rays``) and rates.
         method: the registered name of the method that produced the layers.
     """
 
@@ -77,13 +124,44 @@ class Layers:
     @staticmethod
     def assemble(background: np.ndarray, mixed: np.ndarray, delta: np.ndarray,
                  mask: np.ndarray, **kwargs) -> Layers:
-        """Build layers and the composite through the one shared compositing function."""
-        bg = np.asarray(background, dtype=np.float32)
-        mixed = np.asarray(mixed, dtype=np.float32)
-        delta = np.asarray(delta, dtype=np.float32)
-        mask = np.asarray(mask, dtype=np.float32)
+        """Build layers and the composite through the one shared compositing function.
+
+        ``background``, ``mixed``, ``delta`` (and ``real``) must be ``(H, W, 3)`` and
+        ``mask`` ``(H, W)`` floating-point arrays of finite values (converted to float32);
+        ``H, W`` come from ``background``. Anything else raises a ValueError naming the layer
+        and the expected shape.
+        """
+        where = "Layers.assemble"
+        bg = np.asarray(background)
+        if bg.ndim != 3 or bg.shape[2] != 3:
+            raise ValueError(f"{where}: layer 'background' has shape {bg.shape}; expected "
+                             "(H, W, 3)")
+        h, w = bg.shape[:2]
+        arrays = {"background": bg, "mixed": mixed, "delta": delta, "mask": mask}
+        if kwargs.get("real") is not None:
+            arrays["real"] = kwargs["real"]
+        checked = {k: _check_image(k, v, _image_shape(k, h, w), where, strict_dtype=False)
+                   for k, v in arrays.items()}
+        if "real" in checked:
+            kwargs["real"] = checked.pop("real")
+        bg, mixed, delta, mask = (checked[k] for k in ("background", "mixed", "delta", "mask"))
         return Layers(background=bg, mixed=mixed, delta=delta, mask=mask,
                       composite=composite(bg, mixed, delta, mask).astype(np.float32), **kwargs)
+
+    def check(self, height: int, width: int, where: str = "Layers") -> None:
+        """Raise a ValueError naming the first layer that is not a finite float32 array of
+        ``(height, width, 3)`` (``(height, width)`` for the mask); standard errors may be
+        +inf (a single sample) but not NaN."""
+        images = {"background": self.background, "mixed": self.mixed, "delta": self.delta,
+                  "mask": self.mask, "composite": self.composite}
+        if self.real is not None:
+            images["real"] = self.real
+        for name, img in images.items():
+            _check_image(name, img, _image_shape(name, height, width), where,
+                         strict_dtype=True)
+        for name, img in self.stderr.items():
+            _check_image(f"stderr_{name}", img, _image_shape(name, height, width), where,
+                         strict_dtype=True, finite=False)
 
 
 def differential_samples(mixed, real, mask, background) -> dict:
@@ -104,7 +182,8 @@ def layers_from_passes(frame: np.ndarray, result, **stats: float) -> Layers:
 
     Layers are the per-pixel means, ``stderr`` their standard errors; ``stats`` gets the
     timing and sample counts (``seconds``, ``samples``, ``spp``, ``samples_per_second``) plus
-    the method's own entries.
+    the method's own entries. ``seconds`` here is the time of the passes; :class:`BaseMethod`
+    replaces it with the wall time of the whole call.
     """
     mom = result.moments
     samples = result.lanes
@@ -118,10 +197,180 @@ def layers_from_passes(frame: np.ndarray, result, **stats: float) -> Layers:
                            stats={**base, **stats})
 
 
-def require_frame(scene: ARScene) -> np.ndarray:
-    """The scene's background frame, or an error naming the scene file."""
-    if scene.frame is None:
+def require_frame(view: Any, source: Path | str | None = None) -> np.ndarray:
+    """The background frame of ``view`` (a FrameView or an ARScene), or an error naming the
+    scene file (``source``, default ``view.source`` where it has one)."""
+    if view.frame is None:
+        src = source if source is not None else getattr(view, "source", None)
         raise InputError("the scene has no background frame; add a [frame] table with "
                          "`image = ...` (or synthesise one with `arlight synth`)",
-                         file=str(scene.source) if scene.source else None, field="frame")
-    return scene.frame
+                         file=str(src) if src else None, field="frame")
+    return view.frame
+
+
+@runtime_checkable
+class Method(Protocol):
+    """A rendering method (see ``docs/methods/writing-a-method.md``).
+
+    ``prepare`` does the scene-level work once per world (Mitsuba scenes, acceleration
+    structures, voxelisation, precomputation); ``render`` renders one frame from that state
+    and must render the posed world ``world.posed(view.object_transforms)`` when the view
+    moves objects. ``method(scene, settings)`` is the one-shot form, bitwise equal to
+    ``render(prepare(scene.world, settings), scene.view, settings)``.
+    """
+
+    spec: MethodSpec
+
+    def prepare(self, world: World, settings: RenderSettings | None = None) -> Any:
+        """Scene-level state for ``world``."""
+        ...
+
+    def render(self, state: Any, view: FrameView,
+               settings: RenderSettings | None = None) -> Layers:
+        """Layers of one frame of the prepared world."""
+        ...
+
+    def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
+        """One-shot: prepare and render ``scene``."""
+        ...
+
+
+@dataclass
+class Prepared:
+    """The state :meth:`BaseMethod.prepare` returns.
+
+    Attributes:
+        method: name of the method that prepared it (render checks it).
+        world: the world it was prepared for (rest pose).
+        options: the validated options it was prepared with.
+        data: what the method's ``prepare_world`` returned.
+        seconds: wall time of the preparation (``time_prepare``), seconds.
+    """
+
+    method: str
+    world: World
+    options: Options
+    data: Any
+    seconds: float
+
+
+class BaseMethod(ABC):
+    """Implements :class:`Method` around two hooks a method writes.
+
+    * ``prepare_world(world, options, settings) -> data`` — scene-level work, timed as
+      ``time_prepare``.
+    * ``render_view(data, view, options, settings, timer) -> Layers`` — one frame; time its
+      stages with ``timer.stage("trace")`` etc. (they become ``time_<stage>`` stats).
+
+    The base class validates ``settings.options`` against ``spec.options`` (defaults filled,
+    unknown keys are errors), refuses worlds and views the capabilities exclude, re-prepares
+    the posed world when ``view.object_transforms`` is not empty (stage ``pose``; override
+    :meth:`pose` for something cheaper), and sets ``stats["seconds"]`` (wall time of the
+    call) and ``Layers.method``.
+    """
+
+    spec: ClassVar[MethodSpec]
+
+    # ------------------------------------------------------------------ hooks
+    @abstractmethod
+    def prepare_world(self, world: World, options: Options, settings: RenderSettings) -> Any:
+        """Scene-level work for ``world`` (rest pose); returns the method's data."""
+
+    @abstractmethod
+    def render_view(self, data: Any, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        """One frame. ``data`` is already posed: ``view.object_transforms`` is empty."""
+
+    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
+             settings: RenderSettings) -> Any:
+        """Data for the world posed by ``transforms`` (default: prepare it again)."""
+        return self.prepare_world(state.world.posed(transforms), state.options, settings)
+
+    # --------------------------------------------------------------- protocol
+    def options(self, settings: RenderSettings | None) -> Options:
+        """``settings.options`` validated against ``spec.options``, defaults filled in."""
+        return self.spec.parse_options(settings.options if settings else None)
+
+    def check_supported(self, world: World | ARScene, view: FrameView | ARScene | None = None,
+                        source: Path | str | None = None) -> None:
+        """Raise :class:`InputError` when the capabilities exclude ``world`` / ``view``."""
+        if view is not None and self.spec.capabilities.needs_frame:
+            require_frame(view, source if source is not None else world.source)
+        reason = self.spec.unsupported_reason(world, view)
+        if reason:
+            raise InputError(reason, file=str(world.source) if world.source else None,
+                             field="method")
+
+    def prepare(self, world: World, settings: RenderSettings | None = None) -> Prepared:
+        """Validate the options and the world, then run ``prepare_world`` (timed)."""
+        settings = settings or RenderSettings()
+        opts = self.options(settings)
+        self.check_supported(world)
+        timer = StageTimer()
+        with timer.stage("prepare"):
+            data = self.prepare_world(world, opts, settings)
+        return Prepared(self.spec.name, world, opts, data, timer.seconds["prepare"])
+
+    def render(self, state: Prepared, view: FrameView,
+               settings: RenderSettings | None = None) -> Layers:
+        """Render ``view`` of the prepared world (posed by ``view.object_transforms``)."""
+        t0 = time.perf_counter()
+        settings = settings or RenderSettings()
+        if not isinstance(state, Prepared) or state.method != self.spec.name:
+            raise TypeError(f"{self.spec.name}.render needs the state of "
+                            f"{self.spec.name}.prepare, got {type(state).__name__}")
+        opts = self.options(settings)
+        if opts != state.options:
+            raise InputError(f"{self.spec.name} was prepared with options "
+                             f"{dict(state.options)} but renders with {dict(opts)}; "
+                             "prepare again", field="options")
+        self.check_supported(state.world, view)
+        timer = StageTimer()
+        data = state.data
+        if view.object_transforms:
+            with timer.stage("pose"):
+                data = self.pose(state, view.object_transforms, settings)
+            view = replace(view, object_transforms={})
+        layers = self.render_view(data, view, opts, settings, timer)
+        layers.stats.update(timer.stats())
+        layers.stats["seconds"] = time.perf_counter() - t0
+        layers.method = self.spec.name
+        return layers
+
+    def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
+        """One-shot: ``render(prepare(scene.world), scene.view)``; the stats add
+        ``time_prepare``, and ``seconds`` covers both."""
+        t0 = time.perf_counter()
+        settings = settings or RenderSettings()
+        self.options(settings)
+        self.check_supported(scene, scene)  # before any work
+        state = self.prepare(scene.world, settings)
+        layers = self.render(state, scene.view, settings)
+        layers.stats = {"time_prepare": state.seconds, **layers.stats,
+                        "seconds": time.perf_counter() - t0}
+        return layers
+
+    def __repr__(self) -> str:
+        return f"<method {self.spec.name!r} ({type(self).__name__})>"
+
+
+RenderFn = Callable[[ARScene, RenderSettings], Layers]
+
+
+class FunctionMethod(BaseMethod):
+    """A plain ``fn(scene, settings) -> Layers`` as a :class:`Method` (what
+    ``@register("name")`` on a function makes): nothing to prepare, the whole call is the
+    stage ``render``; ``settings.options`` reach ``fn`` validated, with defaults."""
+
+    def __init__(self, fn: RenderFn, spec: MethodSpec) -> None:
+        self.fn = fn
+        self.spec = spec  # type: ignore[misc]  # per instance here, not per class
+        self.__doc__ = fn.__doc__
+
+    def prepare_world(self, world: World, options: Options, settings: RenderSettings) -> World:
+        return world
+
+    def render_view(self, data: World, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        with timer.stage("render"):
+            return self.fn(ARScene.compose(data, view), replace(settings, options=dict(options)))

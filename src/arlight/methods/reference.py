@@ -11,25 +11,34 @@ the fraction of a pixel's camera samples whose first hit is a virtual shape.
 The per-sample composite ``m·L_m + (1 − m)(I_c + L_m − L_r)`` is also accumulated, to give a
 per-pixel standard error for the composite. With no virtual object only µ is traced and the
 composite is the frame, bit for bit.
+
+Stages (``Layers.stats``, seconds): ``time_prepare`` (both Mitsuba scenes and their BVHs),
+``time_setup`` (integrator, frame upload), ``time_trace`` (the sample passes, including the
+per-pass per-pixel sums), ``time_assemble`` (moments to layers, standard errors, composite);
+``time_pose`` when the view moves objects (the posed world's scenes are built again).
+Options: none.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, build_views
+from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews, build_views
 from arlight.backend.passes import run_passes
-from arlight.methods import register
 from arlight.methods.base import (
+    BaseMethod,
     Layers,
     RenderSettings,
     differential_samples,
     layers_from_passes,
-    require_frame,
 )
-from arlight.scene.model import ARScene
+from arlight.methods.spec import Capabilities, MethodSpec, Options
+from arlight.scene.model import FrameView, World
+from arlight.timing import StageTimer
 
 
 def path_integrator(settings: RenderSettings) -> mi.SamplingIntegrator:
@@ -60,25 +69,53 @@ def frame_gather(frame: np.ndarray):
     return lambda pixel: dr.gather(mi.Color3f, table, pixel)
 
 
-@register("reference")
-def render_reference(scene: ARScene, settings: RenderSettings) -> Layers:
+@dataclass
+class PathScenes:
+    """Prepared state of the path tracers: the world and its two Mitsuba views."""
+
+    world: World
+    views: SceneViews
+
+
+def prepare_scenes(world: World) -> PathScenes:
+    """Build the real-only (µ) and mixed (ρ) Mitsuba scenes of ``world``."""
+    return PathScenes(world, build_views(world))
+
+
+class ReferenceMethod(BaseMethod):
     """Two-pass differential path tracing with Mitsuba's path tracer (ground-truth method)."""
-    frame = require_frame(scene)
-    views = build_views(scene)
-    integrator = path_integrator(settings)
-    background = frame_gather(frame)
 
-    def kernel(rays, pixel, seed, lanes):
-        real = trace_radiance(integrator, views.real, rays, seed, lanes)
-        if not scene.has_virtual:  # µ = ρ: one path serves both, the delta is exactly 0
-            return differential_samples(real, real, dr.zeros(mi.Float, lanes),
+    spec = MethodSpec(
+        name="reference",
+        description="Two-pass differential path tracing with Mitsuba's path tracer "
+                    "(ground-truth method).",
+        capabilities=Capabilities(progressive=True),
+    )
+
+    def prepare_world(self, world: World, options: Options,
+                      settings: RenderSettings) -> PathScenes:
+        return prepare_scenes(world)
+
+    def render_view(self, data: PathScenes, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        frame, views, has_virtual = view.frame, data.views, data.world.has_virtual
+        with timer.stage("setup"):
+            integrator = path_integrator(settings)
+            background = frame_gather(frame)
+
+        def kernel(rays, pixel, seed, lanes):
+            real = trace_radiance(integrator, views.real, rays, seed, lanes)
+            if not has_virtual:  # µ = ρ: one path serves both, the delta is exactly 0
+                return differential_samples(real, real, dr.zeros(mi.Float, lanes),
+                                            background(pixel))
+            mixed = trace_radiance(integrator, views.mixed, rays, seed, lanes)
+            return differential_samples(mixed, real, virtual_coverage(views.mixed, rays),
                                         background(pixel))
-        mixed = trace_radiance(integrator, views.mixed, rays, seed, lanes)
-        return differential_samples(mixed, real, virtual_coverage(views.mixed, rays),
-                                    background(pixel))
 
-    res = run_passes(scene.camera, settings.spp, kernel, seed=settings.seed,
-                     spp_per_pass=settings.spp_per_pass,
-                     progress="reference" if settings.progress else None)
-    paths = res.lanes * (2 if scene.has_virtual else 1)
-    return layers_from_passes(frame, res, paths_traced=float(paths))
+        with timer.stage("trace"):
+            res = run_passes(view.camera, settings.spp, kernel, seed=settings.seed,
+                             spp_per_pass=settings.spp_per_pass,
+                             progress="reference" if settings.progress else None)
+        with timer.stage("assemble"):
+            paths = res.lanes * (2 if has_virtual else 1)
+            return layers_from_passes(frame, res, paths_traced=float(paths))
