@@ -1,15 +1,48 @@
-"""Building the two Mitsuba views of an AR scene.
+"""Translating an AR scene for Mitsuba: a plain-data description, then Mitsuba objects.
+
+Translation happens in two steps:
+
+1. **Describe** (:func:`describe_views`, :func:`describe_sensor`): the :class:`ARScene` becomes
+   a *description* made of plain data only — nested dicts, lists, floats, ints, strings,
+   bools and NumPy arrays. A node is a dict with a ``"type"`` (a Mitsuba plugin name, or
+   ``"mesh"`` for an in-memory triangle mesh) and the plugin's properties, as in
+   :func:`mitsuba.load_dict`, except that
+
+   * ``to_world`` is a 4×4 NumPy matrix, or Mitsuba's constructor arguments where Mitsuba
+     builds the transform itself (``{"rotate": {"axis", "angle"}}``, ``{"look_at": {...}}``)
+     so the loaded objects stay bitwise what they were;
+   * ``bitmap`` is an ``(H, W, C)`` float32 array (texture files and environment maps enter
+     as their decoded pixels, never as file names);
+   * a ``"mesh"`` node holds world-space ``vertices (V, 3)`` float32, ``faces (F, 3)``
+     uint32, optional ``uv (V, 2)`` and ``smooth``.
+
+   A view description is ``{"objects": {name: node}}`` in scene order: the lights
+   (``"light<i>"``) then the shapes (``"<i>"``, the index into ``ARScene.shapes``). Materials
+   and lights are translated by one function per type (:data:`MATERIALS`, :data:`LIGHTS`).
+   Everything that determines a rendered image is in the description and nothing else is
+   (no shape names, no scene ``description`` text), so :mod:`arlight.synthetic` can hash it
+   as a cache key.
+
+2. **Load** (:func:`load_scene`, :func:`load_view`, :func:`load_sensor`): the description
+   becomes Mitsuba objects. Shapes are loaded one by one and given their name as Mitsuba id;
+   other emitters go into the scene dictionary.
+
+:func:`build_views` does both for the two views the methods use:
 
 * ``real`` (µ): the real proxy and the lights — what the camera saw.
 * ``mixed`` (ρ): the real proxy, the virtual objects and the lights.
 
-Both are built from the same dictionaries, so shared shapes, materials and emitters are
+Both are built from the same description, so shared shapes, materials and emitters are
 identical. :class:`SceneViews` also keeps, per view, a table from Mitsuba's shape registry id
 to our shape index, so a hit can be told real or virtual inside a JIT kernel.
+
+Units: lengths in metres (scene units), angles in degrees where Mitsuba takes degrees
+(``fov``, ``rotate.angle``, spot ``cutoff_angle``), radiance in W·sr⁻¹·m⁻² (linear RGB).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,58 +51,107 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.variant import ensure_variant
+from arlight.errors import InputError
+from arlight.scene.camera import Camera
 from arlight.scene.model import ARScene, Light, Material, Shape
 
 ROLE_MISS, ROLE_REAL, ROLE_VIRTUAL = -1, 0, 1
 LIGHT_SHAPE_INDEX = -2  # shape index reported for hits on area-light emitter geometry
+LIGHT_PREFIX = "light"  # object names of lights: "light<i>"; shapes are named "<i>"
+NEAR_CLIP = 1e-4
+"""Near clip distance of the Mitsuba sensors, metres: Mitsuba starts camera rays there (its
+default, 1 cm, would move ray origins visibly off the camera centre)."""
+
+Node = dict[str, Any]
+"""A description node: plain data only (see the module docstring)."""
 
 
-def _transform(m: np.ndarray) -> mi.ScalarTransform4f:
-    return mi.ScalarTransform4f(np.asarray(m, dtype=np.float64).tolist())
+# --------------------------------------------------------------------------------------------
+# Describe: materials
+# --------------------------------------------------------------------------------------------
 
-
-def _rgb(c) -> dict[str, Any]:
+def _rgb(c) -> Node:
     return {"type": "rgb", "value": [float(x) for x in c]}
 
 
-def _texture(path: str) -> dict[str, Any]:
+def _texture(path: str) -> Node:
     """Albedo texture: LDR files are sRGB-decoded, HDR files are used as linear values."""
     from arlight.io.images import read_linear
 
     data = np.clip(read_linear(path), 0.0, 1.0).astype(np.float32)
-    return {"type": "bitmap", "bitmap": mi.Bitmap(data), "raw": True}
+    return {"type": "bitmap", "bitmap": data, "raw": True}
 
 
-def material_dict(mat: Material) -> dict[str, Any]:
-    """Mitsuba BSDF dictionary for one material (opaque materials are two-sided)."""
-    p = mat.params
-    t = mat.type
-    if t == "diffuse":
-        refl = _texture(p["texture"]) if p.get("texture") else _rgb(p["albedo"])
-        inner = {"type": "diffuse", "reflectance": refl}
-    elif t == "phong":
-        from arlight.backend.phong import PLUGIN_NAME, register
-
-        register()
-        inner = {"type": PLUGIN_NAME, "kd": mi.ScalarColor3f(p["kd"]),
-                 "ks": mi.ScalarColor3f(p["ks"]), "n": float(p["exponent"])}
-    elif t == "roughconductor":
-        inner = {"type": "roughconductor", "distribution": "ggx", "alpha": p["alpha"],
-                 "material": "none", "specular_reflectance": _rgb(p["reflectance"])}
-    elif t == "mirror":
-        inner = {"type": "conductor", "material": "none",
-                 "specular_reflectance": _rgb(p["reflectance"])}
-    elif t == "glass":
-        return {"type": "dielectric", "int_ior": p["ior"], "ext_ior": p["ext_ior"]}
-    elif t == "roughdielectric":
-        return {"type": "roughdielectric", "distribution": "ggx", "alpha": p["alpha"],
-                "int_ior": p["ior"], "ext_ior": p["ext_ior"]}
-    else:  # the schema rejects unknown types first
-        raise ValueError(f"unknown material type {t!r}")
+def _twosided(inner: Node) -> Node:
     return {"type": "twosided", "bsdf": inner}
 
 
-_PRIMITIVE_CANONICAL = {
+def _diffuse(p: dict[str, Any]) -> Node:
+    refl = _texture(p["texture"]) if p.get("texture") else _rgb(p["albedo"])
+    return _twosided({"type": "diffuse", "reflectance": refl})
+
+
+def _phong(p: dict[str, Any]) -> Node:
+    # kd, ks rounded to float32 as Mitsuba's ScalarColor3f would: the plugin averages them in
+    # double precision for its lobe probability, so the rounding is part of the image
+    def f32(c) -> list[float]:
+        return [float(np.float32(x)) for x in c]
+
+    return _twosided({"type": phong_plugin_name(), "kd": f32(p["kd"]), "ks": f32(p["ks"]),
+                      "n": float(p["exponent"])})
+
+
+def _roughconductor(p: dict[str, Any]) -> Node:
+    return _twosided({"type": "roughconductor", "distribution": "ggx", "alpha": p["alpha"],
+                      "material": "none", "specular_reflectance": _rgb(p["reflectance"])})
+
+
+def _mirror(p: dict[str, Any]) -> Node:
+    return _twosided({"type": "conductor", "material": "none",
+                      "specular_reflectance": _rgb(p["reflectance"])})
+
+
+def _glass(p: dict[str, Any]) -> Node:
+    return {"type": "dielectric", "int_ior": p["ior"], "ext_ior": p["ext_ior"]}
+
+
+def _roughdielectric(p: dict[str, Any]) -> Node:
+    return {"type": "roughdielectric", "distribution": "ggx", "alpha": p["alpha"],
+            "int_ior": p["ior"], "ext_ior": p["ext_ior"]}
+
+
+MATERIALS: dict[str, Callable[[dict[str, Any]], Node]] = {
+    "diffuse": _diffuse,
+    "phong": _phong,
+    "roughconductor": _roughconductor,
+    "mirror": _mirror,
+    "glass": _glass,
+    "roughdielectric": _roughdielectric,
+}
+"""Material type -> BSDF node from the material's ``params`` (opaque materials two-sided)."""
+
+
+def phong_plugin_name() -> str:
+    """Mitsuba plugin name of the Python Phong BSDF (:mod:`arlight.backend.phong`)."""
+    ensure_variant()  # the plugin module subclasses mi.BSDF, which needs a variant
+    from arlight.backend.phong import PLUGIN_NAME
+
+    return PLUGIN_NAME
+
+
+def describe_material(mat: Material) -> Node:
+    """BSDF node of one material (see :data:`MATERIALS`)."""
+    translate = MATERIALS.get(mat.type)
+    if translate is None:  # the schema rejects unknown types first
+        raise ValueError(f"unknown material type {mat.type!r}")
+    return translate(mat.params)
+
+
+# --------------------------------------------------------------------------------------------
+# Describe: shapes
+# --------------------------------------------------------------------------------------------
+
+_PRIMITIVE_CANONICAL: dict[str, Callable[[dict[str, Any]], np.ndarray]] = {
     # Mitsuba's canonical primitives: rectangle and cube span [-1, 1], disk and sphere r = 1.
     "rectangle": lambda p: np.diag([p["size"][0] / 2, p["size"][1] / 2, 1.0, 1.0]),
     "box": lambda p: np.diag([p["size"][0] / 2, p["size"][1] / 2, p["size"][2] / 2, 1.0]),
@@ -79,71 +161,102 @@ _PRIMITIVE_CANONICAL = {
 _MITSUBA_TYPE = {"rectangle": "rectangle", "box": "cube", "disk": "disk", "sphere": "sphere"}
 
 
-def shape_object(shape: Shape, index: int) -> mi.Shape:
-    """Loaded Mitsuba shape whose id is ``"<index>"`` (our index into ``ARScene.shapes``)."""
-    bsdf = material_dict(shape.material)
-    if shape.type == "mesh":
-        return _mesh(shape, index, bsdf)
-    m = shape.to_world @ _PRIMITIVE_CANONICAL[shape.type](shape.params)
-    obj = mi.load_dict({"type": _MITSUBA_TYPE[shape.type], "to_world": _transform(m),
-                        "bsdf": bsdf})
-    obj.set_id(str(index))  # some plugins (cube) do not keep an "id" property
-    return obj
+def _primitive(shape: Shape) -> Node:
+    m = np.asarray(shape.to_world, dtype=np.float64) @ _PRIMITIVE_CANONICAL[shape.type](
+        shape.params)
+    return {"type": _MITSUBA_TYPE[shape.type], "to_world": m,
+            "bsdf": describe_material(shape.material)}
 
 
-def _mesh(shape: Shape, index: int, bsdf: dict[str, Any]) -> mi.Mesh:
+def _mesh(shape: Shape) -> Node:
     data = shape.mesh
     assert data is not None
+    to_world = np.asarray(shape.to_world, dtype=np.float64)
     v = np.asarray(data.vertices, dtype=np.float64)
-    v = (v @ shape.to_world[:3, :3].T + shape.to_world[:3, 3]).astype(np.float32)
+    v = (v @ to_world[:3, :3].T + to_world[:3, 3]).astype(np.float32)
     faces = np.asarray(data.faces, dtype=np.uint32)
-    if np.linalg.det(shape.to_world[:3, :3]) < 0:
+    if np.linalg.det(to_world[:3, :3]) < 0:
         faces = faces[:, ::-1].copy()  # keep outward normals under mirroring transforms
-    props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf)
-    mesh = mi.Mesh(str(index), len(v), len(faces), props=props,
-                   has_vertex_normals=bool(shape.params.get("smooth", True)),
-                   has_vertex_texcoords=data.uv is not None)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(v[:, 0], v[:, 1], v[:, 2]))
-    params["faces"] = dr.ravel(mi.Vector3u(faces[:, 0], faces[:, 1], faces[:, 2]))
-    if data.uv is not None:
-        params["vertex_texcoords"] = dr.ravel(mi.Point2f(data.uv[:, 0], data.uv[:, 1]))
-    params.update()
-    if shape.params.get("smooth", True):
-        mesh.recompute_vertex_normals()
-    mesh.set_id(str(index))  # registry lookup uses this id
-    return mesh
+    return {"type": "mesh", "vertices": v, "faces": faces,
+            "uv": None if data.uv is None else np.asarray(data.uv),
+            "smooth": bool(shape.params.get("smooth", True)),
+            "bsdf": describe_material(shape.material)}
 
 
-def light_object(light: Light, index: int) -> dict[str, Any] | mi.Shape:
-    """Mitsuba emitter dict, or a loaded emitting rectangle for area lights."""
+SHAPES: dict[str, Callable[[Shape], Node]] = {
+    "mesh": _mesh, **{t: _primitive for t in _PRIMITIVE_CANONICAL}}
+"""Shape type -> shape node (world-space geometry plus its BSDF node)."""
+
+
+def describe_shape(shape: Shape) -> Node:
+    """Shape node of one shape (see :data:`SHAPES`)."""
+    translate = SHAPES.get(shape.type)
+    if translate is None:
+        raise ValueError(f"unknown shape type {shape.type!r}")
+    return translate(shape)
+
+
+# --------------------------------------------------------------------------------------------
+# Describe: lights
+# --------------------------------------------------------------------------------------------
+
+def _envmap(light: Light) -> Node:
     p = light.params
-    if light.type in ("envmap", "sh"):
-        rot = mi.ScalarTransform4f().rotate([0, 1, 0], p["rotation_deg"])
-        return {"type": "envmap", "bitmap": mi.Bitmap(light.radiance_map),
-                "scale": p["scale"], "to_world": rot}
-    if light.type == "constant":
-        return {"type": "constant", "radiance": _rgb(p["radiance"])}
-    if light.type == "point":
-        return {"type": "point", "position": p["position"], "intensity": _rgb(p["intensity"])}
-    if light.type == "spot":
-        return {"type": "spot", "intensity": _rgb(p["intensity"]),
-                "cutoff_angle": p["cutoff_deg"], "beam_width": p["beam_width_deg"],
-                "to_world": mi.ScalarTransform4f().look_at(
-                    origin=p["position"], target=p["target"],
-                    up=_any_perpendicular(np.subtract(p["target"], p["position"])))}
-    if light.type == "directional":
-        return {"type": "directional", "direction": p["direction"],
-                "irradiance": _rgb(p["irradiance"])}
-    if light.type == "area":
-        m = p["to_world"] @ np.diag([p["size"][0] / 2, p["size"][1] / 2, 1.0, 1.0])
-        obj = mi.load_dict({"type": "rectangle", "to_world": _transform(m),
-                            "bsdf": {"type": "diffuse", "reflectance": _rgb([0, 0, 0])},
-                            "emitter": {"type": "area", "radiance": _rgb(p["radiance"])}})
-        obj.set_id(f"light{index}")
-        return obj
-    raise ValueError(f"unknown light type {light.type!r}")
+    return {"type": "envmap", "bitmap": light.radiance_map, "scale": p["scale"],
+            "to_world": {"rotate": {"axis": [0.0, 1.0, 0.0], "angle": p["rotation_deg"]}}}
+
+
+def _constant(light: Light) -> Node:
+    return {"type": "constant", "radiance": _rgb(light.params["radiance"])}
+
+
+def _point(light: Light) -> Node:
+    p = light.params
+    return {"type": "point", "position": p["position"], "intensity": _rgb(p["intensity"])}
+
+
+def _spot(light: Light) -> Node:
+    p = light.params
+    up = _any_perpendicular(np.subtract(p["target"], p["position"]))
+    return {"type": "spot", "intensity": _rgb(p["intensity"]),
+            "cutoff_angle": p["cutoff_deg"], "beam_width": p["beam_width_deg"],
+            "to_world": {"look_at": {"origin": p["position"], "target": p["target"],
+                                     "up": up}}}
+
+
+def _directional(light: Light) -> Node:
+    p = light.params
+    return {"type": "directional", "direction": p["direction"],
+            "irradiance": _rgb(p["irradiance"])}
+
+
+def _area(light: Light) -> Node:
+    p = light.params
+    m = np.asarray(p["to_world"], dtype=np.float64) @ np.diag(
+        [p["size"][0] / 2, p["size"][1] / 2, 1.0, 1.0])
+    return {"type": "rectangle", "to_world": m,
+            "bsdf": {"type": "diffuse", "reflectance": _rgb([0, 0, 0])},
+            "emitter": {"type": "area", "radiance": _rgb(p["radiance"])}}
+
+
+LIGHTS: dict[str, Callable[[Light], Node]] = {
+    "envmap": _envmap,
+    "sh": _envmap,  # its radiance_map is the SH expansion sampled on the sphere
+    "constant": _constant,
+    "point": _point,
+    "spot": _spot,
+    "directional": _directional,
+    "area": _area,  # an emitting one-sided rectangle (a shape node)
+}
+"""Light type -> emitter node, or a shape node with an ``emitter`` for area lights."""
+
+
+def describe_light(light: Light) -> Node:
+    """Emitter (or emitting shape) node of one light (see :data:`LIGHTS`)."""
+    translate = LIGHTS.get(light.type)
+    if translate is None:
+        raise ValueError(f"unknown light type {light.type!r}")
+    return translate(light)
 
 
 def _any_perpendicular(d) -> list[float]:
@@ -152,6 +265,194 @@ def _any_perpendicular(d) -> list[float]:
         [1.0, 0.0, 0.0])
     return np.cross(d, np.cross(a, d)).tolist()
 
+
+# --------------------------------------------------------------------------------------------
+# Describe: views and sensor
+# --------------------------------------------------------------------------------------------
+
+def describe_views(scene: ARScene) -> dict[str, Node]:
+    """Descriptions of both views: ``{"real": view, "mixed": view}``, each
+    ``{"objects": {name: node}}`` (lights ``"light<i>"`` first, then shapes ``"<i>"``).
+
+    Without virtual shapes the two descriptions are equal.
+    """
+    lights = {f"{LIGHT_PREFIX}{i}": describe_light(x) for i, x in enumerate(scene.lights)}
+    shapes = {str(i): describe_shape(s) for i, s in enumerate(scene.shapes)}
+    real = {k: v for k, v in shapes.items() if not scene.shapes[int(k)].is_virtual}
+    return {"real": {"objects": {**lights, **real}},
+            "mixed": {"objects": {**lights, **shapes}}}
+
+
+def virtual_names(scene: ARScene) -> set[str]:
+    """Object names (in a view description) of the virtual shapes."""
+    return {str(i) for i, s in enumerate(scene.shapes) if s.is_virtual}
+
+
+def is_shape_node(node: Node) -> bool:
+    """Whether a top-level object node is a shape (else it is a non-geometric emitter)."""
+    return node["type"] in _SHAPE_LOADERS
+
+
+def describe_coverage_view(mixed: Node, virtual: set[str]) -> Node:
+    """The coverage view of a mixed-view description, for the virtual-coverage mask.
+
+    Every shape keeps its geometry; virtual shapes get a two-sided white diffuse BSDF, all
+    other shapes (real ones and area-light geometry) a two-sided black one and no emitter;
+    emitters without geometry are dropped. Mitsuba's ``aov`` integrator with an ``albedo``
+    channel then reads 1 where a camera ray's first hit is virtual and 0 elsewhere (also on
+    misses), so its box-filtered pixel mean is the virtual fraction of the pixel's area.
+    """
+    out = {}
+    for name, node in mixed["objects"].items():
+        if not is_shape_node(node):
+            continue
+        albedo = [1.0, 1.0, 1.0] if name in virtual else [0.0, 0.0, 0.0]
+        shape = {k: v for k, v in node.items() if k != "emitter"}
+        shape["bsdf"] = _twosided({"type": "diffuse", "reflectance": _rgb(albedo)})
+        out[name] = shape
+    return {"objects": out}
+
+
+def describe_sensor(camera: Camera, spp: int) -> Node:
+    """Mitsuba sensor node for ``camera``: ``perspective``, or ``thinlens`` when the camera
+    has a disk aperture (``aperture_radius > 0``); an ``hdrfilm`` with a box filter (each
+    sample counts for the one pixel it falls in, with equal weight) and an ``independent``
+    sampler of ``spp`` samples per pixel.
+
+    OpenCV camera axes (x right, y down, z forward) become Mitsuba's (x left, y up,
+    z forward) by flipping x and y in ``to_world``. Mitsuba's principal-point offsets are
+    fractions of the film size measured in its own (flipped) axes, hence ``(W/2 − cx)/W``.
+    The thin lens samples the same uniform disk as :mod:`arlight.backend.camera_rays`
+    (mirrored through the lens centre, which leaves the distribution unchanged) and focuses
+    on the plane ``z = focus_distance``.
+
+    Raises:
+        InputError: for what Mitsuba's sensors cannot represent: non-square pixels
+            (``fx != fy``), a square aperture, an off-centre principal point with a lens.
+    """
+    w, h = camera.width, camera.height
+    if abs(camera.fx - camera.fy) > 1e-6 * max(abs(camera.fx), abs(camera.fy)):
+        raise InputError(f"fx = {camera.fx} != fy = {camera.fy}: Mitsuba's perspective "
+                         "sensors have square pixels only", field="camera.intrinsics")
+    to_world = np.asarray(camera.world_from_camera, dtype=np.float64) @ np.diag(
+        [-1.0, -1.0, 1.0, 1.0])
+    node: Node = {"type": "perspective", "fov_axis": "y",
+                  "fov": float(np.degrees(2 * np.arctan(0.5 * h / camera.fy))),
+                  "near_clip": NEAR_CLIP, "to_world": to_world}
+    if camera.aperture_radius > 0:
+        if camera.aperture_shape != "disk":
+            raise InputError(f"Mitsuba has no {camera.aperture_shape} aperture (its thinlens "
+                             "sensor's aperture is a disk)", field="camera.aperture_shape")
+        if abs(camera.cx - w / 2) > 1e-9 * w or abs(camera.cy - h / 2) > 1e-9 * h:
+            raise InputError(f"principal point ({camera.cx}, {camera.cy}) is not the image "
+                             f"centre ({w / 2}, {h / 2}): Mitsuba's thinlens sensor has no "
+                             "principal-point offset", field="camera.intrinsics")
+        node.update(type="thinlens", aperture_radius=float(camera.aperture_radius),
+                    focus_distance=float(camera.focus_distance))
+    else:
+        node.update(principal_point_offset_x=float((w / 2 - camera.cx) / w),
+                    principal_point_offset_y=float((h / 2 - camera.cy) / h))
+    node["film"] = {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                    "pixel_format": "rgb"}
+    node["sampler"] = {"type": "independent", "sample_count": int(spp)}
+    return node
+
+
+# --------------------------------------------------------------------------------------------
+# Load
+# --------------------------------------------------------------------------------------------
+
+def _load_transform(value: np.ndarray | Node) -> mi.ScalarTransform4f:
+    if isinstance(value, dict):
+        if "rotate" in value:
+            r = value["rotate"]
+            return mi.ScalarTransform4f().rotate(r["axis"], r["angle"])
+        return mi.ScalarTransform4f().look_at(**value["look_at"])
+    return mi.ScalarTransform4f(np.asarray(value, dtype=np.float64).tolist())
+
+
+_VALUE_LOADERS: dict[str, Callable[[Any], Any]] = {
+    "to_world": _load_transform,
+    "bitmap": lambda a: mi.Bitmap(a),
+}
+"""Property name -> conversion of its plain-data value into a Mitsuba value."""
+
+
+def plugin_dict(node: Node) -> dict[str, Any]:
+    """A description node as a :func:`mitsuba.load_dict` dictionary (nested nodes too)."""
+    if node.get("type") == phong_plugin_name():
+        from arlight.backend.phong import register
+
+        register()  # a Python plugin: Mitsuba knows it once registered
+    out: dict[str, Any] = {}
+    for key, value in node.items():
+        if isinstance(value, dict) and "type" in value:
+            out[key] = plugin_dict(value)
+        elif key in _VALUE_LOADERS:
+            out[key] = _VALUE_LOADERS[key](value)
+        else:
+            out[key] = value
+    return out
+
+
+def _load_shape(name: str, node: Node) -> mi.Shape:
+    obj = mi.load_dict(plugin_dict(node))
+    obj.set_id(name)  # some plugins (cube) do not keep an "id" property
+    return obj
+
+
+def _load_mesh(name: str, node: Node) -> mi.Mesh:
+    v, faces, uv = node["vertices"], node["faces"], node["uv"]
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(plugin_dict(node["bsdf"]))
+    mesh = mi.Mesh(name, len(v), len(faces), props=props, has_vertex_normals=node["smooth"],
+                   has_vertex_texcoords=uv is not None)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = dr.ravel(mi.Point3f(v[:, 0], v[:, 1], v[:, 2]))
+    params["faces"] = dr.ravel(mi.Vector3u(faces[:, 0], faces[:, 1], faces[:, 2]))
+    if uv is not None:
+        params["vertex_texcoords"] = dr.ravel(mi.Point2f(uv[:, 0], uv[:, 1]))
+    params.update()
+    if node["smooth"]:
+        mesh.recompute_vertex_normals()
+    mesh.set_id(name)  # registry lookup uses this id
+    return mesh
+
+
+_SHAPE_LOADERS: dict[str, Callable[[str, Node], mi.Shape]] = {
+    "mesh": _load_mesh, **{t: _load_shape for t in _MITSUBA_TYPE.values()}}
+"""Node type -> loader of a top-level shape object (others are emitter dictionaries)."""
+
+
+def load_object(name: str, node: Node) -> mi.Shape | dict[str, Any]:
+    """A top-level object: a loaded shape whose Mitsuba id is ``name``, or an emitter's
+    :func:`mitsuba.load_dict` dictionary (to be placed in a scene dictionary)."""
+    ensure_variant()
+    loader = _SHAPE_LOADERS.get(node["type"])
+    return plugin_dict(node) if loader is None else loader(name, node)
+
+
+def load_scene(view: Node) -> mi.Scene:
+    """The ``mi.Scene`` of a view description (no sensor)."""
+    objects = {name: load_object(name, node) for name, node in view["objects"].items()}
+    return mi.load_dict({"type": "scene", **objects})
+
+
+def load_sensor(node: Node) -> mi.Sensor:
+    """The ``mi.Sensor`` of a sensor node (:func:`describe_sensor`)."""
+    ensure_variant()
+    return mi.load_dict(plugin_dict(node))
+
+
+def mitsuba_sensor(camera: Camera, spp: int) -> mi.Sensor:
+    """Mitsuba's own sensor for ``camera`` (see :func:`describe_sensor`); used to run
+    Mitsuba's integrators on our scenes (synthetic photographs, benchmark peers)."""
+    return load_sensor(describe_sensor(camera, spp))
+
+
+# --------------------------------------------------------------------------------------------
+# The µ and ρ views of the methods
+# --------------------------------------------------------------------------------------------
 
 @dataclass
 class SceneView:
@@ -189,14 +490,20 @@ class SceneViews:
     mixed: SceneView
 
 
-def _build_view(objects: dict[str, Any], roles: dict[str, int]) -> SceneView:
-    scene = mi.load_dict({"type": "scene", **objects})
+def load_view(view: Node, roles: dict[str, int]) -> SceneView:
+    """Load a view description and tabulate its shapes' indices and roles.
+
+    Args:
+        view: ``{"objects": {name: node}}`` (see :func:`describe_views`).
+        roles: shape name -> ``ROLE_REAL`` / ``ROLE_VIRTUAL`` (light geometry is real).
+    """
+    scene = load_scene(view)
     ids, idx, role = [], [], []
     for sh in scene.shapes():
         reg = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(sh))[0])
         sid = sh.id()
         ids.append(reg)
-        if sid.startswith("light"):
+        if sid.startswith(LIGHT_PREFIX):
             idx.append(LIGHT_SHAPE_INDEX)
             role.append(ROLE_REAL)
         else:
@@ -215,31 +522,7 @@ def build_views(scene: ARScene) -> SceneViews:
     ensure_variant()
     roles = {str(i): ROLE_VIRTUAL if s.is_virtual else ROLE_REAL
              for i, s in enumerate(scene.shapes)}
-
-    def objects(include_virtual: bool) -> dict[str, Any]:
-        lights = {f"light{i}": light_object(x, i) for i, x in enumerate(scene.lights)}
-        shapes = {str(i): shape_object(s, i) for i, s in enumerate(scene.shapes)
-                  if include_virtual or not s.is_virtual}
-        return {**lights, **shapes}
-
-    real = _build_view(objects(False), roles)
-    mixed = _build_view(objects(True), roles) if scene.has_virtual else real
+    desc = describe_views(scene)
+    real = load_view(desc["real"], roles)
+    mixed = load_view(desc["mixed"], roles) if scene.has_virtual else real
     return SceneViews(real=real, mixed=mixed)
-
-
-def mitsuba_sensor(camera, spp: int) -> mi.Sensor:
-    """Mitsuba's own ``perspective`` sensor for ``camera`` (square pixels; thin lens ignored).
-
-    Used to run Mitsuba's integrators on our scenes as a peer in benchmarks. Mitsuba's camera
-    space is x left, y up, z forward, i.e. OpenCV's with x and y flipped.
-    """
-    w, h = camera.width, camera.height
-    fov_y = float(np.degrees(2 * np.arctan(0.5 * h / camera.fy)))
-    to_world = np.asarray(camera.world_from_camera) @ np.diag([-1.0, -1.0, 1.0, 1.0])
-    return mi.load_dict({
-        "type": "perspective", "fov_axis": "y", "fov": fov_y, "to_world": _transform(to_world),
-        "principal_point_offset_x": (camera.cx - w / 2) / w,
-        "principal_point_offset_y": (camera.cy - h / 2) / h,
-        "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
-                 "pixel_format": "rgb"},
-        "sampler": {"type": "independent", "sample_count": spp}})
