@@ -150,8 +150,8 @@ class Layers:
 
     def check(self, height: int, width: int, where: str = "Layers") -> None:
         """Raise a ValueError naming the first layer that is not a finite float32 array of
-        ``(height, width, 3)`` (``(height, width)`` for the mask); standard errors may be
-        +inf (a single sample) but not NaN."""
+        ``(height, width, 3)`` (``(height, width)`` for the mask); standard errors (float32
+        or float64) may be +inf (a single sample) but not NaN."""
         images = {"background": self.background, "mixed": self.mixed, "delta": self.delta,
                   "mask": self.mask, "composite": self.composite}
         if self.real is not None:
@@ -161,7 +161,7 @@ class Layers:
                          strict_dtype=True)
         for name, img in self.stderr.items():
             _check_image(f"stderr_{name}", img, _image_shape(name, height, width), where,
-                         strict_dtype=True, finite=False)
+                         strict_dtype=False, finite=False)
 
 
 def differential_samples(mixed, real, mask, background) -> dict:
