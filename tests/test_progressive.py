@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arlight.methods import RenderSettings, get_method
-from arlight.progressive import Accumulator, preview, refine, rmse, run_cli
+from arlight.errors import InputError
+from arlight.methods import Capabilities, RenderSettings, get_method, register, unregister
+from arlight.progressive import Accumulator, frame_seed, preview, refine, rmse, run_cli
 from arlight.scene.load import parse_scene
 
 
@@ -51,6 +52,45 @@ def test_refinement_is_running_mean_of_fresh_frames():
     comps = np.stack([s.layers.composite for s in steps]).astype(np.float64)
     np.testing.assert_allclose(steps[-1].image, comps.mean(axis=0), rtol=1e-12)
     assert not np.array_equal(comps[0], comps[1])  # fresh random numbers per frame
+
+
+def test_refinement_prepares_once_and_matches_one_shot_frames(monkeypatch):
+    """The scene is prepared once, and frame n is bitwise the one-shot render with seed
+    frame_seed(seed, n). Bugs caught: rebuilding the Mitsuba scenes every frame (the loop's
+    old cost), or a prepared state that drifts from frame to frame."""
+    scene = small_scene(12, 9)
+    method = get_method("onepass")
+    calls = []
+    prepare = type(method).prepare
+
+    def counting(self, world, settings=None):
+        calls.append(1)
+        return prepare(self, world, settings)
+
+    monkeypatch.setattr(type(method), "prepare", counting)
+    s = RenderSettings(spp=1, seed=2)
+    steps = list(refine(scene, "onepass", s, frames=3))
+    assert len(calls) == 1
+    monkeypatch.undo()
+    for step in steps:
+        alone = method(scene, RenderSettings(spp=1, seed=frame_seed(2, step.frame)))
+        np.testing.assert_array_equal(step.layers.composite, alone.composite)
+    assert "time_trace" in steps[-1].layers.stats
+
+
+def test_refinement_refuses_methods_that_are_not_progressive():
+    """Bug caught: averaging frames of a method whose renders are not independent
+    estimates (a deterministic approximation would "converge" to its own bias)."""
+
+    @register("test-not-progressive", capabilities=Capabilities(progressive=False))
+    def frame_only(scene, settings):
+        raise AssertionError("must not run")
+
+    try:
+        with pytest.raises(InputError, match="not progressive"):
+            next(refine(small_scene(8, 6), "test-not-progressive"))
+    finally:
+        unregister("test-not-progressive")
 
 
 def test_rmse_falls_as_inverse_sqrt_n():

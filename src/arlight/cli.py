@@ -4,7 +4,7 @@
     arlight render SCENE -m reference  run a method on an AR scene, write layers
     arlight synth WORLD                synthesise a camera frame + ground truth
     arlight validate SCENE             check a scene file and summarise it
-    arlight methods                    list registered methods
+    arlight methods [NAME]             list methods, or one's options and capabilities
     arlight light ...                  light estimation (SH, env maps, probes, fisheye)
     arlight eval ...                   evaluation harness (scenes × methods → report)
 
@@ -20,7 +20,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from arlight.errors import ArlightError
+from arlight.errors import ArlightError, InputError
 from arlight.evaluate import cli as eval_cli
 from arlight.light import cli as light_cli
 
@@ -39,18 +39,14 @@ MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in vert
 
 
 def _parse_options(pairs: list[str]) -> dict[str, object]:
-    """``key=value`` pairs; values are parsed as JSON when possible (numbers, booleans)."""
-    import json
-
+    """``key=value`` pairs as strings; the method's option table converts each value by its
+    kind (``reproject=false`` -> False), see :meth:`arlight.methods.MethodSpec.parse_options`."""
     out: dict[str, object] = {}
     for pair in pairs:
-        if "=" not in pair:
-            raise ArlightError(f"--option expects key=value, got {pair!r}")
-        k, v = pair.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"expected key=value, got {pair!r}", field="--option")
+        out[key.strip()] = value
     return out
 
 
@@ -64,7 +60,8 @@ def render(
     seed: Seed = 0,
     max_depth: MaxDepth = 8,
     option: Annotated[list[str] | None, typer.Option("--option", help="method option "
-                      "key=value (repeatable)")] = None,
+                      "key=value, e.g. reproject=false (repeatable; `arlight methods NAME` "
+                      "lists them)")] = None,
     progressive: Annotated[bool, typer.Option(help="progressive refinement: accumulate "
                            "composited frames (Kán Eq. 4.12) until --time or --frames")] = False,
     time_budget: Annotated[float, typer.Option("--time", help="progressive time budget, "
@@ -78,20 +75,26 @@ def render(
     from arlight.output import write_layers
     from arlight.scene.load import load_scene
 
-    sc = load_scene(scene)
     settings = RenderSettings(spp=spp, seed=seed, max_depth=max_depth, progress=True,
                               options=_parse_options(option or []))
+    fn = get_method(method)
+    fn.spec.parse_options(settings.options)  # a bad option fails before the scene loads
+    sc = load_scene(scene)
     if progressive:
         from arlight.progressive import run_cli
 
         run_cli(sc, method, settings, out, time_budget, frames, ground_truth, console)
         return
-    layers = get_method(method)(sc, settings)
+    layers = fn(sc, settings)
     paths = write_layers(layers, sc, out)
     s = layers.stats
     rays = f", {s['rays_per_sample']:.2f} rays/sample" if "rays_per_sample" in s else ""
     console.print(f"[green]{method}[/]: {s.get('seconds', 0):.2f} s, "
                   f"{s.get('samples_per_second', 0) / 1e6:.2f} Msamples/s{rays}")
+    from arlight.timing import format_stages
+
+    if stages := format_stages(s):
+        console.print(f"stages: {stages}")
     console.print(f"composite: {paths['composite_png']}  (layers: {out}/*.exr)")
 
 
@@ -137,12 +140,37 @@ def validate(scene: Annotated[Path, typer.Argument(help="AR scene file")]) -> No
 
 
 @app.command()
-def methods() -> None:
-    """List the registered rendering methods."""
-    from arlight.methods import available_methods
+def methods(
+    name: Annotated[str | None, typer.Argument(help="a method: print its description, "
+                                               "capabilities and options")] = None,
+) -> None:
+    """List the registered rendering methods, or describe one."""
+    from rich.console import Console as RichConsole
+    from rich.table import Table
 
-    for name, doc in available_methods().items():
-        typer.echo(f"{name:12s} {doc}")
+    from arlight.methods import get_method, load_errors
+    from arlight.methods import methods as registered
+
+    if name is None:
+        for n, m in registered().items():
+            typer.echo(f"{n:12s} {m.spec.description}")
+        for n, why in load_errors().items():
+            typer.echo(f"{n:12s} (failed to load: {why})")
+        return
+    spec = get_method(name).spec
+    typer.echo(f"{spec.name}: {spec.description}\n")
+    typer.echo("capabilities:")
+    for key, value in spec.capabilities.summary().items():
+        typer.echo(f"  {key:12s} {value}")
+    typer.echo("")
+    if not spec.options:
+        typer.echo("options: none")
+        return
+    table = Table("option", "type", "default", "unit", "meaning", title="options "
+                  "(--option key=value)", title_justify="left")
+    for row in spec.options_rows():
+        table.add_row(*row)
+    RichConsole(width=max(100, RichConsole().width)).print(table)
 
 
 @app.command()

@@ -28,6 +28,7 @@ def run_demo(out: Path, spp: int = 36, method: str = "reference",
     from arlight.methods import RenderSettings, get_method
     from arlight.output import write_layers
     from arlight.scene.load import load_scene
+    from arlight.timing import format_stages
 
     console = console or Console(stderr=True)
     scene = load_scene(demo_scene_path())
@@ -37,6 +38,8 @@ def run_demo(out: Path, spp: int = 36, method: str = "reference",
     paths = write_layers(layers, scene, out)
     console.print(f"done in {layers.stats.get('seconds', 0):.1f} s "
                   f"({layers.stats.get('samples_per_second', 0) / 1e6:.2f} Msamples/s)")
+    if stages := format_stages(layers.stats):
+        console.print(f"stages: {stages}")
     console.print(f"composite: [bold]{paths['composite_png']}[/]")
     exrs = ", ".join(str(paths[k]) for k in ("mixed", "delta", "mask", "real") if k in paths)
     console.print(f"layers (EXR, linear radiance): {exrs}")

@@ -29,8 +29,14 @@ def write_layers(layers: Layers, scene: ARScene, out_dir: str | Path) -> dict[st
     """Write ``composite.png`` and EXRs of every layer into ``out_dir``; return the paths.
 
     Files: ``composite.exr``, ``composite.png``, ``mixed.exr``, ``delta.exr``, ``mask.exr``,
-    ``real.exr`` (when the method has it), ``stderr_<layer>.exr`` and ``stats.json``.
+    ``real.exr`` (when the method has it), ``stderr_<layer>.exr`` and ``stats.json``
+    (``seconds``, ``time_<stage>`` seconds, counters).
+
+    Raises ValueError, before writing anything, when a layer is not a finite float32 array
+    of the scene camera's ``(H, W, 3)`` (``(H, W)`` for the mask; standard errors may be
+    +inf but not NaN); the message names the layer and the expected shape.
     """
+    layers.check(scene.camera.height, scene.camera.width, where="write_layers")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=".layers-", dir=out) as tmp:

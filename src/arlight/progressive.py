@@ -11,7 +11,10 @@ Two modes over any registered method (``onepass`` by default):
       L_acc ← ((n − 1) · L_acc + L_o) / n,
 
   until a time or frame budget is spent. :class:`Accumulator` keeps the running mean in
-  float64.
+  float64. The method prepares the scene once (``method.prepare``: Mitsuba scenes, BVHs)
+  and renders every frame from that state (``method.render``); frame ``n`` is bitwise the
+  one-shot render with seed :func:`frame_seed` ``(seed, n)``. Only methods whose
+  capabilities say ``progressive`` are accepted.
 
 :func:`run_cli` is what ``arlight render --progressive`` calls: a rich progress bar,
 snapshots (EXR + PNG) at frames 1, 2, 4, 8, … and at the end, and, given a ground truth, the
@@ -28,9 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from arlight.methods import RenderSettings, get_method
+from arlight.errors import InputError
+from arlight.methods import Method, RenderSettings, get_method
 from arlight.methods.base import Layers
 from arlight.scene.model import ARScene
+from arlight.timing import format_stages
 
 SEED_STRIDE = 0x9E3779B1  # refinement frame n uses seed + n * stride (mod 2^32)
 
@@ -65,9 +70,9 @@ class RefineStep:
     """State after refinement frame ``frame`` (1-based)."""
 
     frame: int
-    seconds: float
+    seconds: float  # since refinement started, the preparation included
     image: np.ndarray  # running mean of the composites (float64)
-    layers: Layers  # the layers of this frame alone
+    layers: Layers  # the layers of this frame alone (stats: this frame's render stages)
 
 
 def frame_seed(base: int, n: int) -> int:
@@ -75,22 +80,35 @@ def frame_seed(base: int, n: int) -> int:
     return (base + n * SEED_STRIDE) & 0xFFFFFFFF
 
 
+def progressive_method(name: str) -> Method:
+    """The registered method ``name``, if its capabilities allow progressive refinement."""
+    method = get_method(name)
+    if not method.spec.capabilities.progressive:
+        raise InputError(f"method {name!r} is not progressive (its renders with different "
+                         "seeds are not independent estimates to average)", field="method")
+    return method
+
+
 def refine(scene: ARScene, method: str = "onepass", settings: RenderSettings | None = None,
            time_budget: float | None = None, frames: int | None = None) -> Iterator[RefineStep]:
     """Yield the accumulated composite after each refinement frame.
 
-    Stops after ``frames`` frames or once ``time_budget`` seconds have passed (checked after
-    each frame; at least one frame is rendered). With neither given it runs until the caller
-    stops iterating.
+    The scene is prepared once and each frame rendered from that state. Stops after
+    ``frames`` frames or once ``time_budget`` seconds have passed (checked after each frame;
+    at least one frame is rendered). With neither given it runs until the caller stops
+    iterating.
     """
     settings = settings or RenderSettings(spp=1)
-    fn = get_method(method)
+    fn = progressive_method(method)
     acc = Accumulator()
     start = time.perf_counter()
+    state = fn.prepare(scene.world, settings)
+    view = scene.view
     n = 0
     while True:
         n += 1
-        layers = fn(scene, replace(settings, seed=frame_seed(settings.seed, n), progress=False))
+        layers = fn.render(state, view, replace(settings, seed=frame_seed(settings.seed, n),
+                                                progress=False))
         image = acc.add(layers.composite)
         elapsed = time.perf_counter() - start
         yield RefineStep(n, elapsed, image, layers)
@@ -144,8 +162,9 @@ def run_cli(scene: ARScene, method_name: str, settings: RenderSettings, out_dir:
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from arlight.errors import InputError
     from arlight.io.images import atomic_write, read_hdr
+
+    progressive_method(method_name)  # refuse before reading anything
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -179,6 +198,8 @@ def run_cli(scene: ARScene, method_name: str, settings: RenderSettings, out_dir:
     _snapshot(out, scene, last.image, last.frame)
     console.print(f"[green]{method_name}[/] progressive: {last.frame} frames in "
                   f"{last.seconds:.1f} s -> {out}/progressive_{last.frame:05d}.exr")
+    if stages := format_stages(last.layers.stats):
+        console.print(f"stages of the last frame: {stages} (the scene was prepared once)")
     if rows:
         with atomic_write(out / "error.csv", ".csv") as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
