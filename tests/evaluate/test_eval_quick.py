@@ -14,6 +14,9 @@ def test_eval_quick_default_runs_every_method_on_every_scene(tmp_path):
     expected = {(m, s) for m in available_methods() for s in list_scenes()}
     assert {(c["method"], c["scene"]) for c in cells} == expected
     assert not [c for c in cells if c.get("error")], "a cell failed"
-    assert "Grand comparison" in (out / "report.md").read_text()
+    assert not [c for c in cells if c.get("skipped")], "a built-in method skipped a scene"
+    assert all({"prepare", "trace"} <= set(c["stages"]) for c in cells)
+    md = (out / "report.md").read_text()
+    assert "Grand comparison" in md and "Stage times, ms" in md
     for m, s in expected:
         assert (out / "grids" / f"{s}__{m}.png").is_file()

@@ -7,12 +7,11 @@ import json
 import numpy as np
 import pytest
 
-import arlight.methods as registry
 from arlight.cli import main
 from arlight.errors import InputError
-from arlight.evaluate.harness import EvalConfig, run_evaluation
+from arlight.evaluate.harness import EvalConfig, method_options, run_evaluation
 from arlight.evaluate.report import write_report
-from arlight.methods import Layers, register
+from arlight.methods import Capabilities, Field, Layers, register, unregister
 
 
 def _broken(scene, settings) -> Layers:
@@ -20,22 +19,36 @@ def _broken(scene, settings) -> Layers:
     raise RuntimeError("kaboom")
 
 
+SEEN_OPTIONS: list[dict] = []
+
+
 def _frame_only(scene, settings) -> Layers:
-    """Returns the frame unchanged (ignores the virtual objects)."""
+    """Returns the frame unchanged (ignores the virtual objects); records its options."""
+    SEEN_OPTIONS.append(dict(settings.options))
     f = scene.frame
     z = np.zeros_like(f)
     return Layers.assemble(f, z, z, np.zeros(f.shape[:2]), stats={"samples": 0})
 
 
+def _unreachable(scene, settings) -> Layers:
+    """Declares narrow capabilities; the harness must skip it instead of calling it."""
+    raise AssertionError("a skipped cell ran")
+
+
+FAKE = ("test-broken", "test-frame", "test-diffuse-only", "test-needs-depth")
+
+
 @pytest.fixture(autouse=True)
 def fake_methods():
-    """Register two test methods for this module only (the registry is process-global)."""
+    """Register test methods for this module only (the registry is process-global)."""
     register("test-broken")(_broken)
-    register("test-frame")(_frame_only)
+    register("test-frame", options={"gain": Field("float", 1.0, "unused")})(_frame_only)
+    register("test-diffuse-only", capabilities=Capabilities(materials={"diffuse"}))(
+        _unreachable)
+    register("test-needs-depth", capabilities=Capabilities(needs_depth=True))(_unreachable)
     yield
-    for name in ("test-broken", "test-frame"):
-        registry._REGISTRY.pop(name, None)
-        registry._DOCS.pop(name, None)
+    for name in FAKE:
+        unregister(name)
 
 
 def config(cache, **kw) -> EvalConfig:
@@ -66,6 +79,77 @@ def test_failures_stay_in_their_cells(eval_cache, tmp_path):
     assert (tmp_path / "rep" / "errors" / "bunny-box__test-broken.txt").is_file()
     data = json.loads(paths["json"].read_text())
     assert {c["method"] for c in data["cells"]} == set(cfg.methods)
+    # stage times, Franke Tables 5.2/5.6 shape: a row per scene × method, a column per stage
+    assert {"prepare", "setup", "trace", "assemble"} <= set(ok.stages)
+    assert sum(ok.stages.values()) <= ok.seconds  # one timed run: the median is that run
+    header, rows = data["stage_table_ms"]["header"], data["stage_table_ms"]["rows"]
+    assert header[:2] == ["scene", "method"] and header[-2:] == ["Σ stages", "total"]
+    assert header[2:4] == ["prepare", "setup"] and "trace" in header
+    ref_row = next(r for r in rows if r[:2] == ["bunny-box", "reference"])
+    assert float(ref_row[header.index("trace")]) == pytest.approx(ok.stages["trace"] * 1e3,
+                                                                   abs=0.01)
+    assert "## Stage times, ms" in md and "| bunny-box | reference | " in md
+    assert "Stage times, ms" in paths["html"].read_text()
+
+
+def test_cells_a_method_cannot_handle_are_skipped_with_reason(eval_cache, tmp_path):
+    """A method whose capabilities exclude the scene (glass-ring has glass and a rough
+    conductor; no depth) is skipped, with the reason in every report format, and the other
+    methods still run. Bug caught: the harness calls the method anyway (the cell errors or
+    crashes), or drops the reason so the report shows an empty row."""
+    cfg = config(eval_cache, methods=["test-diffuse-only", "test-needs-depth", "test-frame"],
+                 scenes=["glass-ring"])
+    res = run_evaluation(cfg)
+    cells = {c.method: c for c in res.cells}
+    assert not [c.error for c in res.cells if c.error]
+    assert cells["test-frame"].ok and not cells["test-frame"].skipped
+    only = cells["test-diffuse-only"].skipped
+    assert "does not support material type glass, roughconductor" in only
+    assert "needs a depth image" in cells["test-needs-depth"].skipped
+    assert not any(c.ok for c in (cells["test-diffuse-only"], cells["test-needs-depth"]))
+    paths = write_report(res, tmp_path / "rep")
+    md, html = paths["markdown"].read_text(), paths["html"].read_text()
+    assert f"skipped: {only}" in md and "class='skip'" in html
+    data = json.loads(paths["json"].read_text())
+    assert {c["method"]: c["skipped"] for c in data["cells"]}["test-diffuse-only"] == only
+    assert "skipped" in paths["csv"].read_text().splitlines()[0]
+    assert not (tmp_path / "rep" / "grids" / "glass-ring__test-diffuse-only.png").exists()
+
+
+def test_a_scene_every_method_skips_renders_no_ground_truth(tmp_path):
+    """Bug caught: the harness renders (and caches) a ground truth nobody uses."""
+    cfg = config(tmp_path / "cache", methods=["test-needs-depth"], scenes=["red-paper"])
+    res = run_evaluation(cfg)
+    assert res.cells[0].skipped and not res.cells[0].error
+    assert not (tmp_path / "cache").exists()
+
+
+def test_options_go_to_the_methods_that_declare_them():
+    """``method.key`` reaches one method, a bare ``key`` every method declaring it, the
+    qualified form wins. Bug caught: a bare option sent to every method (reference would
+    reject it), applied to the wrong method, or an unknown key silently ignored."""
+    out = method_options(["reference", "onepass"], {"reproject": "false",
+                                                    "onepass.mode": "twopass"})
+    assert out == {"reference": {}, "onepass": {"reproject": "false", "mode": "twopass"}}
+    out = method_options(["onepass"], {"onepass.reproject": "false", "reproject": "true"})
+    assert out["onepass"]["reproject"] == "false"
+    with pytest.raises(InputError, match="no evaluated method has option 'reproject'.*"
+                                         "reference: none"):
+        method_options(["reference"], {"reproject": "false"})
+    with pytest.raises(InputError, match="no option 'bogus'.*env_mode"):
+        method_options(["onepass"], {"onepass.bogus": "1"})
+    with pytest.raises(InputError, match="not evaluated"):
+        method_options(["reference"], {"onepass.reproject": "false"})
+    with pytest.raises(InputError, match="options.reproject"):
+        method_options(["onepass"], {"onepass.reproject": "maybe"})
+
+
+def test_options_reach_the_method_converted(eval_cache):
+    """Bug caught: EvalConfig.options never reach RenderSettings.options, or arrive as the
+    command line's strings instead of the declared kind."""
+    SEEN_OPTIONS.clear()
+    run_evaluation(config(eval_cache, methods=["test-frame"], options={"gain": "2"}))
+    assert SEEN_OPTIONS and all(o == {"gain": 2.0} for o in SEEN_OPTIONS)
 
 
 def test_cache_only_reports_missing_ground_truth(tmp_path):
@@ -97,6 +181,12 @@ def test_eval_cli_quick_end_to_end(eval_cache, tmp_path, monkeypatch):
     assert [p["spp"] for p in sweep] == [1, 4] and sweep[1]["rmse"] < sweep[0]["rmse"]
 
 
-def test_eval_cli_rejects_bad_arguments(tmp_path):
+def test_eval_cli_rejects_bad_arguments(tmp_path, capsys):
     assert main(["eval", "--sweep", "1,x", "-o", str(tmp_path)]) == 2
     assert main(["eval", "--repeats", "0", "-o", str(tmp_path)]) == 2
+    # an option no evaluated method has fails before anything renders
+    assert main(["eval", "-m", "reference", "--option", "reproject=false",
+                 "-o", str(tmp_path / "r")]) == 2
+    assert "reproject" in capsys.readouterr().err and not (tmp_path / "r").exists()
+    assert main(["eval", "-m", "onepass", "--option", "onepass.reproject", "-o",
+                 str(tmp_path / "r")]) == 2

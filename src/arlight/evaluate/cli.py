@@ -4,6 +4,8 @@
     arlight eval -m reference,onepass -s bunny-box --full  papers' resolutions
     arlight eval --cache-only                              fail cells whose ground truth
                                                            is not cached yet
+    arlight eval --option onepass.reproject=false          an option of one method
+    arlight eval --option reproject=false                  ... of every method declaring it
 
 Mounted by :mod:`arlight.cli` as ``app.command("eval")(eval_command)``.
 """
@@ -37,6 +39,18 @@ def _ints(text: str, field: str) -> list[int]:
     return vals
 
 
+def _options(pairs: list[str]) -> dict[str, str]:
+    """``[method.]key=value`` pairs (values stay strings; each method's option table
+    converts them)."""
+    out: dict[str, str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"expected [method.]key=value, got {pair!r}", field="--option")
+        out[key.strip()] = value
+    return out
+
+
 def eval_command(
     methods: Annotated[str | None, typer.Option("--methods", "-m", help="comma-separated "
                        "registered methods (default: all, see `arlight methods`)")] = None,
@@ -62,6 +76,9 @@ def eval_command(
                           "truth; scenes without one are reported as errors")] = False,
     list_only: Annotated[bool, typer.Option("--list", help="list scenes and methods, then "
                          "exit")] = False,
+    option: Annotated[list[str] | None, typer.Option("--option", help="method option "
+                      "METHOD.KEY=VALUE for one method, or KEY=VALUE for every method that "
+                      "has it (repeatable; see `arlight methods NAME`)")] = None,
 ) -> None:
     """Evaluate methods on the scene suite against path-traced ground truth; write a report
     (Markdown, HTML, JSON, CSV, image grids, plots)."""
@@ -84,10 +101,11 @@ def eval_command(
                      scenes=_names(scenes, "scenes") or list_scenes(), quick=quick, spp=spp,
                      gt_spp=gt_spp, repeats=repeats, seed=seed, max_depth=max_depth,
                      use_cache=not no_cache, cache_only=cache_only,
-                     sweep_spp=_ints(sweep, "sweep"))
+                     sweep_spp=_ints(sweep, "sweep"), options=_options(option or []))
     results = run_evaluation(cfg, log=console.print)
     paths = write_report(results, out)
-    failed = sum(not c.ok for c in results.cells)
+    failed = sum(bool(c.error) for c in results.cells)
+    skipped = sum(bool(c.skipped) for c in results.cells)
     console.print(f"report: {paths['markdown']} and {paths['html']} "
-                  f"({len(results.cells)} cells, {failed} failed, "
+                  f"({len(results.cells)} cells, {failed} failed, {skipped} skipped, "
                   f"{results.seconds_total:.1f} s)")

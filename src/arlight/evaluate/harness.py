@@ -5,12 +5,22 @@
 
 Every cell (method, scene) is independent: an unknown method or scene, a missing ground-truth
 cache (with ``cache_only``) or a method that raises is recorded in that cell's ``error`` and
-the other cells still run.
+the other cells still run. A cell the method cannot handle — the scene has a material or
+light type outside the method's capabilities, or it needs depth the scene lacks — is
+*skipped*: ``skipped`` holds the reason, the report shows it, and the ground truth of a scene
+every method skips is not rendered.
+
+Options: :attr:`EvalConfig.options` maps ``"method.key"`` (one method) or a bare ``"key"``
+(every evaluated method that declares it) to a value; :func:`method_options` resolves and
+validates them before any cell runs, so an unknown key is an :class:`InputError`, not a
+column of failed cells.
 
 Timing: one warm-up call (JIT compilation, kernel caches, scene building), then ``repeats``
-timed calls; the reported time is their median wall time (``time.perf_counter``). The metrics
-are computed on the last timed call's output. Each point of the spp sweep is also warmed up
-once before its timed call (Dr.Jit compiles kernels per sample count).
+timed calls; the reported time is their median wall time (``time.perf_counter``), and
+``stages`` the median of each ``time_<stage>`` the method reports (``prepare`` included: every
+call is the one-shot form). The metrics are computed on the last timed call's output. Each
+point of the spp sweep is also warmed up once before its timed call (Dr.Jit compiles kernels
+per sample count).
 
 Memory: Dr.Jit/LLVM allocate outside Python's allocator, so ``tracemalloc`` does not see
 them, and ``ru_maxrss`` is a process-lifetime high-water mark that cannot be reset between
@@ -38,6 +48,7 @@ from arlight.evaluate import metrics as M
 from arlight.evaluate.suite import SuiteScene, get_scene
 from arlight.methods import RenderSettings, get_method
 from arlight.synthetic import SyntheticPhoto, content_key, default_cache_dir
+from arlight.timing import stage_times
 
 RSS_INTERVAL_S = 0.005
 
@@ -59,7 +70,9 @@ class EvalConfig:
         cache_only: fail a scene's cells when its ground truth is not cached (no rendering).
         cache_dir: cache root (default ``$ARLIGHT_CACHE`` or ``~/.cache/arlight``).
         sweep_spp: spp values for the error-vs-spp / error-vs-time curves (empty: none).
-        options: method options (:attr:`RenderSettings.options`).
+        options: method options: ``"method.key"`` for one method or a bare ``"key"`` for
+            every evaluated method that declares it (see :func:`method_options`); values as
+            in :attr:`RenderSettings.options` (command-line strings are converted).
     """
 
     methods: list[str]
@@ -108,17 +121,21 @@ class CellResult:
 
     ``images`` holds ``frame``, ``composite``, ``ground_truth`` (radiance) and ``mask`` for
     the report; ``metrics`` the whole-image metrics and the same with prefix ``changed_`` on
-    :func:`~arlight.evaluate.metrics.changed_region`; ``stats`` the method's counters.
+    :func:`~arlight.evaluate.metrics.changed_region`; ``stats`` the method's counters;
+    ``stages`` the median seconds per stage over the timed calls (``prepare``, ``trace``,
+    ...); ``skipped`` why the method cannot handle the scene (the cell did not run).
     """
 
     method: str
     scene: str
     error: str = ""
     traceback: str = ""
+    skipped: str = ""
     seconds: float = float("nan")
     seconds_all: list[float] = field(default_factory=list)
     peak_mib: float = float("nan")
     stats: dict[str, float] = field(default_factory=dict)
+    stages: dict[str, float] = field(default_factory=dict)
     metrics: dict[str, float] = field(default_factory=dict)
     sweep: list[SweepPoint] = field(default_factory=list)
     resolution: tuple[int, int] = (0, 0)
@@ -128,7 +145,8 @@ class CellResult:
 
     @property
     def ok(self) -> bool:
-        return not self.error
+        """The cell ran and has metrics (neither failed nor skipped)."""
+        return not self.error and not self.skipped
 
 
 @dataclass
@@ -195,28 +213,105 @@ def _error(exc: BaseException) -> str:
     return str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
 
 
+def method_options(methods: list[str], options: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Per-method options from ``"method.key"`` and bare ``"key"`` entries, validated.
+
+    A bare key goes to every method in ``methods`` whose spec declares it; a qualified key
+    overrides it for its method. Raises :class:`InputError` when a qualified key names a
+    method that is not evaluated or an option that method does not declare, when no
+    evaluated method declares a bare key (the message lists the options of each), or when a
+    value is invalid. Unknown method names get no options (their cells report the error).
+    """
+    specs = {}
+    for m in methods:
+        try:
+            specs[m] = get_method(m).spec
+        except InputError:
+            continue
+    out: dict[str, dict[str, Any]] = {m: {} for m in methods}
+
+    def known() -> str:
+        return "; ".join(f"{m}: {', '.join(s.options) or 'none'}" for m, s in specs.items())
+
+    qualified = {k: v for k, v in options.items() if "." in k}
+    for key, value in options.items():
+        if key in qualified:
+            continue
+        takers = [m for m, s in specs.items() if key in s.options]
+        if not takers:
+            raise InputError(f"no evaluated method has option {key!r} (options: {known()})",
+                             field="options")
+        for m in takers:
+            out[m][key] = value
+    for key, value in qualified.items():
+        method, _, opt = key.partition(".")
+        if method not in out:
+            raise InputError(f"option {key!r} is for method {method!r}, which is not "
+                             f"evaluated (methods: {', '.join(methods)})", field="options")
+        if method in specs and opt not in specs[method].options:
+            raise InputError(f"method {method!r} has no option {opt!r} (options: {known()})",
+                             field="options")
+        out[method][opt] = value
+    for m, spec in specs.items():
+        spec.parse_options(out[m])
+    return out
+
+
+@dataclass
+class _SuppliedView:
+    """What the harness will give a method of a suite scene: a frame (the synthetic photo)
+    and the proxy's depth, if any — for the capability check before rendering the photo."""
+
+    frame: object
+    depth: np.ndarray | None
+
+
+def skip_reason(method: str, scene: SuiteScene) -> str:
+    """Why ``method`` cannot handle ``scene`` ('' if it can, or if the method is unknown)."""
+    try:
+        spec = get_method(method).spec
+    except InputError:
+        return ""
+    return spec.unsupported_reason(scene.proxy, _SuppliedView(True, scene.proxy.depth)) or ""
+
+
+def _median_stages(runs: list[dict[str, float]]) -> dict[str, float]:
+    names = list(dict.fromkeys(k for r in runs for k in r))
+    return {k: statistics.median(r[k] for r in runs if k in r) for k in names}
+
+
 def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
-                  config: EvalConfig) -> CellResult:
-    """Run one method on one scene: warm-up, timed repeats, metrics, optional spp sweep."""
+                  config: EvalConfig, options: dict[str, Any] | None = None) -> CellResult:
+    """Run one method on one scene: warm-up, timed repeats, metrics, optional spp sweep.
+
+    ``options`` are this method's (see :func:`method_options`); a cell the method cannot
+    handle comes back with ``skipped`` set, without running.
+    """
     cam = scene.world.camera
     cell = CellResult(method=method, scene=scene.name, resolution=scene.resolution,
                       exposure=cam.transfer.exposure, transfer_kind=cam.transfer.kind)
     try:
         render = get_method(method)
         ar = scene.ar_scene(photo)
+        cell.skipped = render.spec.unsupported_reason(ar, ar) or ""
+        if cell.skipped:
+            return cell
 
         def settings(spp: int) -> RenderSettings:
             return RenderSettings(spp=spp, max_depth=config.max_depth, seed=config.seed,
-                                  options=dict(config.options))
+                                  options=dict(options or {}))
 
         with PeakRSS() as mem:
             layers = render(ar, settings(config.spp))
         cell.peak_mib = mem.mib
+        runs = []
         for _ in range(config.repeats):
             t0 = time.perf_counter()
             layers = render(ar, settings(config.spp))
             cell.seconds_all.append(time.perf_counter() - t0)
+            runs.append(stage_times(layers.stats))
         cell.seconds = statistics.median(cell.seconds_all)
+        cell.stages = _median_stages(runs)
         cell.stats = {k: float(v) for k, v in layers.stats.items()
                       if isinstance(v, int | float)}
         gt, tr = photo.ground_truth, cam.transfer
@@ -246,6 +341,7 @@ def run_evaluation(config: EvalConfig,
     """Evaluate every method on every scene; failures stay in their cells."""
     log = log or (lambda s: None)
     t_start = time.perf_counter()
+    options = method_options(config.methods, config.options)
     cells: list[CellResult] = []
     scenes: dict[str, dict[str, str]] = {}
     for name in config.scenes:
@@ -254,6 +350,13 @@ def run_evaluation(config: EvalConfig,
             scenes[name] = {"description": scene.description,
                             "paper_figure": scene.paper_figure,
                             "resolution": "{}×{}".format(*scene.resolution)}
+            skips = {m: skip_reason(m, scene) for m in config.methods}
+            if all(skips.values()):
+                for m in config.methods:
+                    log(f"{name} × {m}: skipped ({skips[m]})")
+                    cells.append(CellResult(method=m, scene=name, skipped=skips[m],
+                                            resolution=scene.resolution))
+                continue
             log(f"{name}: ground truth ({config.gt_spp} spp, {scenes[name]['resolution']})")
             photo = scene_photo(scene, config)
         except Exception as exc:  # noqa: BLE001
@@ -263,8 +366,10 @@ def run_evaluation(config: EvalConfig,
                       for m in config.methods]
             continue
         for method in config.methods:
-            cell = evaluate_cell(method, scene, photo, config)
-            log(f"{name} × {method}: " + (f"ERROR {cell.error}" if cell.error else
+            cell = evaluate_cell(method, scene, photo, config, options[method])
+            log(f"{name} × {method}: " + (
+                f"ERROR {cell.error}" if cell.error else
+                f"skipped ({cell.skipped})" if cell.skipped else
                 f"{cell.seconds * 1e3:.0f} ms, PSNR {cell.metrics['psnr']:.2f} dB, "
                 f"FLIP {cell.metrics['flip']:.4f}"))
             cells.append(cell)

@@ -2,7 +2,9 @@
 
 Layout of ``out/``::
 
-    report.md, index.html     summary tables (Franke's grand-comparison shape per scene)
+    report.md, index.html     summary tables (Franke's grand-comparison shape per scene) and
+                              the stage times (Franke Tables 5.2/5.6 shape: rows scene/method,
+                              columns stages in ms)
     results.json, results.csv every number of every cell
     grids/<scene>__<method>.png  frame | composite | ground truth | signed error ×4
     plots/error_vs_spp.png, plots/error_vs_time.png   (when a spp sweep ran)
@@ -32,6 +34,8 @@ from arlight.transfer import Transfer
 ERROR_GAIN = 4.0
 SUMMARY_KEYS = ("seconds", "psnr", "flip", "ssim", "hdr_flip", "rmse", "changed_psnr",
                 "changed_flip", "peak_mib", "samples")
+STAGE_ORDER = ("prepare", "pose", "setup", "trace", "render", "assemble")
+"""Usual stage order of the stage-time table; other stages follow in first-seen order."""
 
 
 def _fmt(key: str, v: float) -> str:
@@ -147,6 +151,35 @@ def write_plots(results: EvalResults, out: Path) -> list[Path]:
     return paths
 
 
+def _status(cell: CellResult) -> str:
+    """'error: ...' or 'skipped: ...' for a cell without results ('' for a cell with)."""
+    return f"error: {cell.error}" if cell.error else (
+        f"skipped: {cell.skipped}" if cell.skipped else "")
+
+
+def stage_names(results: EvalResults) -> list[str]:
+    """Stages reported by any cell, in :data:`STAGE_ORDER` then first-seen order."""
+    seen = dict.fromkeys(k for c in results.cells if c.ok for k in c.stages)
+    return [k for k in STAGE_ORDER if k in seen] + [k for k in seen if k not in STAGE_ORDER]
+
+
+def stage_table(results: EvalResults) -> tuple[list[str], list[list[str]]]:
+    """Stage times in ms, Franke Tables 5.2/5.6 shape: one row per scene × method, one
+    column per stage, then their sum and the median wall time of the whole call ("—": the
+    method has no such stage; failed and skipped cells say why)."""
+    names = stage_names(results)
+    header = ["scene", "method", *names, "Σ stages", "total"]
+    rows = []
+    for c in results.cells:
+        if not c.ok:
+            rows.append([c.scene, c.method, _status(c)] + [""] * (len(header) - 3))
+            continue
+        cols = [f"{c.stages[k] * 1e3:.2f}" if k in c.stages else "—" for k in names]
+        rows.append([c.scene, c.method, *cols, f"{sum(c.stages.values()) * 1e3:.2f}",
+                     f"{c.seconds * 1e3:.2f}"])
+    return header, rows
+
+
 def _tables(results: EvalResults) -> list[tuple[str, list[str], list[list[str]]]]:
     """Per scene: (title, header, rows) — Franke's grand comparison shape plus extras."""
     header = ["method", "time", "PSNR", "FLIP", "SSIM", "HDR-FLIP", "RMSE", "PSNR (changed)",
@@ -159,7 +192,7 @@ def _tables(results: EvalResults) -> list[tuple[str, list[str], list[list[str]]]
                 r = _row(c)
                 rows.append([c.method, *(_fmt(k, r.get(k, math.nan)) for k in SUMMARY_KEYS)])
             else:
-                rows.append([c.method, f"error: {c.error}"] + [""] * (len(header) - 2))
+                rows.append([c.method, _status(c)] + [""] * (len(header) - 2))
         info = results.scenes.get(scene, {})
         title = scene + (f" ({info['resolution']}) — {info['paper_figure']}" if info else "")
         out.append((title, header, rows))
@@ -180,8 +213,16 @@ def _markdown(results: EvalResults, grids: dict[str, str], plots: list[str]) -> 
               "| method | scene | time | PSNR | FLIP |", "|---|---|---|---|---|"]
     for c in results.cells:
         cols = ([_fmt("seconds", c.seconds), _fmt("psnr", c.metrics["psnr"]),
-                 _fmt("flip", c.metrics["flip"])] if c.ok else [f"error: {c.error}", "", ""])
+                 _fmt("flip", c.metrics["flip"])] if c.ok else [_status(c), "", ""])
         lines.append("| " + " | ".join(_md(x) for x in [c.method, c.scene, *cols]) + " |")
+    lines.append("")
+    header, rows = stage_table(results)
+    lines += ["## Stage times, ms (Franke Tables 5.2/5.6 shape)", "",
+              f"Median over {cfg.repeats} warm runs of each stage a method reports "
+              "(`time_<stage>` in its stats; Dr.Jit synchronised at each stage's end); "
+              "'total' is the median wall time of the whole call.", "",
+              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_md(x) for x in r) + " |" for r in rows]
     lines.append("")
     for title, header, rows in _tables(results):
         lines += [f"## {title}", "", "| " + " | ".join(header) + " |",
@@ -202,19 +243,27 @@ def _html(results: EvalResults, grids: dict[str, str], plots: list[str]) -> str:
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>arlight evaluation"
              "</title><style>body{font-family:sans-serif;margin:2em}table{border-collapse:"
              "collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}"
-             "td:first-child{text-align:left}.err{color:#b00;text-align:left}img{max-width:"
+             "td:first-child{text-align:left}.err{color:#b00;text-align:left}.skip{color:#777;"
+             "text-align:left}img{max-width:"
              "100%}</style></head><body><h1>arlight evaluation report</h1>"]
     cfg = results.config
     parts.append(f"<p>{'quick' if cfg.quick else 'full'} resolution; method spp {cfg.spp}; "
                  f"ground truth spp {cfg.gt_spp}; time = median of {cfg.repeats} warm runs. "
                  f"PSNR on the display image (R = 1, Franke Eq. 5.28).</p>")
-    for title, header, rows in _tables(results):
+    header, rows = stage_table(results)
+    tables = [*_tables(results), ("Stage times, ms (Franke Tables 5.2/5.6 shape; median of "
+                                   "each stage, total = median wall time)", header, rows)]
+    for title, header, rows in tables:
         parts.append(f"<h2>{e(title)}</h2><table><tr>"
                      + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>")
+        lead = 1 if header[0] == "method" else 2  # label columns before the status
         for r in rows:
-            if r[1].startswith("error:"):
-                parts.append(f"<tr><td>{e(r[0])}</td><td class='err' colspan='{len(header) - 1}'>"
-                             f"{e(r[1])}</td></tr>")
+            status = r[lead]
+            if status.startswith(("error:", "skipped:")):
+                cls = "err" if status.startswith("error:") else "skip"
+                parts.append("<tr>" + "".join(f"<td>{e(x)}</td>" for x in r[:lead])
+                             + f"<td class='{cls}' colspan='{len(header) - lead}'>"
+                             f"{e(status)}</td></tr>")
             else:
                 parts.append("<tr>" + "".join(f"<td>{e(x)}</td>" for x in r) + "</tr>")
         parts.append("</table>")
@@ -245,7 +294,9 @@ def _json(results: EvalResults) -> str:
             return [clean(v) for v in x]
         return x
 
+    header, rows = stage_table(results)
     return json.dumps(clean({"config": cfg, "scenes": results.scenes, "cells": cells,
+                             "stage_table_ms": {"header": header, "rows": rows},
                              "seconds_total": results.seconds_total}), indent=2)
 
 
@@ -267,11 +318,14 @@ def write_report(results: EvalResults, out: str | Path) -> dict[str, Path]:
     _write_text(paths["html"], _html(results, grids, plots))
     _write_text(paths["json"], _json(results))
     keys = sorted({k for c in results.cells for k in c.metrics})
+    stages = stage_names(results)
     buf = io.StringIO()
     wr = csv.writer(buf)
-    wr.writerow(["scene", "method", "error", "seconds", "peak_mib", "samples", *keys])
+    wr.writerow(["scene", "method", "error", "skipped", "seconds", "peak_mib", "samples",
+                 *(f"time_{k}" for k in stages), *keys])
     for c in results.cells:
-        wr.writerow([c.scene, c.method, c.error, c.seconds, c.peak_mib,
-                     c.stats.get("samples", ""), *(c.metrics.get(k, "") for k in keys)])
+        wr.writerow([c.scene, c.method, c.error, c.skipped, c.seconds, c.peak_mib,
+                     c.stats.get("samples", ""), *(c.stages.get(k, "") for k in stages),
+                     *(c.metrics.get(k, "") for k in keys)])
     _write_text(paths["csv"], buf.getvalue())
     return paths
