@@ -219,7 +219,8 @@ class MethodSpec:
         for name, f in self.options.items():
             kind = f.kind if not f.choices else " | ".join(f.choices)
             default = "required" if f.default is REQUIRED else (
-                "—" if f.default is None else json.dumps(f.default))
+                "—" if f.default is None else f.default if isinstance(f.default, str)
+                else json.dumps(f.default))
             rows.append((name, kind, default, f.unit, f.doc))
         return rows
 
