@@ -17,10 +17,10 @@ column of failed cells.
 
 Timing: one warm-up call (JIT compilation, kernel caches, scene building), then ``repeats``
 timed calls; the reported time is their median wall time (``time.perf_counter``), and
-``stages`` the median of each ``time_<stage>`` the method reports (``prepare`` included: every
-call is the one-shot form). The metrics are computed on the last timed call's output. Each
-point of the spp sweep is also warmed up once before its timed call (Dr.Jit compiles kernels
-per sample count).
+``stages`` the ``time_<stage>`` stats of the median run (``prepare`` included: every call is
+the one-shot form), which add up to no more than the median. The metrics are computed on the
+last timed call's output. Each point of the spp sweep is also warmed up once before its
+timed call (Dr.Jit compiles kernels per sample count).
 
 Memory: Dr.Jit/LLVM allocate outside Python's allocator, so ``tracemalloc`` does not see
 them, and ``ru_maxrss`` is a process-lifetime high-water mark that cannot be reset between
@@ -122,7 +122,7 @@ class CellResult:
     ``images`` holds ``frame``, ``composite``, ``ground_truth`` (radiance) and ``mask`` for
     the report; ``metrics`` the whole-image metrics and the same with prefix ``changed_`` on
     :func:`~arlight.evaluate.metrics.changed_region`; ``stats`` the method's counters;
-    ``stages`` the median seconds per stage over the timed calls (``prepare``, ``trace``,
+    ``stages`` the seconds per stage of the median timed call (``prepare``, ``trace``,
     ...); ``skipped`` why the method cannot handle the scene (the cell did not run).
     """
 
@@ -275,9 +275,11 @@ def skip_reason(method: str, scene: SuiteScene) -> str:
     return spec.unsupported_reason(scene.proxy, _SuppliedView(True, scene.proxy.depth)) or ""
 
 
-def _median_stages(runs: list[dict[str, float]]) -> dict[str, float]:
-    names = list(dict.fromkeys(k for r in runs for k in r))
-    return {k: statistics.median(r[k] for r in runs if k in r) for k in names}
+def _median_run_stages(seconds: list[float], runs: list[dict[str, float]]) -> dict[str, float]:
+    """The stage times of the run with the (low) median wall time, so that they add up to
+    no more than the reported median (medians of each stage need not)."""
+    i = seconds.index(statistics.median_low(seconds))
+    return dict(runs[i])
 
 
 def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
@@ -311,7 +313,7 @@ def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
             cell.seconds_all.append(time.perf_counter() - t0)
             runs.append(stage_times(layers.stats))
         cell.seconds = statistics.median(cell.seconds_all)
-        cell.stages = _median_stages(runs)
+        cell.stages = _median_run_stages(cell.seconds_all, runs)
         cell.stats = {k: float(v) for k, v in layers.stats.items()
                       if isinstance(v, int | float)}
         gt, tr = photo.ground_truth, cam.transfer

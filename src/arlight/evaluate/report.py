@@ -165,8 +165,8 @@ def stage_names(results: EvalResults) -> list[str]:
 
 def stage_table(results: EvalResults) -> tuple[list[str], list[list[str]]]:
     """Stage times in ms, Franke Tables 5.2/5.6 shape: one row per scene × method, one
-    column per stage, then their sum and the median wall time of the whole call ("—": the
-    method has no such stage; failed and skipped cells say why)."""
+    column per stage (of the median run), then their sum and the median wall time of the
+    whole call ("—": the method has no such stage; failed and skipped cells say why)."""
     names = stage_names(results)
     header = ["scene", "method", *names, "Σ stages", "total"]
     rows = []
@@ -218,9 +218,10 @@ def _markdown(results: EvalResults, grids: dict[str, str], plots: list[str]) -> 
     lines.append("")
     header, rows = stage_table(results)
     lines += ["## Stage times, ms (Franke Tables 5.2/5.6 shape)", "",
-              f"Median over {cfg.repeats} warm runs of each stage a method reports "
-              "(`time_<stage>` in its stats; Dr.Jit synchronised at each stage's end); "
-              "'total' is the median wall time of the whole call.", "",
+              f"The stages a method reports (`time_<stage>` in its stats; Dr.Jit synchronised "
+              f"at each stage's end) in the median of {cfg.repeats} warm runs; 'total' is "
+              "that median wall time of the whole call, 'Σ stages' the part the stages "
+              "cover.", "",
               "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(_md(x) for x in r) + " |" for r in rows]
     lines.append("")
@@ -251,8 +252,8 @@ def _html(results: EvalResults, grids: dict[str, str], plots: list[str]) -> str:
                  f"ground truth spp {cfg.gt_spp}; time = median of {cfg.repeats} warm runs. "
                  f"PSNR on the display image (R = 1, Franke Eq. 5.28).</p>")
     header, rows = stage_table(results)
-    tables = [*_tables(results), ("Stage times, ms (Franke Tables 5.2/5.6 shape; median of "
-                                   "each stage, total = median wall time)", header, rows)]
+    tables = [*_tables(results), ("Stage times, ms (Franke Tables 5.2/5.6 shape; stages of "
+                                   "the median run, total = median wall time)", header, rows)]
     for title, header, rows in tables:
         parts.append(f"<h2>{e(title)}</h2><table><tr>"
                      + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>")
