@@ -8,6 +8,7 @@ scene file and the field path (``shapes[2].material.albedo``).
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -303,8 +304,10 @@ class Validator:
                 out[name] = self.value(table[name], spec, path)
             elif spec.default is REQUIRED:
                 raise self.fail(path, "missing required field")
-            else:
-                out[name] = spec.default
+            elif spec.default is None or spec.kind == "table":
+                out[name] = copy.deepcopy(spec.default)
+            else:  # defaults in the same canonical form as given values (0.5 -> [0.5] * 3)
+                out[name] = self.value(spec.default, spec, path)
         return out
 
 
