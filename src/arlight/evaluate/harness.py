@@ -15,11 +15,13 @@ Options: :attr:`EvalConfig.options` maps ``"method.key"`` (one method) or a bare
 validates them before any cell runs, so an unknown key is an :class:`InputError`, not a
 column of failed cells.
 
-Timing: one warm-up call (JIT compilation, kernel caches, scene building), then ``repeats``
-timed calls; the reported time is their median wall time (``time.perf_counter``), and
-``stages`` the ``time_<stage>`` stats of the median run (``prepare`` included: every call is
-the one-shot form), which add up to no more than the median. The metrics are computed on the
-last timed call's output. Each point of the spp sweep is also warmed up once before its
+Timing follows the method interface: a world is prepared once and then rendered per frame.
+One warm-up (prepare + render: JIT compilation, kernel caches), then one timed
+``prepare(world)`` (``stages["prepare"]``) and ``repeats`` timed ``render(state, view)``
+calls from that state; the reported time is their median wall time (``time.perf_counter``),
+the per-frame cost, and the other ``stages`` are the ``time_<stage>`` stats of the median run,
+which add up to no more than it. The metrics are computed on the last timed call's output.
+Each point of the spp sweep is also warmed up once before its
 timed call (Dr.Jit compiles kernels per sample count).
 
 Memory: Dr.Jit/LLVM allocate outside Python's allocator, so ``tracemalloc`` does not see
@@ -122,8 +124,9 @@ class CellResult:
     ``images`` holds ``frame``, ``composite``, ``ground_truth`` (radiance) and ``mask`` for
     the report; ``metrics`` the whole-image metrics and the same with prefix ``changed_`` on
     :func:`~arlight.evaluate.metrics.changed_region`; ``stats`` the method's counters;
-    ``stages`` the seconds per stage of the median timed call (``prepare``, ``trace``,
-    ...); ``skipped`` why the method cannot handle the scene (the cell did not run).
+    ``stages`` the seconds of the one ``prepare`` and per stage of the median timed frame
+    (``trace``, ...); ``seconds`` the median frame time (without ``prepare``); ``skipped``
+    why the method cannot handle the scene (the cell did not run).
     """
 
     method: str
@@ -303,17 +306,22 @@ def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
             return RenderSettings(spp=spp, max_depth=config.max_depth, seed=config.seed,
                                   options=dict(options or {}))
 
+        world, view, base = ar.world, ar.view, settings(config.spp)
         with PeakRSS() as mem:
-            layers = render(ar, settings(config.spp))
+            render.render(render.prepare(world, base), view, base)
         cell.peak_mib = mem.mib
+        t0 = time.perf_counter()
+        state = render.prepare(world, base)
+        prepare_seconds = time.perf_counter() - t0
         runs = []
         for _ in range(config.repeats):
             t0 = time.perf_counter()
-            layers = render(ar, settings(config.spp))
+            layers = render.render(state, view, base)
             cell.seconds_all.append(time.perf_counter() - t0)
             runs.append(stage_times(layers.stats))
         cell.seconds = statistics.median(cell.seconds_all)
-        cell.stages = _median_run_stages(cell.seconds_all, runs)
+        cell.stages = {"prepare": prepare_seconds,
+                       **_median_run_stages(cell.seconds_all, runs)}
         cell.stats = {k: float(v) for k, v in layers.stats.items()
                       if isinstance(v, int | float)}
         gt, tr = photo.ground_truth, cam.transfer

@@ -165,17 +165,19 @@ def stage_names(results: EvalResults) -> list[str]:
 
 def stage_table(results: EvalResults) -> tuple[list[str], list[list[str]]]:
     """Stage times in ms, Franke Tables 5.2/5.6 shape: one row per scene × method, one
-    column per stage (of the median run), then their sum and the median wall time of the
-    whole call ("—": the method has no such stage; failed and skipped cells say why)."""
+    column per stage (``prepare`` once per world, the others of the median frame), then the
+    sum of the frame's stages and the median frame time ("—": the method has no such stage;
+    failed and skipped cells say why)."""
     names = stage_names(results)
-    header = ["scene", "method", *names, "Σ stages", "total"]
+    header = ["scene", "method", *names, "Σ frame stages", "frame"]
     rows = []
     for c in results.cells:
         if not c.ok:
             rows.append([c.scene, c.method, _status(c)] + [""] * (len(header) - 3))
             continue
         cols = [f"{c.stages[k] * 1e3:.2f}" if k in c.stages else "—" for k in names]
-        rows.append([c.scene, c.method, *cols, f"{sum(c.stages.values()) * 1e3:.2f}",
+        per_frame = sum(v for k, v in c.stages.items() if k != "prepare")
+        rows.append([c.scene, c.method, *cols, f"{per_frame * 1e3:.2f}",
                      f"{c.seconds * 1e3:.2f}"])
     return header, rows
 
@@ -219,8 +221,9 @@ def _markdown(results: EvalResults, grids: dict[str, str], plots: list[str]) -> 
     header, rows = stage_table(results)
     lines += ["## Stage times, ms (Franke Tables 5.2/5.6 shape)", "",
               f"The stages a method reports (`time_<stage>` in its stats; Dr.Jit synchronised "
-              f"at each stage's end) in the median of {cfg.repeats} warm runs; 'total' is "
-              "that median wall time of the whole call, 'Σ stages' the part the stages "
+              f"at each stage's end): `prepare` once per world, the others in the median of "
+              f"{cfg.repeats} warm frames rendered from that state; 'frame' is that median "
+              "wall time of `render(state, view)`, 'Σ frame stages' the part the stages "
               "cover.", "",
               "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(_md(x) for x in r) + " |" for r in rows]
