@@ -333,9 +333,9 @@ def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
         cell.images = {"frame": photo.frame, "composite": layers.composite,
                        "ground_truth": gt, "mask": photo.mask, "region": region}
         for spp in config.sweep_spp:
-            render(ar, settings(spp))  # warm-up: kernels are compiled per sample count
+            render.render(state, view, settings(spp))  # warm-up: kernels compile per spp
             t0 = time.perf_counter()
-            out = render(ar, settings(spp))
+            out = render.render(state, view, settings(spp))
             dt = time.perf_counter() - t0
             dc, dg = M.display(out.composite, tr), M.display(gt, tr)
             cell.sweep.append(SweepPoint(spp, dt, M.rmse(out.composite, gt),
