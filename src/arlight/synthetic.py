@@ -1,40 +1,102 @@
 """Synthetic photographs: the camera frame a "world" would produce, and its ground truth.
 
-A *world* is an AR scene file whose real shapes describe the real world (it may hold more
-detail than the proxy a method is given) and whose virtual shapes are the objects to insert.
-:func:`synthesize` path traces
+A *world* is an AR scene whose real shapes describe the real world (it may hold more detail
+than the proxy a method is given) and whose virtual shapes are the objects to insert.
+:func:`synthesize` renders
 
-* the frame ``I_c``: the world without virtual objects (what the camera saw), and
+* the frame ``I_c``: the world without virtual objects (what the camera saw),
 * the ground truth: the world with the virtual objects (what a perfect method returns),
+* the mask: the fraction of each pixel's area whose first hit is a virtual shape,
 
-with independent seeds, each with a per-pixel standard error, and caches the result on disk
-keyed by a hash of the world's content (scene dictionary and referenced files), the settings
-and the arlight version, so tests and benchmarks render each photograph once.
+with **Mitsuba's own renderer only** — :func:`mitsuba.render` with the ``path`` integrator
+and a Mitsuba sensor built from the scene's camera (``perspective``, or ``thinlens`` for a
+disk aperture; see :func:`arlight.backend.mitsuba_scene.describe_sensor`), an ``hdrfilm``
+with a ``box`` filter and the ``independent`` sampler. It shares no code with the methods it
+grades: not their camera rays (:mod:`arlight.backend.camera_rays`), passes
+(:mod:`arlight.backend.passes`) or estimators (:mod:`arlight.methods`), so a bug there cannot
+cancel out. Only the translation of the scene into Mitsuba objects
+(:mod:`arlight.backend.mitsuba_scene`) is shared; tests check it against Mitsuba directly.
+
+**Standard errors.** Each image is rendered as ``B = min(batches, spp)`` independent batches
+with different seeds; batch ``b`` has ``n_b`` samples per pixel, ``spp`` split as evenly as
+possible (the first ``spp mod B`` batches get one sample more), and per-pixel mean ``m_b``.
+With ``N = Σ n_b``::
+
+    mean   = Σ n_b m_b / N
+    s²     = Σ n_b (m_b − mean)² / (B − 1)      (unbiased per-sample variance)
+    stderr = sqrt(s² / N)
+
+(``E[Σ n_b (m_b − mean)²] = (B − 1) σ²`` when every sample has variance ``σ²``.) With the
+default ``B = 16`` the standard error itself has 15 degrees of freedom. ``spp`` and
+``batches`` must both be at least 2. A batch wider than :data:`MAX_LANES` camera samples is
+rendered in several chunks (each with its own seed), so memory stays bounded.
+
+**Mask.** The coverage view (:func:`arlight.backend.mitsuba_scene.describe_coverage_view`)
+gives virtual shapes a white and every other shape a black two-sided diffuse BSDF, without
+emitters; Mitsuba's ``aov`` integrator (``albedo``) then returns 1 where a camera ray first
+hits a virtual shape and 0 elsewhere, and the box-filtered mean over ``max(spp, 64)``
+samples is the covered fraction of the pixel (binomial error at most ``0.5/sqrt(spp)``;
+exactly 0 or 1 for pixels not crossed by an edge). An AOV rather than unit-radiance area
+emitters, because Mitsuba's area emitters emit from the front side only: a card or an open
+mesh seen from behind would read 0.
+
+**Cache.** Results are cached under ``<cache_dir>/synthetic/<key>.npz``. The key is a
+SHA-256 over everything that determines the images (:func:`render_spec`): the plain-data
+descriptions of both views (geometry, materials, emitters, decoded textures and
+environment maps), the sensor, the integrators, the sample plan and seeds, Mitsuba's
+version, :data:`FORMAT_VERSION` and — when a Phong material is used — the source of the
+Python Phong plugin. The render itself is driven by the same description, so the key cannot
+miss an input of the render; names and other image-neutral edits leave it unchanged. A
+corrupt or truncated cache file is treated as a miss and rendered again.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
+import importlib.util
 import os
+import struct
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import mitsuba as mi
 import numpy as np
 
-import arlight
+from arlight.backend.mitsuba_scene import (
+    describe_coverage_view,
+    describe_sensor,
+    describe_views,
+    load_scene,
+    load_sensor,
+    phong_plugin_name,
+    plugin_dict,
+    virtual_names,
+)
+from arlight.backend.variant import ensure_variant
+from arlight.errors import InputError
 from arlight.io.images import atomic_write
 from arlight.scene.model import ARScene
 
-GT_SEED_OFFSET = 7919  # keeps frame and ground-truth noise independent
+FORMAT_VERSION = 2
+"""Bump when this module changes how the images are rendered (seeds, plans, estimators)."""
+MIN_MASK_SPP = 64
+"""Fewest samples per pixel of the mask render."""
+MAX_LANES = 2_000_000
+"""Most camera samples (pixels × samples per pixel) one :func:`mitsuba.render` call traces."""
+
+_IMAGES = ("frame", "frame_stderr", "ground_truth", "ground_truth_stderr", "mask")
 
 
 @dataclass
 class SyntheticPhoto:
     """A synthetic camera frame and the ground truth of the same world with virtual objects.
 
-    Images are ``(H, W, 3)`` float32 linear radiance; ``mask`` is the virtual coverage
-    ``(H, W)``; ``*_stderr`` are per-pixel standard errors of the Monte Carlo means.
+    Images are ``(H, W, 3)`` float32 linear radiance (W·sr⁻¹·m⁻²); ``mask`` is the virtual
+    coverage ``(H, W)`` in [0, 1]; ``*_stderr`` are per-pixel standard errors of the Monte
+    Carlo means (same units as the images).
     """
 
     frame: np.ndarray
@@ -52,111 +114,266 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("ARLIGHT_CACHE", Path.home() / ".cache" / "arlight"))
 
 
-def _renderer_fingerprint() -> bytes:
-    """Mitsuba's version and the source of the modules that produce the images, so a change
-    to the renderer invalidates cached photographs."""
-    import mitsuba as mi
+# --------------------------------------------------------------------------------------------
+# What determines the images
+# --------------------------------------------------------------------------------------------
 
-    from arlight.backend import camera_rays, mitsuba_scene, passes, phong
-    from arlight.methods import reference
+def batch_plan(spp: int, batches: int) -> list[int]:
+    """Samples per pixel of each batch: ``min(batches, spp)`` batches summing to ``spp``,
+    sizes differing by at most one (larger ones first).
 
-    h = hashlib.sha256(mi.__version__.encode())
-    for mod in (camera_rays, mitsuba_scene, passes, phong, reference):
-        h.update(Path(mod.__file__).read_bytes())
-    h.update(Path(__file__).read_bytes())
-    return h.digest()
+    Raises:
+        InputError: ``spp < 2`` or ``batches < 2`` (no standard error from one batch).
+    """
+    if batches < 2:
+        raise InputError(f"must be >= 2 to estimate a standard error, got {batches}",
+                         field="batches")
+    if spp < 2:
+        raise InputError(f"must be >= 2 (one sample per batch, at least two batches), "
+                         f"got {spp}", field="spp")
+    b = min(batches, spp)
+    q, r = divmod(spp, b)
+    return [q + 1] * r + [q] * (b - r)
 
 
-def content_key(world: ARScene, **settings) -> str:
-    """SHA-256 over the world's dictionary, the bytes of every file it references, the
-    settings, the arlight version and the renderer's source (:func:`_renderer_fingerprint`)."""
-    h = hashlib.sha256(_renderer_fingerprint())
-    h.update(json.dumps(world.raw, sort_keys=True, default=str).encode())
-    cam = world.camera  # the camera actually used, even if raw was edited by hand
-    h.update(json.dumps([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
-                         np.asarray(cam.world_from_camera).tolist(), cam.aperture_radius,
-                         cam.focus_distance, cam.aperture_shape]).encode())
-    for path in sorted(_referenced_files(world.raw)):
-        h.update(path.encode())
-        h.update(Path(path).read_bytes())
-    h.update(json.dumps(settings, sort_keys=True).encode())
-    h.update(arlight.__version__.encode())
+def _chunks(n: int, pixels: int) -> list[int]:
+    """Split ``n`` samples per pixel into renders of at most :data:`MAX_LANES` samples."""
+    per = max(1, MAX_LANES // max(pixels, 1))
+    return [min(per, n - k) for k in range(0, n, per)]
+
+
+def _seed(seed: int, stream: str, batch: int, chunk: int) -> int:
+    """32-bit sampler seed of one render, distinct per (seed, stream, batch, chunk)."""
+    text = f"{seed}:{stream}:{batch}:{chunk}".encode()
+    return int.from_bytes(hashlib.sha256(text).digest()[:4], "little")
+
+
+def _uses_phong(node: Any, name: str) -> bool:
+    if isinstance(node, dict):
+        return node.get("type") == name or any(_uses_phong(v, name) for v in node.values())
+    if isinstance(node, list):
+        return any(_uses_phong(v, name) for v in node)
+    return False
+
+
+def render_spec(world: ARScene, spp: int = 256, seed: int = 1, max_depth: int = 8,
+                rr_depth: int = 5, batches: int = 16) -> dict[str, Any]:
+    """Everything that determines the images of :func:`synthesize`, as plain data.
+
+    ``views`` (real and mixed), ``coverage`` (the mask's view), ``sensor``, ``integrators``
+    and ``plan`` are what :func:`_render` hands to Mitsuba; ``mitsuba``, ``format`` and
+    ``phong_source`` stand for the code that interprets them.
+    """
+    ensure_variant()
+    plan = batch_plan(spp, batches)
+    mask_spp = max(spp, MIN_MASK_SPP)
+    views = describe_views(world)
+    spec: dict[str, Any] = {
+        "format": FORMAT_VERSION,
+        "mitsuba": mi.__version__,
+        "views": views,
+        "coverage": describe_coverage_view(views["mixed"], virtual_names(world)),
+        "has_virtual": world.has_virtual,
+        "sensor": describe_sensor(world.camera, spp),
+        "integrators": {"radiance": {"type": "path", "max_depth": int(max_depth),
+                                     "rr_depth": int(rr_depth)},
+                        "coverage": {"type": "aov", "aovs": "coverage:albedo"}},
+        "plan": {"seed": int(seed), "batches": plan, "mask_spp": mask_spp,
+                 "max_lanes": MAX_LANES},
+    }
+    name = phong_plugin_name()
+    if _uses_phong(views, name):
+        spec["phong_source"] = _module_source("arlight.backend.phong")
+    return spec
+
+
+def _module_source(module: str) -> str:
+    spec = importlib.util.find_spec(module)
+    assert spec is not None and spec.origin is not None
+    return Path(spec.origin).read_text(encoding="utf-8")
+
+
+def _feed(h: Any, x: Any) -> None:
+    """Feed plain data to a hash, unambiguously: every value is tagged with its type and
+    length; dicts in insertion order (the order of a view's objects is the scene order);
+    arrays with dtype, shape and little-endian bytes."""
+    if isinstance(x, dict):
+        h.update(b"d%d:" % len(x))
+        for k, v in x.items():
+            _feed(h, k)
+            _feed(h, v)
+    elif isinstance(x, list | tuple):
+        h.update(b"l%d:" % len(x))
+        for v in x:
+            _feed(h, v)
+    elif isinstance(x, str):
+        b = x.encode()
+        h.update(b"s%d:" % len(b) + b)
+    elif isinstance(x, bool):
+        h.update(b"T" if x else b"F")
+    elif isinstance(x, int):
+        h.update(b"i%d;" % x)
+    elif isinstance(x, float):
+        h.update(b"f" + struct.pack("<d", x))
+    elif x is None:
+        h.update(b"N")
+    elif isinstance(x, np.ndarray | np.generic):
+        a = np.ascontiguousarray(x)
+        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+        h.update(b"a" + a.dtype.str.encode() + repr(a.shape).encode() + b":")
+        h.update(a.tobytes())
+    else:
+        raise TypeError(f"not plain data: {type(x).__name__}")
+
+
+def spec_key(spec: dict[str, Any]) -> str:
+    """The cache key of a :func:`render_spec`: 32 hex digits of its SHA-256."""
+    h = hashlib.sha256()
+    _feed(h, spec)
     return h.hexdigest()[:32]
 
 
-def _referenced_files(node) -> set[str]:
-    out: set[str] = set()
-    if isinstance(node, dict):
-        for k, v in node.items():
-            if k in ("file", "image", "texture") and isinstance(v, str) and Path(v).is_file():
-                out.add(v)
-            else:
-                out |= _referenced_files(v)
-    elif isinstance(node, list):
-        for v in node:
-            out |= _referenced_files(v)
-    return out
+def content_key(world: ARScene, spp: int = 256, seed: int = 1, max_depth: int = 8,
+                rr_depth: int = 5, batches: int = 16) -> str:
+    """Cache key of :func:`synthesize` with these settings (see :func:`render_spec`)."""
+    return spec_key(render_spec(world, spp=spp, seed=seed, max_depth=max_depth,
+                                rr_depth=rr_depth, batches=batches))
 
+
+# --------------------------------------------------------------------------------------------
+# Synthesis and the cache
+# --------------------------------------------------------------------------------------------
 
 def synthesize(world: ARScene, spp: int = 256, seed: int = 1, max_depth: int = 8,
                rr_depth: int = 5, cache_dir: Path | str | None = None, use_cache: bool = True,
-               progress: bool = False) -> SyntheticPhoto:
-    """Render (or load from the cache) the frame and ground truth of ``world``.
+               progress: bool = False, batches: int = 16) -> SyntheticPhoto:
+    """Render (or load from the cache) the frame, ground truth and mask of ``world``.
 
     Args:
         world: the world scene (real shapes = the real world, virtual shapes = insertions).
-        spp: samples per pixel of both renders.
-        seed: seed of the frame render; the ground truth uses ``seed + GT_SEED_OFFSET``.
-        max_depth, rr_depth: path depth settings (Mitsuba convention).
+        spp: samples per pixel of the frame and of the ground truth (>= 2); the mask gets
+            ``max(spp, 64)``.
+        seed: master seed; frame, ground truth, mask and every batch get their own seeds.
+        max_depth, rr_depth: path depth settings of Mitsuba's ``path`` integrator.
         cache_dir: cache root (default :func:`default_cache_dir`).
         use_cache: read and write the cache.
-        progress: show progress bars.
+        progress: show a progress bar over the batches.
+        batches: independent batches the standard errors come from (>= 2; at most ``spp``
+            are used).
+
+    Raises:
+        InputError: bad ``spp``/``batches``, or a camera Mitsuba cannot represent (square
+            aperture, non-square pixels, off-centre principal point with a lens).
     """
-    settings = dict(spp=spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth)
-    key = content_key(world, **settings)
+    spec = render_spec(world, spp=spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth,
+                       batches=batches)
+    key = spec_key(spec)
     path = Path(cache_dir or default_cache_dir()) / "synthetic" / f"{key}.npz"
-    if use_cache and path.is_file():
-        with np.load(path) as z:
-            return SyntheticPhoto(**{k: z[k] for k in ("frame", "frame_stderr", "ground_truth",
-                                                       "ground_truth_stderr", "mask")},
-                                  spp=spp, seed=seed, key=key)
-    photo = _render(world, key=key, progress=progress, **settings)
+    shape = (world.camera.height, world.camera.width)
+    if use_cache:
+        cached = _read_cache(path, shape)
+        if cached is not None:
+            return SyntheticPhoto(**cached, spp=spp, seed=seed, key=key)
+    images = _render(spec, progress=progress)
     if use_cache:
         with atomic_write(path, ".npz") as tmp:
             with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, frame=photo.frame, frame_stderr=photo.frame_stderr,
-                                    ground_truth=photo.ground_truth,
-                                    ground_truth_stderr=photo.ground_truth_stderr,
-                                    mask=photo.mask)
-    return photo
+                np.savez_compressed(fh, **images)
+    return SyntheticPhoto(**images, spp=spp, seed=seed, key=key)
 
 
-def _render(world: ARScene, spp: int, seed: int, max_depth: int, rr_depth: int, key: str,
-            progress: bool) -> SyntheticPhoto:
-    from arlight.backend.mitsuba_scene import build_views
-    from arlight.backend.passes import run_passes
-    from arlight.methods.base import RenderSettings
-    from arlight.methods.reference import path_integrator, trace_radiance, virtual_coverage
+def _read_cache(path: Path, shape: tuple[int, int]) -> dict[str, np.ndarray] | None:
+    """The cached images, or None when the file is missing, unreadable or malformed."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as z:
+            images = {k: z[k] for k in _IMAGES}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
+        return None
+    for k, a in images.items():
+        if a.shape != (shape if k == "mask" else (*shape, 3)) or a.dtype != np.float32:
+            return None
+    return images
 
-    views = build_views(world)
-    integrator = path_integrator(RenderSettings(max_depth=max_depth, rr_depth=rr_depth))
 
-    def kernel_for(view, with_mask: bool):
-        def kernel(rays, pixel, s, lanes):
-            out = {"radiance": trace_radiance(integrator, view, rays, s, lanes)}
-            if with_mask:
-                out["mask"] = virtual_coverage(view, rays)
-            return out
-        return kernel
+def _render(spec: dict[str, Any], progress: bool = False) -> dict[str, np.ndarray]:
+    """Render the images of a :func:`render_spec` with :func:`mitsuba.render`."""
+    ensure_variant()
+    plan = spec["plan"]
+    sensor = load_sensor(spec["sensor"])
+    real = load_scene(spec["views"]["real"])
+    mixed = load_scene(spec["views"]["mixed"]) if spec["has_virtual"] else real
+    path = mi.load_dict(plugin_dict(spec["integrators"]["radiance"]))
+    film = spec["sensor"]["film"]
+    pixels = film["width"] * film["height"]
+    mask_plan = [plan["mask_spp"]] if spec["has_virtual"] else []
+    bar = _Progress(2 * len(plan["batches"]) + len(mask_plan), enabled=progress)
 
-    frame = run_passes(world.camera, spp, kernel_for(views.real, False), seed=seed,
-                       progress="frame" if progress else None).moments
-    gt = run_passes(world.camera, spp, kernel_for(views.mixed, True),
-                    seed=seed + GT_SEED_OFFSET,
-                    progress="ground truth" if progress else None).moments
-    f32 = np.float32
-    return SyntheticPhoto(frame=frame["radiance"].mean.astype(f32),
-                          frame_stderr=frame["radiance"].stderr.astype(f32),
-                          ground_truth=gt["radiance"].mean.astype(f32),
-                          ground_truth_stderr=gt["radiance"].stderr.astype(f32),
-                          mask=gt["mask"].mean[..., 0].astype(f32), spp=spp, seed=seed, key=key)
+    def render(scene: mi.Scene, integrator: Any, stream: str, b: int, n: int) -> np.ndarray:
+        total = None
+        for c, m in enumerate(_chunks(n, pixels)):
+            img = mi.render(scene, sensor=sensor, integrator=integrator, spp=m,
+                            seed=_seed(plan["seed"], stream, b, c))
+            part = np.array(img, dtype=np.float64) * m
+            total = part if total is None else total + part
+        bar.advance()
+        assert total is not None
+        return total / n
+
+    def mean_and_stderr(scene: mi.Scene, stream: str) -> tuple[np.ndarray, np.ndarray]:
+        # weighted Welford update over batch means (West 1979): unbiased s² with B - 1 dof
+        n_tot, mean, m2 = 0, None, None
+        for b, n in enumerate(plan["batches"]):
+            x = render(scene, path, stream, b, n)
+            if mean is None:
+                n_tot, mean, m2 = n, x, np.zeros_like(x)
+                continue
+            n_tot += n
+            delta = x - mean
+            mean = mean + delta * (n / n_tot)
+            m2 = m2 + n * delta * (x - mean)
+        assert mean is not None and m2 is not None
+        var = m2 / (len(plan["batches"]) - 1)
+        return mean.astype(np.float32), np.sqrt(var / n_tot).astype(np.float32)
+
+    try:
+        frame, frame_se = mean_and_stderr(real, "frame")
+        gt, gt_se = mean_and_stderr(mixed, "ground_truth")
+        if mask_plan:
+            coverage = load_scene(spec["coverage"])
+            aov = mi.load_dict(plugin_dict(spec["integrators"]["coverage"]))
+            mask = render(coverage, aov, "mask", 0, mask_plan[0])[..., 0]
+        else:
+            mask = np.zeros(frame.shape[:2])
+    finally:
+        bar.close()
+    return {"frame": frame, "frame_stderr": frame_se, "ground_truth": gt,
+            "ground_truth_stderr": gt_se, "mask": np.clip(mask, 0.0, 1.0).astype(np.float32)}
+
+
+class _Progress:
+    """A rich progress bar over render batches (a no-op when disabled)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self._bar = None
+        if enabled:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self._bar = Progress(TextColumn("synthetic photo"), BarColumn(),
+                                 TextColumn("{task.completed}/{task.total} batches"),
+                                 TimeRemainingColumn(), transient=True)
+            self._bar.start()
+            self._task = self._bar.add_task("render", total=total)
+
+    def advance(self) -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, advance=1)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+
+__all__ = ["FORMAT_VERSION", "SyntheticPhoto", "batch_plan", "content_key",
+           "default_cache_dir", "render_spec", "spec_key", "synthesize"]
