@@ -144,7 +144,7 @@ def test_every_schema_type_has_one_translation():
 def test_build_views_loads_the_description(tmp_path):
     """The methods' views are loaded from the same description the synthetic photos hash:
     every described object is in the loaded scene, with its id, and nothing else."""
-    from arlight.backend.mitsuba_scene import describe_views
+    from arlight.backend.mitsuba_scene import describe_views, is_shape_node
 
     sc = _textured_world(tmp_path)
     desc = describe_views(sc)
@@ -152,8 +152,7 @@ def test_build_views_loads_the_description(tmp_path):
     for name, view in (("real", views.real), ("mixed", views.mixed)):
         objects = desc[name]["objects"]
         shape_ids = sorted(sh.id() for sh in view.scene.shapes())
-        described = sorted(k for k, v in objects.items() if v["type"] not in
-                           ("envmap", "spot", "point", "constant", "directional"))
+        described = sorted(k for k, v in objects.items() if is_shape_node(v))
         assert shape_ids == described
         assert len(view.scene.emitters()) == len(sc.lights)
 
