@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from arlight.scene.load import parse_scene
+from tests.mutations import mutation_session, pytest_addoption  # noqa: F401 (--mutation plugin)
 
 LOOK = {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}
 
