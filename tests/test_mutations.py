@@ -7,7 +7,7 @@ stopping at the first failure) on photographs rendered once, unmutated, by this 
 subprocess gets a copy of them (``ARLIGHT_TEST_WARM_CACHE``), so a mutated run neither
 renders ground truth nor writes into a cache another run reads. Which test caught each
 mutation is printed and recorded as the ``caught_by`` property (``--junitxml``); the table in
-``docs/testing.md`` comes from such a run. About a minute and a half on 2 cores.
+``docs/testing.md`` comes from such a run. About 30 s on 2 cores.
 """
 
 from __future__ import annotations
