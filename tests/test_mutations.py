@@ -31,6 +31,12 @@ ROOT = Path(__file__).resolve().parents[1]
 GROUND_TRUTH_TESTS = "tests/evaluate/test_ground_truth.py"
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _not_under_a_mutation(request):
+    if request.config.getoption("--mutation"):
+        pytest.skip("this session is itself mutated")
+
+
 @pytest.fixture(scope="module")
 def warm_cache(tmp_path_factory):
     """Every photograph the ground-truth tests read, rendered by this unmutated process."""
