@@ -107,15 +107,19 @@ def synth(
     seed: Seed = 1,
     max_depth: MaxDepth = 8,
     no_cache: Annotated[bool, typer.Option(help="render even if cached")] = False,
+    batches: Annotated[int, typer.Option(help="independent batches the per-pixel standard "
+                                         "errors are estimated from (>= 2, at most --spp)",
+                                         min=2)] = 64,
 ) -> None:
-    """Synthesise a camera frame (world without virtual objects) and its ground truth."""
+    """Synthesise a camera frame (world without virtual objects) and its ground truth with
+    Mitsuba's own path tracer (independent of every method it grades)."""
     from arlight.io.images import write_exr, write_png
     from arlight.scene.load import load_scene
     from arlight.synthetic import synthesize
 
     w = load_scene(world)
     photo = synthesize(w, spp=spp, seed=seed, max_depth=max_depth, use_cache=not no_cache,
-                       progress=True)
+                       progress=True, batches=batches)
     t = w.camera.transfer
     write_exr(out / "frame.exr", photo.frame)
     write_png(out / "frame.png", t.to_display(photo.frame))

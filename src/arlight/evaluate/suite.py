@@ -28,7 +28,7 @@ from pathlib import Path
 from arlight.errors import InputError
 from arlight.scene.load import load_scene
 from arlight.scene.model import ARScene
-from arlight.synthetic import SyntheticPhoto, synthesize
+from arlight.synthetic import DEFAULT_BATCHES, SyntheticPhoto, synthesize
 
 QUICK_WIDTH = 80  # px; the height keeps the aspect ratio (80×60 for 4:3, 80×45 for 16:9)
 
@@ -65,11 +65,12 @@ class SuiteScene:
 
     def photo(self, spp: int = 256, seed: int = 1, max_depth: int = 8,
               cache_dir: Path | str | None = None, use_cache: bool = True,
-              progress: bool = False) -> SyntheticPhoto:
+              progress: bool = False, batches: int = DEFAULT_BATCHES) -> SyntheticPhoto:
         """The synthetic frame and ground truth of the world (see
         :func:`arlight.synthetic.synthesize`; cached on disk by content hash)."""
         return synthesize(self.world, spp=spp, seed=seed, max_depth=max_depth,
-                          cache_dir=cache_dir, use_cache=use_cache, progress=progress)
+                          cache_dir=cache_dir, use_cache=use_cache, progress=progress,
+                          batches=batches)
 
     def ar_scene(self, photo: SyntheticPhoto) -> ARScene:
         """The proxy with the synthetic frame attached: the input of a method."""
