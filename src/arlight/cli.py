@@ -20,7 +20,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from arlight.errors import ArlightError, InputError
+from arlight.errors import ArlightError
 from arlight.evaluate import cli as eval_cli
 from arlight.light import cli as light_cli
 
@@ -36,18 +36,6 @@ Seed = Annotated[int, typer.Option("--seed", help="random seed; equal seeds give
 MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in vertices "
                                        "(Mitsuba convention: 2 = direct light only, "
                                        "-1 = unlimited)")]
-
-
-def _parse_options(pairs: list[str]) -> dict[str, object]:
-    """``key=value`` pairs as strings; the method's option table converts each value by its
-    kind (``reproject=false`` -> False), see :meth:`arlight.methods.MethodSpec.parse_options`."""
-    out: dict[str, object] = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"expected key=value, got {pair!r}", field="--option")
-        out[key.strip()] = value
-    return out
 
 
 @app.command()
@@ -72,11 +60,12 @@ def render(
 ) -> None:
     """Run a method on an AR scene and write its layers (EXR) and composite (PNG)."""
     from arlight.methods import RenderSettings, get_method
+    from arlight.methods.spec import parse_option_pairs
     from arlight.output import write_layers
     from arlight.scene.load import load_scene
 
     settings = RenderSettings(spp=spp, seed=seed, max_depth=max_depth, progress=True,
-                              options=_parse_options(option or []))
+                              options=parse_option_pairs(option or []))
     fn = get_method(method)
     fn.spec.parse_options(settings.options)  # a bad option fails before the scene loads
     sc = load_scene(scene)

@@ -39,18 +39,6 @@ def _ints(text: str, field: str) -> list[int]:
     return vals
 
 
-def _options(pairs: list[str]) -> dict[str, str]:
-    """``[method.]key=value`` pairs (values stay strings; each method's option table
-    converts them)."""
-    out: dict[str, str] = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"expected [method.]key=value, got {pair!r}", field="--option")
-        out[key.strip()] = value
-    return out
-
-
 def eval_command(
     methods: Annotated[str | None, typer.Option("--methods", "-m", help="comma-separated "
                        "registered methods (default: all, see `arlight methods`)")] = None,
@@ -88,6 +76,7 @@ def eval_command(
     from arlight.evaluate.report import write_report
     from arlight.evaluate.suite import get_scene, list_scenes
     from arlight.methods import available_methods
+    from arlight.methods.spec import parse_option_pairs
 
     console = Console(stderr=True)
     if list_only:
@@ -101,7 +90,8 @@ def eval_command(
                      scenes=_names(scenes, "scenes") or list_scenes(), quick=quick, spp=spp,
                      gt_spp=gt_spp, repeats=repeats, seed=seed, max_depth=max_depth,
                      use_cache=not no_cache, cache_only=cache_only,
-                     sweep_spp=_ints(sweep, "sweep"), options=_options(option or []))
+                     sweep_spp=_ints(sweep, "sweep"),
+                     options=parse_option_pairs(option or [], "[method.]key=value"))
     results = run_evaluation(cfg, log=console.print)
     paths = write_report(results, out)
     failed = sum(bool(c.error) for c in results.cells)

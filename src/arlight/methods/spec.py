@@ -226,3 +226,18 @@ class MethodSpec:
 
 
 __all__ = ["Capabilities", "Field", "MethodSpec", "Options"]
+
+
+def parse_option_pairs(pairs: list[str], form: str = "key=value") -> dict[str, str]:
+    """``--option`` arguments as ``{key: value}``; values stay strings (each method's option
+    table converts them by kind, see :meth:`MethodSpec.parse_options`). ``form`` is how the
+    error message spells a valid pair."""
+    from arlight.errors import InputError
+
+    out: dict[str, str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"expected {form}, got {pair!r}", field="--option")
+        out[key.strip()] = value
+    return out

@@ -86,8 +86,26 @@ def _posed_shapes(shapes: list[Shape], transforms: dict[str, np.ndarray]) -> lis
             if s.name in transforms else s for s in shapes]
 
 
+class _ShapeRoles:
+    """Shapes by role, for the classes that hold a ``shapes`` list."""
+
+    shapes: list[Shape]
+
+    @property
+    def real_shapes(self) -> list[Shape]:
+        return [s for s in self.shapes if s.role == "real"]
+
+    @property
+    def virtual_shapes(self) -> list[Shape]:
+        return [s for s in self.shapes if s.role == "virtual"]
+
+    @property
+    def has_virtual(self) -> bool:
+        return any(s.is_virtual for s in self.shapes)
+
+
 @dataclass
-class World:
+class World(_ShapeRoles):
     """The static part of an AR scene: real proxy, virtual objects, materials, lights.
 
     Attributes:
@@ -101,18 +119,6 @@ class World:
     lights: list[Light]
     source: Path | None = None
     raw: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def real_shapes(self) -> list[Shape]:
-        return [s for s in self.shapes if s.role == "real"]
-
-    @property
-    def virtual_shapes(self) -> list[Shape]:
-        return [s for s in self.shapes if s.role == "virtual"]
-
-    @property
-    def has_virtual(self) -> bool:
-        return any(s.is_virtual for s in self.shapes)
 
     def posed(self, transforms: dict[str, np.ndarray]) -> World:
         """The world with ``transforms[name]`` (4×4, world space) applied on the left of the
@@ -153,7 +159,7 @@ class FrameView:
 
 
 @dataclass
-class ARScene:
+class ARScene(_ShapeRoles):
     """Camera, background frame, real proxy, virtual objects and lights.
 
     Attributes:
@@ -201,18 +207,6 @@ class ARScene:
                    lights=world.lights, frame=view.frame, frame_codes=view.frame_codes,
                    source=world.source, raw=world.raw, depth=view.depth,
                    timestamp=view.timestamp)
-
-    @property
-    def real_shapes(self) -> list[Shape]:
-        return [s for s in self.shapes if s.role == "real"]
-
-    @property
-    def virtual_shapes(self) -> list[Shape]:
-        return [s for s in self.shapes if s.role == "virtual"]
-
-    @property
-    def has_virtual(self) -> bool:
-        return any(s.is_virtual for s in self.shapes)
 
     @property
     def resolution(self) -> tuple[int, int]:
