@@ -125,7 +125,7 @@ def test_description_is_plain_data(tmp_path):
 
     walk(desc, "")
     names = {p.rsplit(".", 1)[-1] for p in arrays}
-    assert names == {"to_world", "bitmap", "vertices", "faces", "uv"}, names
+    assert names == {"to_world", "bitmap", "vertices", "faces", "uv", "normals"}, names
     tex = [a for p, a in arrays.items() if p.endswith("reflectance.bitmap")]
     assert len(tex) == 1 and np.allclose(tex[0], (200 / 255) ** 2.2, atol=0.02)  # sRGB-decoded
 

@@ -14,7 +14,10 @@ Translation happens in two steps:
    * ``bitmap`` is an ``(H, W, C)`` float32 array (texture files and environment maps enter
      as their decoded pixels, never as file names);
    * a ``"mesh"`` node holds world-space ``vertices (V, 3)`` float32, ``faces (F, 3)``
-     uint32, optional ``uv (V, 2)`` and ``smooth``.
+     uint32, optional ``uv (V, 2)`` and world-space unit vertex ``normals (V, 3)`` float32
+     (None: flat faces). Normals come with the scene (file or NumPy-recomputed, see
+     :mod:`arlight.scene.mesh`), never from Mitsuba's ``recompute_vertex_normals``, whose
+     parallel float atomics made mesh renders differ from run to run.
 
    A view description is ``{"objects": {name: node}}`` in scene order: the lights
    (``"light<i>"``) then the shapes (``"<i>"``, the index into ``ARScene.shapes``). Materials
@@ -177,10 +180,14 @@ def _mesh(shape: Shape) -> Node:
     faces = np.asarray(data.faces, dtype=np.uint32)
     if np.linalg.det(to_world[:3, :3]) < 0:
         faces = faces[:, ::-1].copy()  # keep outward normals under mirroring transforms
+    normals = None
+    if data.normals is not None:  # normals transform with the inverse transpose
+        n = np.asarray(data.normals, dtype=np.float64) @ np.linalg.inv(to_world[:3, :3])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        normals = n.astype(np.float32)
     return {"type": "mesh", "vertices": v, "faces": faces,
             "uv": None if data.uv is None else np.asarray(data.uv),
-            "smooth": bool(shape.params.get("smooth", True)),
-            "bsdf": describe_material(shape.material)}
+            "normals": normals, "bsdf": describe_material(shape.material)}
 
 
 SHAPES: dict[str, Callable[[Shape], Node]] = {
@@ -402,19 +409,21 @@ def _load_shape(name: str, node: Node) -> mi.Shape:
 
 
 def _load_mesh(name: str, node: Node) -> mi.Mesh:
-    v, faces, uv = node["vertices"], node["faces"], node["uv"]
+    v, faces, uv, normals = node["vertices"], node["faces"], node["uv"], node["normals"]
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(plugin_dict(node["bsdf"]))
-    mesh = mi.Mesh(name, len(v), len(faces), props=props, has_vertex_normals=node["smooth"],
+    mesh = mi.Mesh(name, len(v), len(faces), props=props,
+                   has_vertex_normals=normals is not None,
                    has_vertex_texcoords=uv is not None)
     params = mi.traverse(mesh)
     params["vertex_positions"] = dr.ravel(mi.Point3f(v[:, 0], v[:, 1], v[:, 2]))
     params["faces"] = dr.ravel(mi.Vector3u(faces[:, 0], faces[:, 1], faces[:, 2]))
     if uv is not None:
         params["vertex_texcoords"] = dr.ravel(mi.Point2f(uv[:, 0], uv[:, 1]))
+    if normals is not None:
+        params["vertex_normals"] = dr.ravel(
+            mi.Normal3f(normals[:, 0], normals[:, 1], normals[:, 2]))
     params.update()
-    if node["smooth"]:
-        mesh.recompute_vertex_normals()
     mesh.set_id(name)  # registry lookup uses this id
     return mesh
 

@@ -282,7 +282,7 @@ def _shape(v: Validator, tab: dict, i: int, materials: dict[str, Material]) -> S
     to_world = transform_matrix(v, common["transform"], f"{field}.transform")
     if "normal" in params:
         to_world = to_world @ z_to(params["normal"], v, f"{field}.normal")
-    mesh = _load_mesh(v, params["file"], f"{field}.file") if stype == "mesh" else None
+    mesh = _load_mesh(v, params, field) if stype == "mesh" else None
     if material.params.get("texture") and stype == "mesh" and mesh is not None \
             and mesh.uv is None:
         raise v.fail(f"{field}.material.texture", "the mesh has no texture coordinates")
@@ -290,22 +290,39 @@ def _shape(v: Validator, tab: dict, i: int, materials: dict[str, Material]) -> S
                  to_world=to_world, material=material, mesh=mesh)
 
 
-def _load_mesh(v: Validator, path: str, field: str) -> MeshData:
-    import trimesh
+def _load_mesh(v: Validator, params: dict, field: str) -> MeshData:
+    """Read the mesh file and settle its shading normals (see the ``normals`` field)."""
+    from arlight.scene.mesh import read_mesh, unit_normals, vertex_normals
 
+    path = params["file"]
     try:
-        mesh = trimesh.load(path, force="mesh", process=False)
+        raw = read_mesh(path)
     except Exception as exc:
-        raise v.fail(field, f"cannot read mesh {path}: {exc}") from exc
-    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
-    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))))
-    if faces.size == 0 or len(faces) == 0:
-        raise v.fail(field, f"mesh {path} has no faces")
-    if not np.all(np.isfinite(verts)):
-        raise v.fail(field, f"mesh {path} has non-finite vertex positions")
-    uv = getattr(getattr(mesh, "visual", None), "uv", None)
-    uv = None if uv is None or len(uv) != len(verts) else np.asarray(uv, np.float32)
-    return MeshData(np.asarray(verts, np.float32), np.asarray(faces, np.uint32), uv)
+        raise v.fail(f"{field}.file", f"cannot read mesh {path}: {exc}") from exc
+    if raw.faces.size == 0:
+        raise v.fail(f"{field}.file", f"mesh {path} has no faces")
+    if not np.all(np.isfinite(raw.vertices)):
+        raise v.fail(f"{field}.file", f"mesh {path} has non-finite vertex positions")
+    if raw.faces.min() < 0 or raw.faces.max() >= len(raw.vertices):
+        raise v.fail(f"{field}.file", f"mesh {path} has faces indexing missing vertices")
+    mode = params["normals"]
+    if not params["smooth"]:
+        if mode not in ("auto", "flat"):
+            raise v.fail(f"{field}.smooth", f"`smooth = false` contradicts `normals = "
+                         f"\"{mode}\"`")
+        mode = "flat"
+    file_normals = None if raw.normals is None else unit_normals(raw.normals)
+    if mode == "file" and file_normals is None:
+        why = "has no vertex normals" if raw.normals is None else "has zero or non-finite " \
+            "vertex normals"
+        raise v.fail(f"{field}.normals", f"mesh {path} {why} (use `normals = \"recompute\"`)")
+    if mode == "auto":
+        mode = "file" if file_normals is not None else "recompute"
+    normals = {"file": file_normals, "flat": None}.get(mode) if mode != "recompute" \
+        else vertex_normals(raw.vertices, raw.faces)
+    return MeshData(raw.vertices.astype(np.float32), raw.faces.astype(np.uint32),
+                    None if raw.uv is None else raw.uv.astype(np.float32),
+                    None if normals is None else normals.astype(np.float32), mode)
 
 
 def _light(v: Validator, tab: dict, i: int) -> Light:

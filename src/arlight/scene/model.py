@@ -40,11 +40,15 @@ class Material:
 @dataclass(frozen=True)
 class MeshData:
     """Triangle mesh in object space: positions ``(V, 3)`` float32 (metres before transform),
-    faces ``(F, 3)`` uint32, optional per-vertex texture coordinates ``(V, 2)``."""
+    faces ``(F, 3)`` uint32, optional per-vertex texture coordinates ``(V, 2)`` and unit
+    vertex normals ``(V, 3)`` float32 (None: flat faces). ``normals_from`` says where the
+    normals came from: ``"file"``, ``"recompute"`` or ``"flat"``."""
 
     vertices: np.ndarray
     faces: np.ndarray
     uv: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    normals_from: str = "flat"
 
 
 @dataclass(frozen=True)

@@ -95,7 +95,13 @@ SHAPE_TYPES: dict[str, dict[str, Field]] = {
     },
     "mesh": {
         "file": Field("path", REQUIRED, "PLY, OBJ, glTF/GLB, STL or OFF file (read by trimesh)"),
-        "smooth": Field("bool", True, "interpolate vertex normals (False: flat faces)"),
+        "normals": Field("choice", "auto", "shading normals: `file` (the vertex normals stored "
+                         "in a PLY/OBJ file; an error if it has none), `recompute` (smooth, "
+                         "angle-weighted, welded across split vertices), `flat` (face normals); "
+                         "`auto`: `file` when the file has normals, else `recompute`",
+                         choices=("auto", "file", "recompute", "flat")),
+        "smooth": Field("bool", True, "older form: `false` is `normals = \"flat\"`; `true` "
+                        "leaves `normals` in charge"),
     },
 }
 
