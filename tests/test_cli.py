@@ -39,7 +39,9 @@ def test_render_writes_layers_and_bad_input_writes_nothing(tmp_path):
     for name in ("composite.png", "composite.exr", "mixed.exr", "delta.exr", "mask.exr",
                  "real.exr", "stats.json"):
         assert (out / name).is_file(), name
-    assert not list(out.glob(".*"))  # no temporary files left behind
+    # no temporary files left behind: only the manifest of the output set, no staging
+    assert [p.name for p in out.glob(".*")] == [".arlight-output.json"]
+    assert [p.name for p in tmp_path.glob(".*")] == []
     d["frame"] = {"image": "missing.png"}
     bad_out = tmp_path / "bad"
     assert main(["render", str(_scene_file(tmp_path, d)), "-o", str(bad_out)]) == 2

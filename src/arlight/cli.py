@@ -13,6 +13,7 @@ Errors in the input print one line naming the file and field and exit with statu
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -20,6 +21,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from arlight.bounds import MAX_FRAMES, MAX_SECONDS_BUDGET, MAX_SEED, MAX_SPP
 from arlight.errors import ArlightError
 from arlight.evaluate import cli as eval_cli
 from arlight.light import cli as light_cli
@@ -29,10 +31,23 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                        "with the real light on them (differential rendering on Mitsuba 3).")
 console = Console(stderr=True)
 
+
+@app.callback()
+def _global_options(
+    debug: Annotated[bool, typer.Option("--debug", help="print the traceback of an error "
+                                        "(also ARLIGHT_DEBUG=1)")] = False,
+) -> None:
+    """Global options (read by :func:`main` before the command runs)."""
+
 Spp = Annotated[int, typer.Option("--spp", help="samples per pixel (stratified when a "
-                                                "perfect square)", min=1)]
-Seed = Annotated[int, typer.Option("--seed", help="random seed; equal seeds give identical "
-                                                  "images")]
+                                                "perfect square)", min=1, max=MAX_SPP)]
+Seed = Annotated[int, typer.Option("--seed", help="random seed (0 to 2^32-1); equal seeds "
+                                   "give identical images", min=0, max=MAX_SEED)]
+Force = Annotated[bool, typer.Option("--force", help="run even when the estimated memory or "
+                                     "time is beyond the limits (see docs/cli.md)")]
+
+SYNTH_FILES = ("frame.exr", "frame.png", "frame_stderr.exr", "ground_truth.exr",
+               "ground_truth.png", "ground_truth_stderr.exr", "mask.exr")
 MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in vertices "
                                        "(Mitsuba convention: 2 = direct light only, "
                                        "-1 = unlimited)")]
@@ -53,22 +68,42 @@ def render(
     progressive: Annotated[bool, typer.Option(help="progressive refinement: accumulate "
                            "composited frames (Kán Eq. 4.12) until --time or --frames")] = False,
     time_budget: Annotated[float, typer.Option("--time", help="progressive time budget, "
-                           "seconds")] = 30.0,
-    frames: Annotated[int, typer.Option(help="progressive frame budget (0 = time only)")] = 0,
+                           "seconds (> 0)", min=0,
+                           max=MAX_SECONDS_BUDGET)] = 30.0,
+    frames: Annotated[int, typer.Option(help="progressive frame budget (0 = time only)",
+                                        min=0, max=MAX_FRAMES)] = 0,
     ground_truth: Annotated[Path | None, typer.Option(help="ground-truth EXR; progressive "
                             "mode reports the error as it falls")] = None,
+    force: Force = False,
 ) -> None:
     """Run a method on an AR scene and write its layers (EXR) and composite (PNG)."""
+    import numpy as np
+
+    from arlight.bounds import check_estimate, check_range, estimate
     from arlight.methods import RenderSettings, get_method
     from arlight.methods.spec import parse_option_pairs
-    from arlight.output import write_layers
+    from arlight.output import LAYER_FILES, write_layers
+    from arlight.outputs_atomic import check_output_dir
     from arlight.scene.load import load_scene
 
     settings = RenderSettings(spp=spp, seed=seed, max_depth=max_depth, progress=True,
                               options=parse_option_pairs(option or []))
+    check_range(time_budget, "--time", 0, MAX_SECONDS_BUDGET, lo_open=True)
     fn = get_method(method)
     fn.spec.parse_options(settings.options)  # a bad option fails before the scene loads
+    if progressive:
+        from arlight.progressive import progressive_method
+
+        progressive_method(method)
     sc = load_scene(scene)
+    cam = sc.camera
+    # progressive mode renders `frames` frames (a time-only budget is bounded by --time)
+    est = estimate(cam.width, cam.height, spp, paths=2,
+                   renders=frames if progressive and frames else 1)
+    check_estimate(est, f"rendering {cam.width}×{cam.height} at {spp} spp", force)
+    inputs = [scene] + ([ground_truth] if ground_truth is not None else [])
+    snapshots = (int(np.log2(frames)) + 2) if progressive and frames else 1
+    check_output_dir(out, LAYER_FILES, int(est.output_bytes * snapshots), inputs)
     if progressive:
         from arlight.progressive import run_cli
 
@@ -98,25 +133,34 @@ def synth(
     no_cache: Annotated[bool, typer.Option(help="render even if cached")] = False,
     batches: Annotated[int, typer.Option(help="independent batches the per-pixel standard "
                                          "errors are estimated from (>= 2, at most --spp)",
-                                         min=2)] = 64,
+                                         min=2, max=MAX_SPP)] = 64,
+    force: Force = False,
 ) -> None:
     """Synthesise a camera frame (world without virtual objects) and its ground truth with
     Mitsuba's own path tracer (independent of every method it grades)."""
+    from arlight.bounds import check_estimate, estimate
     from arlight.io.images import write_exr, write_png
+    from arlight.outputs_atomic import StagedOutput, check_output_dir
     from arlight.scene.load import load_scene
-    from arlight.synthetic import synthesize
+    from arlight.synthetic import batch_plan, synthesize
 
+    batch_plan(spp, batches)  # spp/batches errors before the scene loads
     w = load_scene(world)
+    cam = w.camera
+    est = estimate(cam.width, cam.height, spp, paths=2, layers=7)
+    check_estimate(est, f"synthesising {cam.width}×{cam.height} at {spp} spp", force)
+    check_output_dir(out, SYNTH_FILES, int(est.output_bytes), [world])
     photo = synthesize(w, spp=spp, seed=seed, max_depth=max_depth, use_cache=not no_cache,
                        progress=True, batches=batches)
     t = w.camera.transfer
-    write_exr(out / "frame.exr", photo.frame)
-    write_png(out / "frame.png", t.to_display(photo.frame))
-    write_exr(out / "frame_stderr.exr", photo.frame_stderr)
-    write_exr(out / "ground_truth.exr", photo.ground_truth)
-    write_png(out / "ground_truth.png", t.to_display(photo.ground_truth))
-    write_exr(out / "ground_truth_stderr.exr", photo.ground_truth_stderr)
-    write_exr(out / "mask.exr", photo.mask)
+    with StagedOutput(out, "synth", SYNTH_FILES) as tmp:
+        write_exr(tmp / "frame.exr", photo.frame)
+        write_png(tmp / "frame.png", t.to_display(photo.frame))
+        write_exr(tmp / "frame_stderr.exr", photo.frame_stderr)
+        write_exr(tmp / "ground_truth.exr", photo.ground_truth)
+        write_png(tmp / "ground_truth.png", t.to_display(photo.ground_truth))
+        write_exr(tmp / "ground_truth_stderr.exr", photo.ground_truth_stderr)
+        write_exr(tmp / "mask.exr", photo.mask)
     console.print(f"frame and ground truth written to {out}/ (cache key {photo.key})")
 
 
@@ -171,9 +215,21 @@ def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")] = Path("out/demo"),
     spp: Spp = 36,
     method: Annotated[str, typer.Option("--method", "-m", help="method to run")] = "reference",
+    force: Force = False,
 ) -> None:
     """Render the bundled demo scene (a virtual bunny on a real table) and print the paths."""
-    from arlight.demo import run_demo
+    from arlight.bounds import check_estimate, estimate
+    from arlight.demo import demo_scene_path, run_demo
+    from arlight.methods import get_method
+    from arlight.output import LAYER_FILES
+    from arlight.outputs_atomic import check_output_dir
+    from arlight.scene.load import load_scene
+
+    get_method(method)
+    cam = load_scene(demo_scene_path()).camera
+    est = estimate(cam.width, cam.height, spp, paths=2)
+    check_estimate(est, f"rendering the demo at {spp} spp", force)
+    check_output_dir(out, LAYER_FILES, int(est.output_bytes))
 
     run_demo(out, spp=spp, method=method, console=console)
 
@@ -184,26 +240,126 @@ app.add_typer(light_cli.app, name="light", help="light estimation: SH, environme
 app.command("eval")(eval_cli.eval_command)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: run the CLI, turning input errors into one-line messages and exit 2."""
+def _usage_error_types() -> tuple[type[BaseException], ...]:
+    """Exception classes of the command-line parser's usage errors.
+
+    Typer >= 0.20 vendors Click as ``typer._click`` (its exceptions derive from
+    ``typer.exceptions.TyperException``); older Typer versions use the ``click`` package.
+    """
+    types: list[type[BaseException]] = []
     try:
-        app(args=argv, standalone_mode=False)
+        from typer.exceptions import TyperException
+
+        types.append(TyperException)
+    except ImportError:
+        pass
+    try:
+        from click.exceptions import ClickException
+
+        types.append(ClickException)
+    except ImportError:
+        pass
+    return tuple(types)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _error(message: str) -> None:
+    """One line on stderr (never wrapped, whatever the terminal width)."""
+    print(f"error: {_one_line(message)}", file=sys.stderr, flush=True)
+
+
+def _usage_message(exc: BaseException) -> str:
+    ctx = getattr(exc, "ctx", None)
+    command = getattr(ctx, "command_path", None) or "arlight"
+    fmt = getattr(exc, "format_message", None)
+    text = fmt() if callable(fmt) else str(exc)
+    return f"{command}: {_one_line(text)} (see '{command} --help')"
+
+
+def _debug_requested(argv: list[str]) -> bool:
+    return os.environ.get("ARLIGHT_DEBUG", "") not in ("", "0") or "--debug" in argv
+
+
+class _Interrupted(KeyboardInterrupt):
+    """SIGINT/SIGTERM turned into an exception that unwinds (and cleans) staged outputs."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _on_signal(signum: int, _frame: object) -> None:
+    raise _Interrupted(signum)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the CLI with one error path for every command.
+
+    Exit status 0 on success; 2 for usage errors and bad input (:class:`ArlightError`),
+    with one line on stderr naming the file and field; 1 for internal errors (one line;
+    the traceback with ``--debug`` or ``ARLIGHT_DEBUG=1``); 130 after SIGINT (143 after
+    SIGTERM) with a line saying that no output was written. Bare ``arlight`` (or a bare
+    command group) prints the help and exits 2.
+    """
+    import signal
+    import threading
+    import traceback
+
+    from arlight import outputs_atomic
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = _debug_requested(args)
+    usage_types = _usage_error_types()
+    previous: dict[int, object] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, _on_signal)
+    committed = len(outputs_atomic.COMMITTED)
+    try:
+        rv = app(args=args, standalone_mode=False, prog_name="arlight")
+        return rv if isinstance(rv, int) else 0
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        done = outputs_atomic.COMMITTED[committed:]
+        name = "SIGTERM" if signum == signal.SIGTERM else "interrupt (SIGINT)"
+        if done:
+            _error(f"{name}: stopped after writing {', '.join(map(str, done))}")
+        else:
+            _error(f"{name}: stopped; the output was not written (an existing output "
+                   "is left as it was)")
+        return 128 + int(signum)
     except ArlightError as exc:
-        console.print(f"[red]error:[/] {exc}")
+        if debug:
+            traceback.print_exc()
+        _error(str(exc))
         return 2
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
-        console.print("aborted")
+        _error("aborted; the output was not written")
         return 130
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            return exc.exit_code
-        raise
-    return 0
+    except usage_types as exc:
+        if type(exc).__name__ == "NoArgsIsHelpError":
+            print(exc.format_message(), file=sys.stdout)  # bare command: its help
+            return 2
+        if debug:
+            traceback.print_exc()
+        _error(_usage_message(exc))
+        return 2  # every parser error is a usage error or a file it cannot open
+    except Exception as exc:  # noqa: BLE001 - the one place unexpected errors end up
+        if debug:
+            traceback.print_exc()
+        where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+        at = f" at {Path(where.filename).name}:{where.lineno}" if where else ""
+        _error(f"internal error ({type(exc).__name__}{at}): {exc} — rerun with --debug "
+               "for the traceback")
+        return 1
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)  # type: ignore[arg-type]
 
 
 if __name__ == "__main__":

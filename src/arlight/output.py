@@ -8,8 +8,6 @@ byte-identical. The bit depth follows the input frame (8 or 16 bits; 8 for HDR f
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -25,24 +23,33 @@ def display_dtype(scene: ARScene) -> type:
     return np.uint16 if codes is not None and codes.dtype == np.uint16 else np.uint8
 
 
+LAYER_FILES = ("*.exr", "composite.png", "stats.json", "progressive_*.png", "error.csv",
+               "error.png")
+"""Names of the files a render writes (an existing folder of only these may be replaced)."""
+
+
 def write_layers(layers: Layers, scene: ARScene, out_dir: str | Path) -> dict[str, Path]:
-    """Write ``composite.png`` and EXRs of every layer into ``out_dir``; return the paths.
+    """Write ``composite.png`` and EXRs of every layer as the folder ``out_dir``; return the
+    paths.
 
     Files: ``composite.exr``, ``composite.png``, ``mixed.exr``, ``delta.exr``, ``mask.exr``,
     ``real.exr`` (when the method has it), ``stderr_<layer>.exr`` and ``stats.json``
     (``seconds``, ``time_<stage>`` seconds, counters).
 
+    The files are staged next to ``out_dir`` and swapped in as one set
+    (:class:`arlight.outputs_atomic.StagedOutput`): the folder holds the whole previous
+    output or the whole new one, never a mix. A folder holding other files is refused.
+
     Raises ValueError, before writing anything, when a layer is not a finite float32 array
     of the scene camera's ``(H, W, 3)`` (``(H, W)`` for the mask; standard errors may be
     +inf but not NaN); the message names the layer and the expected shape.
     """
+    from arlight.outputs_atomic import StagedOutput
+
     layers.check(scene.camera.height, scene.camera.width, where="write_layers")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".layers-", dir=out) as tmp:
-        staged = _write_all(layers, scene, Path(tmp))
-        for p in staged.values():  # every file complete before any lands in `out`
-            os.replace(p, out / p.name)
+    with StagedOutput(out, "render", LAYER_FILES) as tmp:
+        staged = _write_all(layers, scene, tmp)
     return {k: out / p.name for k, p in staged.items()}
 
 

@@ -158,16 +158,19 @@ def run_cli(scene: ARScene, method_name: str, settings: RenderSettings, out_dir:
     """``arlight render --progressive``: refine until ``time_budget`` s or ``frames`` frames.
 
     Writes ``progressive_<n>.exr/.png`` snapshots (n = 1, 2, 4, … and the last frame) and,
-    with a ground truth, ``error.csv`` (frame, seconds, rmse) and ``error.png``.
+    with a ground truth, ``error.csv`` (frame, seconds, rmse) and ``error.png``. The files are
+    staged and swapped in as one set when the run ends
+    (:class:`arlight.outputs_atomic.StagedOutput`): an error or an interrupt leaves the
+    previous output folder as it was (and creates none).
     """
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from arlight.io.images import atomic_write, read_hdr
+    from arlight.io.images import read_hdr
+    from arlight.output import LAYER_FILES
+    from arlight.outputs_atomic import StagedOutput
 
     progressive_method(method_name)  # refuse before reading anything
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    final = Path(out_dir)
     gt = None
     if ground_truth_path is not None:
         gt = read_hdr(ground_truth_path)
@@ -175,6 +178,26 @@ def run_cli(scene: ARScene, method_name: str, settings: RenderSettings, out_dir:
         if gt.shape != want:
             raise InputError(f"ground truth is {gt.shape}, expected {want}",
                              file=str(ground_truth_path), field="ground_truth")
+    with StagedOutput(final, "render --progressive", LAYER_FILES) as out:
+        last, rows = _refine_into(out, scene, method_name, settings, time_budget, frames, gt,
+                                  console)
+    console.print(f"[green]{method_name}[/] progressive: {last.frame} frames in "
+                  f"{last.seconds:.1f} s -> {final}/progressive_{last.frame:05d}.exr")
+    if stages := format_stages(last.layers.stats):
+        console.print(f"stages of the last frame: {stages} (the scene was prepared once)")
+    if rows:
+        console.print(f"error: {rows[0][2]:.5f} -> {rows[-1][2]:.5f} "
+                      f"({final}/error.csv, {final}/error.png)")
+
+
+def _refine_into(out: Path, scene: ARScene, method_name: str, settings: RenderSettings,
+                 time_budget: float, frames: int, gt: np.ndarray | None, console
+                 ) -> tuple[RefineStep, list[tuple[int, float, float]]]:
+    """The refinement loop of :func:`run_cli`, writing its files into the folder ``out``."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from arlight.io.images import atomic_write
+
     rows: list[tuple[int, float, float]] = []
     last: RefineStep | None = None
     total = frames if frames else None
@@ -196,17 +219,12 @@ def run_cli(scene: ARScene, method_name: str, settings: RenderSettings, out_dir:
                 _snapshot(out, scene, step.image, step.frame)
     assert last is not None
     _snapshot(out, scene, last.image, last.frame)
-    console.print(f"[green]{method_name}[/] progressive: {last.frame} frames in "
-                  f"{last.seconds:.1f} s -> {out}/progressive_{last.frame:05d}.exr")
-    if stages := format_stages(last.layers.stats):
-        console.print(f"stages of the last frame: {stages} (the scene was prepared once)")
     if rows:
         with atomic_write(out / "error.csv", ".csv") as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["frame", "seconds", "rmse"])
             w.writerows(rows)
         write_error_plot(rows, out / "error.png")
-        console.print(f"error: {rows[0][2]:.5f} -> {rows[-1][2]:.5f} "
-                      f"({out}/error.csv, {out}/error.png)")
+    return last, rows
 
 

@@ -17,6 +17,7 @@ from typing import Annotated
 
 import typer
 
+from arlight.bounds import MAX_REPEATS, MAX_SEED, MAX_SPP
 from arlight.errors import InputError
 
 
@@ -39,6 +40,13 @@ def _ints(text: str, field: str) -> list[int]:
     return vals
 
 
+def _seconds_only(seconds: float):
+    """An estimate holding only a time (the eval's total over every cell)."""
+    from arlight.bounds import Estimate
+
+    return Estimate(0.0, seconds, 0.0)
+
+
 def eval_command(
     methods: Annotated[str | None, typer.Option("--methods", "-m", help="comma-separated "
                        "registered methods (default: all, see `arlight methods`)")] = None,
@@ -48,14 +56,16 @@ def eval_command(
                      "or the papers' resolutions (640×480, 960×540)")] = True,
     out: Annotated[Path, typer.Option("--out", "-o", help="report folder")] = Path(
         "eval-report"),
-    spp: Annotated[int, typer.Option("--spp", help="samples per pixel for the methods")] = 16,
+    spp: Annotated[int, typer.Option("--spp", help="samples per pixel for the methods",
+                                     min=1, max=MAX_SPP)] = 16,
     gt_spp: Annotated[int, typer.Option("--gt-spp", help="samples per pixel of the frame "
-                      "and ground truth")] = 256,
+                      "and ground truth", min=2, max=MAX_SPP)] = 256,
     repeats: Annotated[int, typer.Option("--repeats", help="timed runs per cell after one "
-                       "warm-up (median reported)")] = 3,
+                       "warm-up (median reported)", min=1, max=MAX_REPEATS)] = 3,
     sweep: Annotated[str, typer.Option("--sweep", help="spp values for the error-vs-spp/"
                      "time plots, comma-separated ('' = none)")] = "1,4,16,64",
-    seed: Annotated[int, typer.Option("--seed", help="method seed")] = 0,
+    seed: Annotated[int, typer.Option("--seed", help="method seed (0 to 2^32-1)", min=0,
+                                      max=MAX_SEED)] = 0,
     max_depth: Annotated[int, typer.Option("--max-depth", help="path depth (Mitsuba "
                          "convention)")] = 8,
     no_cache: Annotated[bool, typer.Option("--no-cache", help="render the ground truth even "
@@ -67,16 +77,20 @@ def eval_command(
     option: Annotated[list[str] | None, typer.Option("--option", help="method option "
                       "METHOD.KEY=VALUE for one method, or KEY=VALUE for every method that "
                       "has it (repeatable; see `arlight methods NAME`)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="run even when the estimated time "
+                     "or memory is beyond the limits (see docs/cli.md)")] = False,
 ) -> None:
     """Evaluate methods on the scene suite against path-traced ground truth; write a report
     (Markdown, HTML, JSON, CSV, image grids, plots)."""
     from rich.console import Console
 
+    from arlight.bounds import check_estimate, check_range, estimate
     from arlight.evaluate.harness import EvalConfig, run_evaluation
-    from arlight.evaluate.report import write_report
+    from arlight.evaluate.report import REPORT_FILES, write_report
     from arlight.evaluate.suite import get_scene, list_scenes
     from arlight.methods import available_methods
     from arlight.methods.spec import parse_option_pairs
+    from arlight.outputs_atomic import check_output_dir
 
     console = Console(stderr=True)
     if list_only:
@@ -86,11 +100,35 @@ def eval_command(
         for name, doc in available_methods().items():
             typer.echo(f"method {name:20s} {doc}")
         return
-    cfg = EvalConfig(methods=_names(methods, "methods") or list(available_methods()),
-                     scenes=_names(scenes, "scenes") or list_scenes(), quick=quick, spp=spp,
+    known_methods, known_scenes = list(available_methods()), list_scenes()
+    method_names = _names(methods, "methods") or known_methods
+    scene_names = _names(scenes, "scenes") or known_scenes
+    for field, names, known in (("--methods", method_names, known_methods),
+                                ("--scenes", scene_names, known_scenes)):
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise InputError(f"unknown {', '.join(map(repr, unknown))}; available: "
+                             f"{', '.join(known)}", field=field)
+    sweep_spp = _ints(sweep, "sweep")
+    for v in sweep_spp:
+        check_range(v, "--sweep", 1, MAX_SPP)
+    total = 0.0
+    for name in scene_names:
+        w, h = get_scene(name, quick=quick).resolution
+        one = estimate(w, h, max(spp, *sweep_spp), paths=2)
+        check_estimate(one, f"scene {name} ({w}×{h}, {spp} spp)", force)
+        gt = estimate(w, h, gt_spp, paths=2)
+        check_estimate(gt, f"the ground truth of {name} ({w}×{h}, {gt_spp} spp)", force)
+        total += gt.seconds + len(method_names) * (
+            one.seconds * (repeats + 1) + sum(estimate(w, h, s, paths=2).seconds
+                                              for s in sweep_spp))
+    check_estimate(_seconds_only(total),
+                   f"{len(scene_names)} scenes × {len(method_names)} methods", force)
+    check_output_dir(out, REPORT_FILES, 64 << 20)
+    cfg = EvalConfig(methods=method_names, scenes=scene_names, quick=quick, spp=spp,
                      gt_spp=gt_spp, repeats=repeats, seed=seed, max_depth=max_depth,
                      use_cache=not no_cache, cache_only=cache_only,
-                     sweep_spp=_ints(sweep, "sweep"),
+                     sweep_spp=sweep_spp,
                      options=parse_option_pairs(option or [], "[method.]key=value"))
     results = run_evaluation(cfg, log=console.print)
     paths = write_report(results, out)

@@ -304,9 +304,28 @@ def _json(results: EvalResults) -> str:
                              "seconds_total": results.seconds_total}), indent=2)
 
 
+REPORT_FILES = ("report.md", "index.html", "results.json", "results.csv", "grids", "plots",
+                "errors")
+"""Entries of a report folder (an existing folder of only these may be replaced)."""
+
+
 def write_report(results: EvalResults, out: str | Path) -> dict[str, Path]:
-    """Write the report folder; returns the paths of ``report.md``, ``index.html``, ...."""
+    """Write the report folder; returns the paths of ``report.md``, ``index.html``, ....
+
+    The report is staged next to ``out`` and swapped in as one set
+    (:class:`arlight.outputs_atomic.StagedOutput`): ``out`` holds the whole previous report
+    or the whole new one; a folder holding other files is refused.
+    """
+    from arlight.outputs_atomic import StagedOutput
+
     out = Path(out)
+    with StagedOutput(out, "eval", REPORT_FILES) as tmp:
+        staged = _write_report_files(results, tmp)
+    return {k: out / p.relative_to(tmp) for k, p in staged.items()}
+
+
+def _write_report_files(results: EvalResults, out: Path) -> dict[str, Path]:
+    """Write every file of the report into the folder ``out``."""
     grids: dict[str, str] = {}
     for c in results.cells:
         if c.ok and c.images:
