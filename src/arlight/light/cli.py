@@ -19,6 +19,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
+from arlight.bounds import MAX_LIGHTS, MAX_SH_HEIGHT, MAX_SH_ORDER
 from arlight.io.images import atomic_write, read_linear
 from arlight.light.estimate import LAYOUTS, LightEstimate
 from arlight.light.extract import ExtractedLight
@@ -40,8 +41,38 @@ class CliError(Exception):
 
 
 def _fail(message: str) -> None:
-    typer.echo(f"error: {message}", err=True)
+    """One line on stderr, exit status 2 (also when the sub-app runs on its own)."""
+    typer.echo(f"error: {' '.join(str(message).split())}", err=True)
     raise typer.Exit(code=2)
+
+
+def _check_number(value: float | None, option: str, lo: float, hi: float,
+                  lo_open: bool = True) -> None:
+    if value is None:
+        return
+    if not np.isfinite(value) or (value <= lo if lo_open else value < lo) or value > hi:
+        raise CliError(f"{option}: expected a finite number in {'(' if lo_open else '['}"
+                       f"{lo:g}, {hi:g}], got {value}")
+
+
+def _check_output(output: Path, inputs: list[Path], option: str = "--output") -> None:
+    """The output file: not an input, not a folder or dangling symlink, parent writable."""
+    import os
+
+    for inp in inputs:
+        if inp is not None and (output.resolve() == inp.resolve()
+                                or (output.exists() and inp.exists()
+                                    and output.samefile(inp))):
+            raise CliError(f"{option} {output}: would overwrite the input {inp}")
+    if output.is_symlink() and not output.exists():
+        raise CliError(f"{option} {output}: is a dangling symlink")
+    if output.is_dir():
+        raise CliError(f"{option} {output}: is a folder, expected a file name")
+    parent = output.parent if str(output.parent) else Path(".")
+    while not parent.exists() and parent.parent != parent:
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise CliError(f"{option} {output}: folder {parent} is not writable")
 
 
 def _parse_center(text: str | None) -> tuple[float, float] | None:
@@ -63,8 +94,19 @@ def load_environment(image: Path, kind: str, height: int | None = None,
     fraction, map for the SH remainder when it differs -- the mirrored fisheye capture)."""
     if kind not in KINDS:
         raise CliError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    from arlight.io.images import is_hdr_path
+
+    if kind in ("equirect", "probe") and not is_hdr_path(image):
+        raise CliError(f"{image}: an {kind} environment map must be HDR (.exr/.hdr/.pfm); "
+                       "an 8/16-bit picture holds display values clipped at white, not "
+                       "radiance")
+    _check_number(fov, "--fov", 0.0, 360.0)
+    _check_number(ball_radius, "--ball-radius", 0.0, 1e6)
     img = read_linear(image)
     H, W = img.shape[:2]
+    if np.any(img < 0):
+        raise CliError(f"{image}: {int(np.count_nonzero(img < 0))} negative values; radiance "
+                       "must be >= 0")
     if kind == "equirect":
         if W != 2 * H:
             raise CliError(f"{image}: an equirect map must be 2:1, got {W}x{H}")
@@ -77,6 +119,15 @@ def load_environment(image: Path, kind: str, height: int | None = None,
         center = _parse_center(ball_center)
         if center is None or ball_radius is None or ball_radius <= 0:
             raise CliError("--kind ball needs --ball-center cx,cy and --ball-radius (pixels)")
+        cx, cy = center
+        if not (np.isfinite(cx) and np.isfinite(cy)):
+            raise CliError(f"--ball-center: expected finite pixel coordinates, got {center}")
+        tol = 1.0
+        if (cx - ball_radius < -tol or cy - ball_radius < -tol
+                or cx + ball_radius > W + tol or cy + ball_radius > H + tol):
+            raise CliError(f"--ball-center/--ball-radius: the ball (centre {cx:g},{cy:g}, "
+                           f"radius {ball_radius:g} px) is not inside the {W}x{H} image "
+                           f"{image}")
         m = E.to_equirect(img, "ball", height=height, center=center, radius=ball_radius)
         return m, 1.0, None
     if fisheye_calib is not None:
@@ -124,14 +175,21 @@ def estimate(
             raise CliError(f"--layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
         if method not in ("median_cut", "variance"):
             raise CliError(f"--method: expected median_cut or variance, got {method!r}")
-        if lights < 0 or sh_order < 0:
-            raise CliError("--lights and --sh-order must be >= 0")
+        if not 0 <= lights <= MAX_LIGHTS:
+            raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
+        if not 0 <= sh_order <= MAX_SH_ORDER:
+            raise CliError(f"--sh-order: expected 0 to {MAX_SH_ORDER}, got {sh_order}")
+        if height is not None and not 2 <= height <= MAX_SH_HEIGHT:
+            raise CliError(f"--height: expected 2 to {MAX_SH_HEIGHT} pixels, got {height}")
+        _check_number(threshold, "--threshold", 0.0, 1e30)
+        inputs = [image] + ([fisheye_calib] if fisheye_calib is not None else [])
+        _check_output(output, inputs)
         env, observed, sh_map = load_environment(image, kind, height, ball_center,
                                                  ball_radius, fisheye_calib, fov, mirror_lower)
         est = LightEstimate.from_envmap(env, n_lights=lights, sh_order=sh_order,
                                         method=method, threshold=threshold,
                                         confidence=observed, sh_map=sh_map)
-        est.save(output, layout=layout)
+        est.save(output, layout=layout, protect=tuple(inputs))
     except (CliError, ValueError) as exc:
         _fail(str(exc))
     typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}, "
@@ -210,6 +268,9 @@ def show(
 ) -> None:
     """Picture a light estimate: map with the lights, SH reconstruction, irradiance."""
     try:
+        if not 0 <= lights <= MAX_LIGHTS:
+            raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
+        _check_output(output, [source] + ([fisheye_calib] if fisheye_calib else []))
         if source.suffix.lower() == ".json":
             est = LightEstimate.load(source)
         else:

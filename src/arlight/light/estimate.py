@@ -40,7 +40,9 @@ JSON layouts (:meth:`LightEstimate.to_json` / :meth:`LightEstimate.from_json`):
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -343,8 +345,17 @@ class LightEstimate:
     def from_json(cls, d: dict, layout: str | None = None,
                   base_dir: str | Path | None = None) -> LightEstimate:
         """Parse a dict written by :meth:`to_json` (or by ARCore/ARKit/WebXR apps).
-        Raises ``ValueError`` naming the offending key."""
+        Raises ``ValueError`` naming the offending key; unknown keys are errors (as in
+        scene files), and so are values of the wrong type or NaN/Inf numbers."""
         layout = layout or cls.detect_layout(d)
+        _check_keys(d, layout)
+        try:
+            return cls._from_json(d, layout, base_dir)
+        except (TypeError, AttributeError, IndexError, OverflowError) as exc:
+            raise ValueError(f"{layout} light estimate: malformed value ({exc})") from exc
+
+    @classmethod
+    def _from_json(cls, d: dict, layout: str, base_dir: str | Path | None) -> LightEstimate:
         try:
             if layout == "arlight":
                 ml = d["main_light"]
@@ -352,7 +363,7 @@ class LightEstimate:
                 if "hdr_map" in d and base_dir is not None:
                     from arlight.io.images import read_linear
 
-                    hdr = read_linear(Path(base_dir) / d["hdr_map"]["file"])
+                    hdr = read_linear(Path(base_dir) / str(d["hdr_map"]["file"]))
                 return cls(main_direction=ml["direction_to_light"],
                            main_irradiance=ml["irradiance"],
                            sh=np.asarray(d["sh"]["coefficients"], np.float64),
@@ -384,17 +395,36 @@ class LightEstimate:
             raise ValueError(f"{layout} light estimate: missing key {exc}") from exc
         raise ValueError(f"unknown layout {layout!r}; expected one of {LAYOUTS}")
 
-    def save(self, path: str | Path, layout: str = "arlight") -> Path:
+    def save(self, path: str | Path, layout: str = "arlight",
+             protect: tuple[str | Path, ...] = ()) -> Path:
         """Write JSON atomically; with ``layout="arlight"`` and an HDR map, the map goes to
-        ``<stem>.hdr.exr`` next to it (referenced relatively)."""
+        ``<stem>.<hash>.hdr.exr`` next to it (referenced relatively; ``<hash>``: 8 hex digits
+        of the map's content).
+
+        The pair is replaced as one set: the map is written first under its content-named
+        file, the JSON (which names it) replaces the old one in one rename, and only then is
+        the map of the previous JSON removed — a reader sees the old pair or the new one,
+        never a mix. Maps left by an interrupted save (named like ours, referenced by no
+        JSON) are removed by the next save. ``protect``: files that must not be overwritten
+        or removed (the inputs); a clash raises ValueError before anything is written.
+        """
         path = Path(path)
+        guarded = [Path(p) for p in protect]
+        _refuse_clash(path, guarded)
+        previous = _referenced_map(path)
         hdr_file = None
         if layout == "arlight" and self.hdr_map is not None:
-            hdr_file = f"{path.stem}.hdr.exr"
+            digest = hashlib.sha256(np.ascontiguousarray(self.hdr_map).tobytes())
+            hdr_file = f"{path.stem}.{digest.hexdigest()[:8]}.hdr.exr"
+            _refuse_clash(path.parent / hdr_file, guarded)
             self.write_hdr_map(path.parent / hdr_file)
         text = json.dumps(self.to_json(layout, hdr_file=hdr_file), indent=1)
         with atomic_write(path, ".json") as tmp:
             tmp.write_text(text)
+        for old in _side_maps(path):  # the previous pair's map and leftovers of killed saves
+            if old.name != hdr_file and not any(_same(old, g) for g in guarded) and (
+                    old.name == previous or _SIDE_MAP.fullmatch(old.name[len(path.stem):])):
+                old.unlink(missing_ok=True)
         return Path(path)
 
     @classmethod
@@ -404,6 +434,8 @@ class LightEstimate:
             d = json.loads(path.read_text())
         except FileNotFoundError as exc:
             raise ValueError(f"{path}: file not found") from exc
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from exc
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not valid JSON ({exc})") from exc
         if not isinstance(d, dict):
@@ -412,6 +444,84 @@ class LightEstimate:
             return cls.from_json(d, layout, base_dir=path.parent)
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from exc
+
+
+_KEYS = {
+    "arlight": {"format", "version", "main_light", "sh", "lights", "hdr_map", "timestamp",
+                "confidence"},
+    "arcore": {"layout", "environmentalHdrAmbientSphericalHarmonics",
+               "environmentalHdrMainLightDirection", "environmentalHdrMainLightIntensity",
+               "timestamp", "state", "confidence"},
+    "arkit": {"layout", "sphericalHarmonicsCoefficients", "primaryLightDirection",
+              "primaryLightIntensity", "timestamp", "confidence"},
+    "webxr": {"layout", "sphericalHarmonicsCoefficients", "primaryLightDirection",
+              "primaryLightIntensity", "timestamp", "confidence"},
+}
+_SUB_KEYS = {"main_light": {"direction_to_light", "irradiance"},
+             "sh": {"order", "quantity", "basis", "coefficients"},
+             "hdr_map": {"file", "mapping"}}
+_SIDE_MAP = re.compile(r"\.[0-9a-f]{8}\.hdr\.exr")
+
+
+def _check_keys(d: dict, layout: str) -> None:
+    """Unknown keys are errors (a typo must not silently drop a field)."""
+    allowed = _KEYS.get(layout)
+    if allowed is None:
+        return
+    for key in d:
+        if key not in allowed:
+            raise ValueError(f"{key}: unknown key for the {layout} layout (expected one of "
+                             f"{', '.join(sorted(allowed))})")
+    for key, sub in _SUB_KEYS.items():
+        if layout == "arlight" and key in d:
+            if not isinstance(d[key], dict):
+                raise ValueError(f"{key}: expected a table, got {type(d[key]).__name__}")
+            for k in d[key]:
+                if k not in sub:
+                    raise ValueError(f"{key}.{k}: unknown key (expected one of "
+                                     f"{', '.join(sorted(sub))})")
+    for i, lt in enumerate(d.get("lights", []) if layout == "arlight" else []):
+        if not isinstance(lt, dict):
+            raise ValueError(f"lights[{i}]: expected a table")
+        for k in lt:
+            if k not in ("direction", "irradiance", "solid_angle"):
+                raise ValueError(f"lights[{i}].{k}: unknown key")
+    if "confidence" in d and not isinstance(d["confidence"], int | float):
+        raise ValueError("confidence: expected a number")
+    if "timestamp" in d and not isinstance(d["timestamp"], int | float):
+        raise ValueError("timestamp: expected a number")
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and a.samefile(b)
+    except OSError:
+        return False
+
+
+def _refuse_clash(target: Path, protected: list[Path]) -> None:
+    for p in protected:
+        if _same(target, p) or Path(target).resolve() == Path(p).resolve():
+            raise ValueError(f"{target}: would overwrite the input {p}; choose another "
+                             "--output")
+
+
+def _referenced_map(path: Path) -> str | None:
+    """The map file named by the JSON at ``path`` (None when unreadable or absent)."""
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+        name = d["hdr_map"]["file"]
+        return name if isinstance(name, str) and "/" not in name else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _side_maps(path: Path) -> list[Path]:
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        return []
+    return [p for p in parent.iterdir() if p.name.startswith(f"{path.stem}.")
+            and p.name.endswith(".hdr.exr") and p.is_file()]
 
 
 def _floats(v, n: int) -> np.ndarray:

@@ -51,6 +51,15 @@ class FisheyeCamera:
             raise ValueError(f"fisheye distortion must have 4 coefficients, got {self.D.size}")
         self.world_from_camera = np.asarray(self.world_from_camera, np.float64).reshape(3, 3)
         self.size = (int(self.size[0]), int(self.size[1]))
+        for name, m in (("K", self.K), ("D", self.D), ("world_from_camera",
+                                                       self.world_from_camera)):
+            if not np.all(np.isfinite(m)):
+                raise ValueError(f"fisheye {name} holds NaN/Inf values")
+        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
+            raise ValueError(f"fisheye focal lengths must be > 0, got fx={self.K[0, 0]}, "
+                             f"fy={self.K[1, 1]}")
+        if min(self.size) < 1:
+            raise ValueError(f"fisheye image size must be positive, got {self.size}")
         if not 0 < self.fov_deg <= 360:
             raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg}")
 
@@ -86,11 +95,16 @@ class FisheyeCamera:
                 return cls(K=d["K"], D=d.get("D", [0, 0, 0, 0]), size=tuple(d["size"]),
                            fov_deg=float(fov_deg or d.get("fov_deg", 180.0)),
                            world_from_camera=d.get("world_from_camera", zenith_camera()))
-            except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+            except (KeyError, TypeError, ValueError, AttributeError, UnicodeDecodeError,
+                    OverflowError) as exc:
                 raise ValueError(f"{path}: bad fisheye calibration ({exc})") from exc
         import cv2
 
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        try:
+            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        except cv2.error as exc:  # a parse error of the YAML/XML
+            msg = " ".join(str(exc).split())
+            raise ValueError(f"{path}: cannot parse calibration file ({msg[-160:]})") from exc
         if not fs.isOpened():
             raise ValueError(f"{path}: cannot open calibration file")
         try:
@@ -100,12 +114,19 @@ class FisheyeCamera:
                       if not fs.getNode(k).empty()), None)
             w = fs.getNode("image_width").real()
             h = fs.getNode("image_height").real()
+        except cv2.error as exc:
+            msg = " ".join(str(exc).split())
+            raise ValueError(f"{path}: bad calibration field ({msg[-160:]})") from exc
         finally:
             fs.release()
-        if K is None or not w or not h:
+        if K is None or not w or not h or np.shape(K) != (3, 3):
             raise ValueError(f"{path}: needs camera_matrix, image_width and image_height")
         D = np.zeros(4) if D is None else np.asarray(D, np.float64).ravel()[:4]
         K = np.array(K, np.float64)
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and np.isfinite(w)
+                and np.isfinite(h) and w > 0 and h > 0):
+            raise ValueError(f"{path}: camera_matrix, distortion_coefficients and the image "
+                             "size must be finite (and the size positive)")
         K[0, 2] += 0.5  # OpenCV puts pixel centres at integers; we put them at +0.5
         K[1, 2] += 0.5
         return cls(K=K, D=np.pad(D, (0, 4 - D.size)), size=(int(w), int(h)),
