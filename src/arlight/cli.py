@@ -24,6 +24,7 @@ from rich.console import Console
 from arlight.bounds import MAX_FRAMES, MAX_SECONDS_BUDGET, MAX_SEED, MAX_SPP
 from arlight.errors import ArlightError
 from arlight.evaluate import cli as eval_cli
+from arlight.importers.cli import import_mitsuba_command
 from arlight.light import cli as light_cli
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -56,12 +57,16 @@ MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in vert
 @app.command()
 def render(
     scene: Annotated[Path, typer.Argument(help="AR scene file (.toml or .json)")],
-    method: Annotated[str, typer.Option("--method", "-m", help="registered method name "
-                                        "(see `arlight methods`)")] = "reference",
+    method: Annotated[str | None, typer.Option("--method", "-m", help="registered method "
+                      "name (see `arlight methods`; default: the scene's render table, "
+                      "else reference)")] = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")] = Path("out"),
-    spp: Spp = 64,
-    seed: Seed = 0,
-    max_depth: MaxDepth = 8,
+    frame: Annotated[Path | None, typer.Option("--frame", help="background frame image "
+                     "(LDR or HDR, the camera's size) replacing the scene's frame "
+                     "image")] = None,
+    spp: Spp = None,  # type: ignore[assignment]  # None: the scene's [render] value, else 64
+    seed: Seed = None,  # type: ignore[assignment]  # else 0
+    max_depth: MaxDepth = None,  # type: ignore[assignment]  # else 8
     option: Annotated[list[str] | None, typer.Option("--option", help="method option "
                       "key=value, e.g. reproject=false (repeatable; `arlight methods NAME` "
                       "lists them)")] = None,
@@ -76,7 +81,10 @@ def render(
                             "mode reports the error as it falls")] = None,
     force: Force = False,
 ) -> None:
-    """Run a method on an AR scene and write its layers (EXR) and composite (PNG)."""
+    """Run a method on an AR scene and write its layers (EXR) and composite (PNG).
+
+    --method, --spp, --seed, --max-depth and --option override the scene's render table.
+    """
     import numpy as np
 
     from arlight.bounds import check_estimate, check_range, estimate
@@ -84,10 +92,13 @@ def render(
     from arlight.methods.spec import parse_option_pairs
     from arlight.output import LAYER_FILES, write_layers
     from arlight.outputs_atomic import check_output_dir
-    from arlight.scene.load import load_scene
+    from arlight.scene.load import load_scene, render_settings_for
 
+    given = render_settings_for(scene, method, spp, max_depth, seed,
+                                parse_option_pairs(option or []))
+    method, spp, seed, max_depth = (given[k] for k in ("method", "spp", "seed", "max_depth"))
     settings = RenderSettings(spp=spp, seed=seed, max_depth=max_depth, progress=True,
-                              options=parse_option_pairs(option or []))
+                              options=given["options"])
     check_range(time_budget, "--time", 0, MAX_SECONDS_BUDGET, lo_open=True)
     fn = get_method(method)
     fn.spec.parse_options(settings.options)  # a bad option fails before the scene loads
@@ -95,7 +106,7 @@ def render(
         from arlight.progressive import progressive_method
 
         progressive_method(method)
-    sc = load_scene(scene)
+    sc = load_scene(scene, frame=frame)
     cam = sc.camera
     # progressive mode renders `frames` frames (a time-only budget is bounded by --time)
     est = estimate(cam.width, cam.height, spp, paths=2,
@@ -238,6 +249,7 @@ def demo(
 app.add_typer(light_cli.app, name="light", help="light estimation: SH, environment maps, "
               "probes, fisheye cameras, light extraction")
 app.command("eval")(eval_cli.eval_command)
+app.command("import-mitsuba")(import_mitsuba_command)
 
 
 def _usage_error_types() -> tuple[type[BaseException], ...]:

@@ -89,9 +89,15 @@ def _twosided(inner: Node) -> Node:
     return {"type": "twosided", "bsdf": inner}
 
 
+def _sided(inner: Node, p: dict[str, Any]) -> Node:
+    """An opaque BSDF node, wrapped in ``twosided`` unless ``two_sided = false`` (then the
+    back side is black, as a bare Mitsuba BSDF)."""
+    return _twosided(inner) if p.get("two_sided", True) else inner
+
+
 def _diffuse(p: dict[str, Any]) -> Node:
     refl = _texture(p["texture"]) if p.get("texture") else _rgb(p["albedo"])
-    return _twosided({"type": "diffuse", "reflectance": refl})
+    return _sided({"type": "diffuse", "reflectance": refl}, p)
 
 
 def _phong(p: dict[str, Any]) -> Node:
@@ -100,18 +106,18 @@ def _phong(p: dict[str, Any]) -> Node:
     def f32(c) -> list[float]:
         return [float(np.float32(x)) for x in c]
 
-    return _twosided({"type": phong_plugin_name(), "kd": f32(p["kd"]), "ks": f32(p["ks"]),
-                      "n": float(p["exponent"])})
+    return _sided({"type": phong_plugin_name(), "kd": f32(p["kd"]), "ks": f32(p["ks"]),
+                   "n": float(p["exponent"])}, p)
 
 
 def _roughconductor(p: dict[str, Any]) -> Node:
-    return _twosided({"type": "roughconductor", "distribution": "ggx", "alpha": p["alpha"],
-                      "material": "none", "specular_reflectance": _rgb(p["reflectance"])})
+    return _sided({"type": "roughconductor", "distribution": "ggx", "alpha": p["alpha"],
+                   "material": "none", "specular_reflectance": _rgb(p["reflectance"])}, p)
 
 
 def _mirror(p: dict[str, Any]) -> Node:
-    return _twosided({"type": "conductor", "material": "none",
-                      "specular_reflectance": _rgb(p["reflectance"])})
+    return _sided({"type": "conductor", "material": "none",
+                   "specular_reflectance": _rgb(p["reflectance"])}, p)
 
 
 def _glass(p: dict[str, Any]) -> Node:
@@ -131,7 +137,8 @@ MATERIALS: dict[str, Callable[[dict[str, Any]], Node]] = {
     "glass": _glass,
     "roughdielectric": _roughdielectric,
 }
-"""Material type -> BSDF node from the material's ``params`` (opaque materials two-sided)."""
+"""Material type -> BSDF node from the material's ``params`` (opaque materials two-sided
+unless ``two_sided = false``; dielectrics have two sides by nature)."""
 
 
 def phong_plugin_name() -> str:

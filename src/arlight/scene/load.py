@@ -8,6 +8,7 @@ paths are relative to the scene file.
 
 from __future__ import annotations
 
+import copy
 import json
 import tomllib
 from collections.abc import Callable
@@ -24,7 +25,8 @@ from arlight.scene.schema import Validator
 from arlight.transfer import Transfer
 
 FORMAT = "arlight-scene/1"
-TOP_LEVEL = {"format", "camera", "frame", "materials", "shapes", "lights", "description"}
+TOP_LEVEL = {"format", "camera", "frame", "materials", "shapes", "lights", "description",
+             "render"}
 PATH_KEYS = ("file", "image", "texture", "depth")  # fields holding paths (made absolute in raw)
 
 
@@ -40,10 +42,14 @@ def _read_file(path: str | Path) -> tuple[dict[str, Any], Path]:
     return data, path
 
 
-def load_scene(path: str | Path) -> ARScene:
-    """Load and validate a scene file; raise :class:`InputError` naming file and field."""
+def load_scene(path: str | Path, frame: str | Path | None = None) -> ARScene:
+    """Load and validate a scene file; raise :class:`InputError` naming file and field.
+
+    ``frame``: an image that replaces the file's ``[frame] image`` (see
+    :func:`with_frame_file`)."""
     data, path = _read_file(path)
-    return parse_scene(data, base_dir=path.parent, file=str(path))
+    scene = parse_scene(data, base_dir=path.parent, file=str(path))
+    return scene if frame is None else with_frame_file(scene, frame)
 
 
 def load_world(path: str | Path) -> World:
@@ -91,6 +97,8 @@ def parse_world(data: dict[str, Any], base_dir: str | Path = ".",
     if dup:
         raise v.fail("shapes", f"duplicate shape name {sorted(dup)[0]!r}")
     lights = [_light(v, x, i) for i, x in enumerate(_array(v, data, "lights"))]
+    if "render" in data:
+        render_table(v, data["render"])
     return World(shapes=shapes, lights=lights,
                  source=Path(file) if file != "<scene>" else None,
                  raw=_canonical_raw(data, v.base_dir))
@@ -119,6 +127,76 @@ def parse_view(data: dict[str, Any], base_dir: str | Path = ".",
     return view
 
 
+def render_table(v: Validator, tab: Any) -> dict[str, Any]:
+    """The validated ``[render]`` table: only the keys it gives (see
+    :data:`arlight.scene.schema.RENDER_FIELDS`); ``options`` is a table of scalars."""
+    tab = v.table(tab, "render")
+    out = v.fields(tab, schema.RENDER_FIELDS, "render")
+    if out["max_depth"] == 0:
+        raise v.fail("render.max_depth", "must be -1 or >= 1, got 0")
+    opts = v.table(out["options"], "render.options")
+    for key, x in opts.items():
+        if not isinstance(x, str | bool | int | float):
+            raise v.fail(f"render.options.{key}", f"expected a string, number or boolean, "
+                         f"got {x!r}")
+    return {k: x for k, x in out.items() if k in tab}
+
+
+def render_defaults(scene: ARScene | World) -> dict[str, Any]:
+    """The render settings a scene file stores in ``[render]`` (``method``, ``spp``,
+    ``max_depth``, ``seed``, ``options``): only those it gives, already validated."""
+    tab = scene.raw.get("render")
+    if tab is None:
+        return {}
+    file = str(scene.source) if scene.source else "<scene>"
+    return render_table(Validator(file, Path(".")), tab)
+
+
+RENDER_DEFAULTS: dict[str, Any] = {"method": "reference", "spp": 64, "max_depth": 8, "seed": 0}
+"""Render settings used when neither the command line nor the scene's ``[render]`` gives
+them (documented in :data:`arlight.scene.schema.RENDER_FIELDS`)."""
+
+
+def read_render_table(path: str | Path) -> dict[str, Any]:
+    """The validated ``[render]`` table of a scene file (only the keys it gives), read
+    without loading the rest of the scene (so a bad option can fail before any work)."""
+    data, path = _read_file(path)
+    v = _validator(data, path.parent, str(path))
+    return render_table(v, data["render"]) if "render" in data else {}
+
+
+def render_settings_for(path: str | Path, method: str | None = None, spp: int | None = None,
+                        max_depth: int | None = None, seed: int | None = None,
+                        options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Render settings for a scene file: what the caller gives (not None) wins over the
+    file's ``[render]`` table, which wins over :data:`RENDER_DEFAULTS`. ``options`` merge
+    key by key (the caller's win). Returns ``method, spp, max_depth, seed, options``."""
+    tab = read_render_table(path)
+    given = {"method": method, "spp": spp, "max_depth": max_depth, "seed": seed}
+    out = {k: given[k] if given[k] is not None else tab.get(k, RENDER_DEFAULTS[k])
+           for k in RENDER_DEFAULTS}
+    out["options"] = {**tab.get("options", {}), **(options or {})}
+    return out
+
+
+def with_frame_file(scene: ARScene, path: str | Path) -> ARScene:
+    """``scene`` with its background frame replaced by the image at ``path`` (as the
+    ``--frame`` option does); read like ``[frame] image``, errors name ``--frame``."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("file not found", file=str(p), field="--frame")
+    v = Validator(str(p), p.parent.resolve())
+    try:
+        frame, codes = _read_frame(v, scene.camera, str(p.resolve()))
+    except InputError as exc:
+        raise InputError(exc.message, file=str(p), field="--frame") from exc
+    out = scene.with_frame(frame, codes)
+    raw = copy.deepcopy(scene.raw)
+    raw.setdefault("frame", {})["image"] = str(p.resolve())
+    out.raw = raw
+    return out
+
+
 def _array(v: Validator, data: dict, key: str) -> list[dict]:
     items = data.get(key, [])
     if not isinstance(items, list):
@@ -142,10 +220,13 @@ def _camera(v: Validator, tab: dict) -> Camera:
         for key in ("origin", "target"):
             if key not in la:
                 raise v.fail(f"camera.look_at.{key}", "missing required field")
+        point = schema.Field("vec3", schema.REQUIRED, min=-schema.MAX_LENGTH,
+                             max=schema.MAX_LENGTH)
+        origin = v.value(la["origin"], point, "camera.look_at.origin")
+        target = v.value(la["target"], point, "camera.look_at.target")
+        up = v.vector(la.get("up", [0, 1, 0]), 3, "camera.look_at.up")
         try:
-            pose = look_at(v.vector(la["origin"], 3, "camera.look_at.origin"),
-                           v.vector(la["target"], 3, "camera.look_at.target"),
-                           v.vector(la.get("up", [0, 1, 0]), 3, "camera.look_at.up"))
+            pose = look_at(origin, target, up)
         except ValueError as exc:
             raise v.fail("camera.look_at", str(exc)) from exc
     else:
@@ -156,9 +237,10 @@ def _camera(v: Validator, tab: dict) -> Camera:
               transfer=Transfer(c["transfer"], c["gamma"], c["exposure"]))
     if c["intrinsics"] is not None:
         k = v.table(c["intrinsics"], "camera.intrinsics")
-        spec = schema.Field("float", schema.REQUIRED, min=0.0, exclusive_min=True)
-        f = v.fields(k, {"fx": spec, "fy": spec, "cx": schema.Field("float"),
-                         "cy": schema.Field("float")}, "camera.intrinsics")
+        spec = schema.Field("float", schema.REQUIRED, min=0.0, exclusive_min=True, max=1e9)
+        centre = schema.Field("float", schema.REQUIRED, min=-1e9, max=1e9)
+        f = v.fields(k, {"fx": spec, "fy": spec, "cx": centre, "cy": centre},
+                     "camera.intrinsics")
         return Camera(w, h, f["fx"], f["fy"], f["cx"], f["cy"], **kw)
     return Camera.from_fov(w, h, c["fov_y_deg"], **kw)
 
@@ -183,18 +265,37 @@ def _material(v: Validator, tab: dict, name: str, field: str) -> Material:
     return Material(name=name, type=mtype, params=params)
 
 
+def _check_texture(v: Validator, p: dict, field: str) -> None:
+    """Decode the albedo texture now, so a bad file fails validation, not the render."""
+    if not p.get("texture"):
+        return
+    from arlight.io.images import read_linear
+
+    try:
+        img = read_linear(p["texture"])
+    except InputError as exc:
+        raise v.fail(f"{field}.texture", f"{exc.message} ({p['texture']})") from exc
+    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 1:
+        raise v.fail(f"{field}.texture", f"expected an RGB image, got shape {img.shape} "
+                     f"({p['texture']})")
+    if np.any(img < 0):
+        raise v.fail(f"{field}.texture", f"negative values in {p['texture']}")
+
+
 def _check_phong(v: Validator, p: dict, field: str) -> None:
     if any(a + b > 1.0 + 1e-9 for a, b in zip(p["kd"], p["ks"], strict=True)):
         raise v.fail(f"{field}.ks", "k_d + k_s must not exceed 1 (energy conservation)")
 
 
 # Checks across fields that a field table cannot express, one entry per material type.
-_MATERIAL_CHECKS: dict[str, Callable[[Validator, dict, str], None]] = {"phong": _check_phong}
+_MATERIAL_CHECKS: dict[str, Callable[[Validator, dict, str], None]] = {
+    "phong": _check_phong, "diffuse": _check_texture}
 
 
 def _materials(v: Validator, tab: Any) -> dict[str, Material]:
     tab = v.table(tab, "materials")
-    out = {"default": Material("default", "diffuse", {"albedo": [0.5] * 3, "texture": None})}
+    out = {"default": Material("default", "diffuse", {"albedo": [0.5] * 3, "texture": None,
+                                                      "two_sided": True})}
     for name, m in tab.items():
         out[name] = _material(v, m, name, f"materials.{name}")
     return out
@@ -214,21 +315,46 @@ def transform_matrix(v: Validator, tab: Any, field: str) -> np.ndarray:
         if abs(np.linalg.det(m[:3, :3])) < 1e-12 or not np.allclose(m[3], [0, 0, 0, 1]):
             raise v.fail(f"{field}.matrix", "must be an invertible affine matrix")
         return m
+    spec = schema.TRANSFORM_FIELDS
     scale = tab.get("scale", 1.0)
-    s = [v.number(scale, f"{field}.scale")] * 3 if not isinstance(scale, list) \
-        else v.vector(scale, 3, f"{field}.scale")
-    if any(x == 0 for x in s):
-        raise v.fail(f"{field}.scale", "scale must not be zero")
+    s = v.value([scale] * 3 if isinstance(scale, int | float) and not isinstance(scale, bool)
+                else scale, spec["scale"], f"{field}.scale")
+    if any(abs(x) < 1e-6 for x in s):
+        raise v.fail(f"{field}.scale", f"scale factors must be at least 1e-6 in magnitude "
+                     f"(zero flattens the shape), got {s}")
     m = np.diag([*s, 1.0])
-    rots = tab.get("rotate", [])
-    if rots and not isinstance(rots[0], list):
-        rots = [rots]
-    for i, r in enumerate(rots):
-        ax, ay, az, deg = v.vector(r, 4, f"{field}.rotate[{i}]")
-        m = _rotation([ax, ay, az], np.radians(deg), v, f"{field}.rotate[{i}]") @ m
+    for path, axis, deg in _rotations(v, tab.get("rotate", []), f"{field}.rotate"):
+        m = _rotation(axis, np.radians(deg), v, path) @ m
     t = np.eye(4)
-    t[:3, 3] = v.vector(tab.get("translate", [0, 0, 0]), 3, f"{field}.translate")
+    t[:3, 3] = v.value(tab.get("translate", [0.0, 0.0, 0.0]), spec["translate"],
+                       f"{field}.translate")
     return t @ m
+
+
+def _rotations(v: Validator, rots: Any, field: str) -> list[tuple[str, list[float], float]]:
+    """``(field, axis, angle_deg)`` of every rotation in a ``rotate`` value: one
+    ``[ax, ay, az, deg]`` or ``{axis, angle}``, or a list of them (applied in order)."""
+    if isinstance(rots, dict) or (isinstance(rots, list) and rots
+                                  and not isinstance(rots[0], list | dict)):
+        items, paths = [rots], [field]
+    elif isinstance(rots, list):
+        items, paths = rots, [f"{field}[{i}]" for i in range(len(rots))]
+    else:
+        raise v.fail(field, f"expected [ax, ay, az, angle_deg], {{axis = [...], angle = ...}} "
+                     f"or a list of them, got {rots!r}")
+    out = []
+    for r, path in zip(items, paths, strict=True):
+        if isinstance(r, dict):
+            v.check_keys(r, {"axis", "angle"}, path)
+            for key in ("axis", "angle"):
+                if key not in r:
+                    raise v.fail(f"{path}.{key}", "missing required field")
+            axis = v.vector(r["axis"], 3, f"{path}.axis")
+            deg = v.number(r["angle"], f"{path}.angle")
+        else:
+            *axis, deg = v.vector(r, 4, path)
+        out.append((path, axis, deg))
+    return out
 
 
 def _rotation(axis, angle: float, v: Validator | None = None, field: str = "") -> np.ndarray:
@@ -343,12 +469,24 @@ LightParts = tuple[dict[str, Any], np.ndarray | None]
 
 def _envmap_light(v: Validator, p: dict, field: str) -> LightParts:
     """Reads the map and resamples angular probes to equirect (Mitsuba's layout)."""
-    from arlight.io.images import read_hdr
+    from arlight.io.images import is_hdr_path, read_hdr
 
+    if not is_hdr_path(p["file"]):
+        raise v.fail(f"{field}.file", f"an environment map must be an HDR image (EXR or .hdr) "
+                     f"of linear radiance, got {p['file']}")
     try:
         img = read_hdr(p["file"])
     except InputError as exc:
         raise v.fail(f"{field}.file", exc.message + f" ({p['file']})") from exc
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise v.fail(f"{field}.file", f"expected an RGB image, got shape {img.shape} "
+                     f"({p['file']})")
+    h, w = img.shape[:2]
+    if p["mapping"] == "equirect" and w != 2 * h:
+        raise v.fail(f"{field}.file", f"an equirect map is twice as wide as high, got {w}×{h} "
+                     f"({p['file']}); a square probe needs `mapping = \"angular\"`")
+    if p["mapping"] == "angular" and w != h:
+        raise v.fail(f"{field}.file", f"an angular map is square, got {w}×{h} ({p['file']})")
     if np.any(img < 0):
         raise v.fail(f"{field}.file", f"negative radiance in {p['file']}")
     if p["mapping"] != "equirect":

@@ -16,6 +16,7 @@ written atomically; the TOML last, so a reader never sees a scene whose frame is
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -85,6 +86,8 @@ def scene_to_dict(scene: ARScene, base_dir: str | Path,
         out["materials"] = materials
     out["shapes"] = shapes
     out["lights"] = [_light_dict(x, base) for x in scene.lights]
+    if scene.raw.get("render"):
+        out["render"] = copy.deepcopy(scene.raw["render"])
     return out
 
 

@@ -42,56 +42,72 @@ class Field:
 
 _RGB_REFL = dict(min=0.0, max=1.0)
 
+MAX_LENGTH = 1.0e6
+"""Largest length or coordinate a scene may hold, metres (1000 km): beyond it float32
+geometry loses the precision rendering needs, and objects silently vanish."""
+MAX_SCALE = 1.0e6
+"""Largest magnitude of a transform's scale factors and matrix entries (smallest: 1e-6)."""
+_POS = dict(min=-MAX_LENGTH, max=MAX_LENGTH)  # coordinates, metres
+_LEN = dict(min=0.0, max=MAX_LENGTH, exclusive_min=True)  # positive lengths, metres
+_TWO_SIDED = Field("bool", True, "both sides reflect (false: the back side is black, as "
+                   "Mitsuba's BSDFs without `twosided`)")
+
 MATERIAL_TYPES: dict[str, dict[str, Field]] = {
     "diffuse": {
         "albedo": Field("rgb", 0.5, "Lambertian reflectance", "", **_RGB_REFL),
         "texture": Field("path", None, "albedo texture; LDR files are sRGB-decoded, HDR files "
-                         "are linear; replaces `albedo` (needs UVs)"),
+                         "are linear; replaces `albedo` (needs UVs); decoded on load"),
+        "two_sided": _TWO_SIDED,
     },
     "phong": {
         "kd": Field("rgb", 0.5, "diffuse reflectivity k_d (Kán Eq. 2.6)", "", **_RGB_REFL),
         "ks": Field("rgb", 0.0, "specular reflectivity k_s; k_d + k_s <= 1 per channel", "",
                     **_RGB_REFL),
-        "exponent": Field("float", 20.0, "Phong shininess n", "", min=0.0),
+        "exponent": Field("float", 20.0, "Phong shininess n", "", min=0.0, max=1e6),
+        "two_sided": _TWO_SIDED,
     },
     "roughconductor": {
         "alpha": Field("float", 0.1, "GGX roughness α", "", min=1e-4, max=1.0),
         "reflectance": Field("rgb", 0.9, "constant (Fresnel) reflectance", "", **_RGB_REFL),
+        "two_sided": _TWO_SIDED,
     },
     "roughdielectric": {
         "alpha": Field("float", 0.1, "GGX roughness α", "", min=1e-4, max=1.0),
         "ior": Field("float", 1.5, "interior index of refraction", "", min=1e-3,
-                     exclusive_min=True),
-        "ext_ior": Field("float", 1.0, "exterior index of refraction", "", min=1e-3),
+                     exclusive_min=True, max=100.0),
+        "ext_ior": Field("float", 1.0, "exterior index of refraction (Mitsuba's default is "
+                         "air, 1.000277; ours is vacuum)", "", min=1e-3, max=100.0),
     },
     "mirror": {
         "reflectance": Field("rgb", 1.0, "perfect specular reflectance", "", **_RGB_REFL),
+        "two_sided": _TWO_SIDED,
     },
     "glass": {
         "ior": Field("float", 1.5, "index of refraction of a smooth dielectric (1 = "
-                     "invisible)", "", min=1e-3),
-        "ext_ior": Field("float", 1.0, "exterior index of refraction", "", min=1e-3),
+                     "invisible)", "", min=1e-3, max=100.0),
+        "ext_ior": Field("float", 1.0, "exterior index of refraction (Mitsuba's default is "
+                         "air, 1.000277; ours is vacuum)", "", min=1e-3, max=100.0),
     },
 }
 
 SHAPE_TYPES: dict[str, dict[str, Field]] = {
     "rectangle": {
-        "size": Field("vec2", [1.0, 1.0], "side lengths along local x and y", "m", min=0.0,
-                      exclusive_min=True),
+        "size": Field("vec2", [1.0, 1.0], "full side lengths along local x and y (Mitsuba's "
+                      "`rectangle` spans [-1, 1]²: half-size 1)", "m", **_LEN),
         "normal": Field("vec3", [0.0, 0.0, 1.0], "front normal before `transform` (the local "
                         "+z axis is turned onto it)"),
     },
     "disk": {
-        "radius": Field("float", 0.5, "radius", "m", min=0.0, exclusive_min=True),
+        "radius": Field("float", 0.5, "radius", "m", **_LEN),
         "normal": Field("vec3", [0.0, 0.0, 1.0], "front normal before `transform`"),
     },
     "box": {
-        "size": Field("vec3", [1.0, 1.0, 1.0], "side lengths along local x, y, z (centred on "
-                      "the origin)", "m", min=0.0, exclusive_min=True),
+        "size": Field("vec3", [1.0, 1.0, 1.0], "full side lengths along local x, y, z, centred "
+                      "on the origin (Mitsuba's `cube` spans [-1, 1]³)", "m", **_LEN),
     },
     "sphere": {
-        "radius": Field("float", 0.5, "radius (centred on the origin)", "m", min=0.0,
-                        exclusive_min=True),
+        "radius": Field("float", 0.5, "radius (centred on the origin; Mitsuba's `center` "
+                        "becomes `transform.translate`)", "m", **_LEN),
     },
     "mesh": {
         "file": Field("path", REQUIRED, "PLY, OBJ, glTF/GLB, STL or OFF file (read by trimesh)"),
@@ -115,40 +131,49 @@ SHAPE_COMMON: dict[str, Field] = {
 }
 
 TRANSFORM_FIELDS: dict[str, Field] = {
-    "scale": Field("vec3", [1.0, 1.0, 1.0], "scale (a number or three), applied first"),
-    "rotate": Field("table", [], "rotations `[ax, ay, az, angle_deg]` (one or a list), applied "
-                    "in order after scaling"),
-    "translate": Field("vec3", [0.0, 0.0, 0.0], "translation, applied last", "m"),
-    "matrix": Field("mat4", None, "full 4×4 object-to-world matrix (excludes the others)"),
+    "scale": Field("vec3", [1.0, 1.0, 1.0], "scale (a number or three), applied first; "
+                   "1e-6 <= abs <= 1e6", min=-MAX_SCALE, max=MAX_SCALE),
+    "rotate": Field("table", [], "rotations after scaling, applied in list order: "
+                    "`[ax, ay, az, angle_deg]` or `{axis = [ax, ay, az], angle = deg}`, one "
+                    "or a list; right-handed: counter-clockwise looking down the axis towards "
+                    "the origin (as Mitsuba's `rotate`)", "deg"),
+    "translate": Field("vec3", [0.0, 0.0, 0.0], "translation, applied last", "m", **_POS),
+    "matrix": Field("mat4", None, "full 4×4 object-to-world matrix (excludes the others; "
+                    "entries within ±1e6)", min=-MAX_SCALE, max=MAX_SCALE),
 }
 
 LIGHT_TYPES: dict[str, dict[str, Field]] = {
     "envmap": {
-        "file": Field("path", REQUIRED, "HDR image (EXR or Radiance .hdr), linear radiance"),
-        "mapping": Field("choice", "equirect", "`equirect` (latitude-longitude) or `angular` "
-                         "(Debevec light probe)", choices=("equirect", "angular")),
-        "scale": Field("float", 1.0, "radiance multiplier", "", min=0.0),
-        "rotation_deg": Field("float", 0.0, "rotation about +Y (world up)", "deg"),
+        "file": Field("path", REQUIRED, "HDR image (EXR or Radiance .hdr), linear radiance; "
+                      "decoded and checked on load"),
+        "mapping": Field("choice", "equirect", "`equirect` (latitude-longitude, width = 2 × "
+                         "height) or `angular` (Debevec light probe, square)",
+                         choices=("equirect", "angular")),
+        "scale": Field("float", 1.0, "radiance multiplier", "", min=0.0, max=1e12),
+        "rotation_deg": Field("float", 0.0, "rotation of the map about world +Y, right-handed "
+                              "(counter-clockwise seen from above): Mitsuba's `to_world = "
+                              "rotate(0, 1, 0, angle)`", "deg", min=-1e6, max=1e6),
     },
     "sh": {
         "coefficients": Field("rgb_list", REQUIRED, "real SH coefficients of radiance, "
                               "(L+1)² RGB rows, index l(l+1)+m", "W/(sr·m²)"),
-        "scale": Field("float", 1.0, "radiance multiplier", "", min=0.0),
-        "rotation_deg": Field("float", 0.0, "rotation about +Y (world up)", "deg"),
+        "scale": Field("float", 1.0, "radiance multiplier", "", min=0.0, max=1e12),
+        "rotation_deg": Field("float", 0.0, "rotation about world +Y, as for `envmap`", "deg",
+                              min=-1e6, max=1e6),
         "resolution": Field("int", 64, "height of the equirect map the SH is rendered into",
-                            "px", min=4),
+                            "px", min=4, max=4096),
     },
     "constant": {
         "radiance": Field("rgb", REQUIRED, "radiance of a uniform environment", "W/(sr·m²)",
                           min=0.0),
     },
     "point": {
-        "position": Field("vec3", REQUIRED, "position", "m"),
+        "position": Field("vec3", REQUIRED, "position", "m", **_POS),
         "intensity": Field("rgb", REQUIRED, "radiant intensity", "W/sr", min=0.0),
     },
     "spot": {
-        "position": Field("vec3", REQUIRED, "position", "m"),
-        "target": Field("vec3", REQUIRED, "point the spot is aimed at", "m"),
+        "position": Field("vec3", REQUIRED, "position", "m", **_POS),
+        "target": Field("vec3", REQUIRED, "point the spot is aimed at", "m", **_POS),
         "intensity": Field("rgb", REQUIRED, "radiant intensity on the axis", "W/sr", min=0.0),
         "cutoff_deg": Field("float", 20.0, "half angle where the light ends", "deg", min=0.0,
                             max=90.0, exclusive_min=True),
@@ -161,8 +186,7 @@ LIGHT_TYPES: dict[str, dict[str, Field]] = {
                             "W/m²", min=0.0),
     },
     "area": {
-        "size": Field("vec2", [1.0, 1.0], "rectangle side lengths", "m", min=0.0,
-                      exclusive_min=True),
+        "size": Field("vec2", [1.0, 1.0], "full rectangle side lengths", "m", **_LEN),
         "normal": Field("vec3", [0.0, 0.0, 1.0], "emitting side's normal before `transform`"),
         "transform": Field("table", None, "placement, see Transforms"),
         "radiance": Field("rgb", REQUIRED, "emitted radiance (front side)", "W/(sr·m²)",
@@ -176,18 +200,20 @@ CAMERA_FIELDS: dict[str, Field] = {
                        min=0.0, max=179.0, exclusive_min=True),
     "intrinsics": Field("table", None, "OpenCV `{fx, fy, cx, cy}` in pixels"),
     "look_at": Field("table", None, "`{origin, target, up}` (or give `world_from_camera`)"),
-    "world_from_camera": Field("mat4", None, "4×4 camera-to-world pose, OpenCV axes"),
+    "world_from_camera": Field("mat4", None, "4×4 camera-to-world pose, OpenCV axes", "m",
+                               **_POS),
     "aperture_radius": Field("float", 0.0, "thin-lens aperture radius (0 = pinhole)", "m",
-                             min=0.0),
+                             min=0.0, max=1e3),
     "focus_distance": Field("float", 1.0, "distance of the focal plane along the view axis",
-                            "m", min=0.0, exclusive_min=True),
+                            "m", **_LEN),
     "aperture_shape": Field("choice", "disk", "`disk` or Kán's `square`",
                             choices=("disk", "square")),
     "transfer": Field("choice", "srgb", "frame transfer function",
                       choices=("srgb", "gamma", "linear")),
     "gamma": Field("float", 2.2, "exponent for `transfer = \"gamma\"`", "", min=0.0,
-                   exclusive_min=True),
-    "exposure": Field("float", 0.0, "display = transfer(radiance · 2^exposure)", "EV"),
+                   exclusive_min=True, max=10.0),
+    "exposure": Field("float", 0.0, "display = transfer(radiance · 2^exposure)", "EV",
+                      min=-64.0, max=64.0),
 }
 
 FRAME_FIELDS: dict[str, Field] = {
@@ -200,6 +226,20 @@ FRAME_FIELDS: dict[str, Field] = {
                                "transform}` (see Transforms), applied on the left of the "
                                "shape's own transform (a world-space motion)"),
 }
+
+
+RENDER_FIELDS: dict[str, Field] = {
+    "method": Field("str", None, "method to render with (`arlight methods`; default "
+                    "`reference`)"),
+    "spp": Field("int", None, "samples per pixel (default 64)", "", min=1, max=1 << 20),
+    "max_depth": Field("int", None, "longest path in vertices, Mitsuba's convention (2 = "
+                       "direct light only, -1 = unlimited; default 8)", "", min=-1, max=1024),
+    "seed": Field("int", None, "random seed (default 0)", "", min=0, max=2**32 - 1),
+    "options": Field("table", {}, "method options `{key = value}` (`arlight methods NAME`); "
+                     "checked against the method when rendering"),
+}
+"""The optional ``[render]`` table: how the scene is meant to be rendered. Command-line
+flags given explicitly override these; absent ones fall back to the defaults shown."""
 
 
 class Validator:
@@ -273,6 +313,9 @@ class Validator:
             if not isinstance(value, list) or len(value) != 4:
                 raise self.fail(field, "expected a 4×4 nested list")
             m = np.array([self.vector(r, 4, f"{field}[{i}]") for i, r in enumerate(value)])
+            for i, row in enumerate(m):
+                for x in row:
+                    self._range(float(x), spec, f"{field}[{i}]")
             return m.tolist()
         if k == "bool":
             if not isinstance(value, bool):
@@ -317,16 +360,27 @@ class Validator:
         return out
 
 
+def field_range(spec: Field) -> str:
+    """The allowed range of a numeric field as text (``(0, 1e+06]``), or "" if unbounded."""
+    if spec.min is None and spec.max is None:
+        return ""
+    lo = "−∞" if spec.min is None else f"{spec.min:g}"
+    hi = "∞" if spec.max is None else f"{spec.max:g}"
+    return f"{'(' if spec.exclusive_min else '['}{lo}, {hi}{']' if spec.max is not None else ')'}"
+
+
 def schema_markdown() -> str:
     """The field reference of the scene format as Markdown tables (for docs/scene-format.md)."""
 
     def rows(specs: dict[str, Field]) -> list[str]:
-        lines = ["| field | kind | default | unit | meaning |", "|---|---|---|---|---|"]
+        lines = ["| field | kind | default | unit | range | meaning |",
+                 "|---|---|---|---|---|---|"]
         for name, s in specs.items():
             default = "required" if s.default is REQUIRED else (
                 "—" if s.default is None else f"`{s.default}`")
             kind = s.kind if not s.choices else " \\| ".join(f"`{c}`" for c in s.choices)
-            lines.append(f"| `{name}` | {kind} | {default} | {s.unit} | {s.doc} |")
+            lines.append(f"| `{name}` | {kind} | {default} | {s.unit} | {field_range(s)} | "
+                         f"{s.doc} |")
         return lines
 
     out = ["## [camera]", "", *rows(CAMERA_FIELDS), "", "## [frame]", "", *rows(FRAME_FIELDS),
@@ -334,6 +388,7 @@ def schema_markdown() -> str:
     for name, specs in SHAPE_TYPES.items():
         out += [f"### shape `type = \"{name}\"`", "", *rows(specs), ""]
     out += ["## Transforms", "", *rows(TRANSFORM_FIELDS), ""]
+    out += ["## [render]", "", *rows(RENDER_FIELDS), ""]
     for name, specs in MATERIAL_TYPES.items():
         out += [f"## material `type = \"{name}\"`", "", *rows(specs), ""]
     for name, specs in LIGHT_TYPES.items():

@@ -1,0 +1,1 @@
+"""Importers: scenes of other renderers translated into arlight worlds."""
