@@ -48,6 +48,7 @@ ENTRY_POINT_GROUP = "arlight.methods"
 BUILTINS: dict[str, str] = {
     "reference": "arlight.methods.reference:ReferenceMethod",
     "onepass": "arlight.methods.onepass:OnePassMethod",
+    "dlpv": "arlight.methods.dlpv:DLPVMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 

@@ -1,0 +1,248 @@
+"""``dlpv``: Delta Light Propagation Volumes (Franke 2013, ISMAR; thesis §5.3).
+
+Per frame and per reduced light (:mod:`arlight.realtime.light_reduction`):
+
+1. two reflective shadow maps from the same light rays, ``R_ρ`` (mixed scene) and ``R_µ``
+   (real proxy only) (§4.3);
+2. **indirect split injection** into the delta volume ``V_Δ`` (Eq. 13): every ``R_ρ`` texel's
+   VPL ``Φ_p/π <n_p, ω>+`` (Eq. 12) added, every ``R_µ`` texel's subtracted, texels that see
+   the same surface in both maps eliminated; each VPL moved half a cell along its normal
+   before its cell is chosen (§4.3.1);
+3. **direct injection** (§4.3.2): the same texels again, with the light's flux ``Φ_r`` as a
+   lobe along the light's direction of travel (the negative incident direction), moved half a
+   cell towards the light — direct antiradiance;
+4. the regular LPV ``V_ρ`` injected with ``R_ρ``'s VPLs (indirect light on the virtual
+   object);
+5. [KD10] propagation of both volumes (32 steps), with the directional-derivative dampening
+   of §4.4 (option);
+6. composition (Alg. 1, thesis §5.3.4): virtual pixels ``ρ/π (E_direct + E_{V_ρ} +
+   E_ambient)`` with shadow rays to the reduced lights; real pixels ``B + ρ/π E_{V_Δ}``,
+   the volume evaluated with the inverse normal (cosine-convolved, :func:`~arlight.realtime.
+   sh_volume.query_irradiance`) at the point moved half a cell along its normal.
+
+The volume is a world-axis-aligned cube around the virtual objects, ``volume_scale`` (2) ×
+their largest bounding-box edge, its centre snapped to the cell lattice. Layers: ``mixed``
+is the shaded virtual object on virtual pixels and ``B + delta`` elsewhere (the method has no
+``I_r``); ``delta`` is the DLPV term; ``mask`` the G-buffer coverage.
+
+Stats: ``time_gbuffer``, ``time_rsm``, ``time_inject_rho``, ``time_inject_delta_indirect``,
+``time_inject_delta_direct``, ``time_propagate_rho``, ``time_propagate_delta``,
+``time_shade``, ``time_assemble`` (s); ``lights``, ``vpls_delta`` (texels injected into
+``V_Δ``), ``volume_cell`` (m). See ``docs/methods/dlpv.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import SceneViews, build_views
+from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.gbuffer import GBuffer, render_gbuffer, resolve, resolve_scalar
+from arlight.realtime.light_reduction import LightSet, reduce_lights
+from arlight.realtime.rsm import RSM, check_memory, light_rays, render_rsm, shared_texels
+from arlight.realtime.sh_volume import Grid, SHVolume, inject, propagate, query_irradiance
+from arlight.realtime.shading import ambient_irradiance, direct_irradiance, virtual_bounds
+from arlight.scene.model import FrameView, World
+from arlight.timing import StageTimer
+
+OPTIONS: dict[str, Field] = {
+    "volume_size": Field("int", 32, "cells per edge of V_Δ and V_ρ (Franke: 32³)", "cells",
+                         min=2, max=256),
+    "steps": Field("int", 32, "propagation iterations (Franke: 32)", "", min=0, max=1024),
+    "rsm_size": Field("int", 512, "RSM resolution per light, texels per side (Franke: 512²)",
+                      "texels", min=1, max=16384),
+    "dampening": Field("bool", True, "directional-derivative dampening of shadow bleeding "
+                       "(Franke §4.4)"),
+    "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
+                           "§4.3.2); off: indirect change only"),
+    "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
+                          "bounding box (Franke: 2)", "", min=1.0, max=100.0),
+    "env_lights": Field("int", 4, "directional lights extracted from an environment map's "
+                        "highlights (median cut); the rest is SH ambient", "", min=0, max=256),
+    "area_grid": Field("int", 1, "cosine point lights per side of an area light", "", min=1,
+                       max=16),
+    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
+                         max=64),
+}
+
+
+SPEC = MethodSpec(
+    name="dlpv",
+    description="Delta Light Propagation Volumes (Franke 2013): one SH volume of the change "
+                "of light, real time.",
+    options=OPTIONS,
+    capabilities=Capabilities(interactive=True),
+)
+
+
+@dataclass
+class DLPVData:
+    """What ``prepare_world`` keeps: the world, its Mitsuba views, the reduced lights and the
+    volume grid (None without virtual objects)."""
+
+    world: World
+    views: SceneViews
+    lights: LightSet
+    grid: Grid | None
+
+
+@dataclass
+class Volumes:
+    """The volumes of one frame and how many VPL texels went into ``V_Δ``."""
+
+    delta: SHVolume | None
+    rho: SHVolume | None
+    vpls_delta: int
+
+
+def prepare(world: World, options: Options) -> DLPVData:
+    """Mitsuba views, reduced lights and the volume placement of ``world``."""
+    check_memory(options.rsm_size)
+    views = build_views(world)
+    lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
+    bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
+    grid = None if bounds is None else Grid.around(*bounds, n=options.volume_size,
+                                                     scale=options.volume_scale)
+    return DLPVData(world, views, lights, grid)
+
+
+def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[tuple[RSM, RSM]]:
+    """``(R_ρ, R_µ)`` per reduced light (directional maps cover the volume)."""
+    bounds = (grid.centre, grid.size * np.sqrt(3.0) / 2.0)
+    out = []
+    for lt in data.lights.lights:
+        rays = light_rays(lt, res, bounds)
+        out.append((render_rsm(data.views.mixed, rays), render_rsm(data.views.real, rays)))
+    return out
+
+
+def inject_delta(vol: SHVolume, pairs: list[tuple[RSM, RSM]], direct: bool,
+                 indirect: bool = True, eliminate: bool = True) -> int:
+    """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``; shared texels
+    skipped when ``eliminate``. Returns the texels injected (VPL pairs, per kind)."""
+    half = 0.5 * vol.grid.cell
+    count = 0
+    for r_rho, r_mu in pairs:
+        keep = ~shared_texels(r_rho, r_mu) if eliminate else mi.Bool(True)
+        for r, sign in ((r_rho, 1.0), (r_mu, -1.0)):
+            act = r.valid & keep
+            if indirect:
+                count += inject(vol, r.position, r.normal, r.flux_out * sign, act,
+                                offset=r.normal * half)
+            if direct:
+                inject(vol, r.position, r.direction, r.flux_in * sign, act,
+                       offset=r.direction * (-half))
+    return count
+
+
+def inject_regular(vol: SHVolume, pairs: list[tuple[RSM, RSM]], which: int = 0,
+                   direct: bool = False) -> int:
+    """A regular LPV: every VPL of ``R_ρ`` (``which=0``) or ``R_µ`` (``which=1``), and with
+    ``direct`` also the direct lobes (the two-volume baseline of the linearity test)."""
+    half = 0.5 * vol.grid.cell
+    count = 0
+    for pair in pairs:
+        r = pair[which]
+        count += inject(vol, r.position, r.normal, r.flux_out, r.valid, offset=r.normal * half)
+        if direct:
+            inject(vol, r.position, r.direction, r.flux_in, r.valid,
+                   offset=r.direction * (-half))
+    return count
+
+
+def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = None
+                  ) -> Volumes:
+    """RSMs, injections and propagation of one frame (the stages of Franke Table 5.2)."""
+    timer = timer or StageTimer()
+    grid = data.grid
+    if grid is None or not data.lights.lights:
+        return Volumes(None, None, 0)
+    with timer.stage("rsm"):
+        pairs = rsm_pair(data, grid, options.rsm_size)
+    with timer.stage("inject_rho"):
+        v_rho = SHVolume.zeros(grid)
+        inject_regular(v_rho, pairs, 0)
+    with timer.stage("inject_delta_indirect"):
+        v_delta = SHVolume.zeros(grid)
+        n = inject_delta(v_delta, pairs, direct=False)
+    if options.direct_inject:
+        with timer.stage("inject_delta_direct"):
+            inject_delta(v_delta, pairs, direct=True, indirect=False)
+    with timer.stage("propagate_rho"):
+        v_rho = propagate(v_rho, options.steps, options.dampening)
+    with timer.stage("propagate_delta"):
+        v_delta = propagate(v_delta, options.steps, options.dampening)
+    return Volumes(v_delta, v_rho, n)
+
+
+def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Color3f]:
+    """Per-lane ``(virtual radiance, delta radiance)`` (Alg. 1 / Eqs. 5.14–5.16)."""
+    virt = gb.virtual
+    real = gb.valid & ~virt
+    e_dir = direct_irradiance(data.views.mixed, data.lights, gb.position, gb.normal, virt)
+    e_amb_np = ambient_irradiance(data.lights, np.array(gb.normal, np.float64).reshape(3, -1).T)
+    e_amb = mi.Color3f(*(np.ascontiguousarray(e_amb_np[:, c], np.float32) for c in range(3)))
+    e_ind = mi.Color3f(0.0)
+    delta = mi.Color3f(0.0)
+    if vols.rho is not None:
+        half = 0.5 * vols.rho.grid.cell
+        q = gb.position + gb.normal * half  # [KD10]: look up half a cell off the surface
+        e_ind = query_irradiance(vols.rho, q, gb.normal, virt)
+        delta = gb.albedo * (1.0 / np.pi) * query_irradiance(vols.delta, q, gb.normal, real)
+    mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_dir + e_ind + e_amb),
+                      mi.Color3f(0.0))
+    delta = dr.select(real, delta, mi.Color3f(0.0))
+    dr.eval(mixed, delta)
+    return mixed, delta
+
+
+def assemble(gb: GBuffer, frame: np.ndarray, mixed: mi.Color3f, delta: mi.Color3f,
+             stats: dict) -> Layers:
+    """Per-pixel layers from per-sample shading: ``mask`` = virtual fraction, ``mixed`` =
+    mean over virtual samples (``B + delta`` where none), ``delta`` = mean over the other
+    samples, so the composite is the per-sample composite's mean."""
+    virt = resolve_scalar(gb, mi.Float(gb.virtual))
+    n_v = virt * gb.spp
+    n_r = gb.spp - n_v
+    sum_m = resolve(gb, mixed) * gb.spp
+    sum_d = resolve(gb, delta) * gb.spp
+    bg = np.asarray(frame, np.float64)
+    d = np.where(n_r[..., None] > 0, sum_d / np.maximum(n_r, 1)[..., None], 0.0)
+    m = np.where(n_v[..., None] > 0, sum_m / np.maximum(n_v, 1)[..., None], bg + d)
+    return Layers.assemble(bg, m, d, virt, stats=stats)
+
+
+class DLPVMethod(BaseMethod):
+    """Delta Light Propagation Volumes (Franke 2013)."""
+
+    spec = SPEC
+
+    def prepare_world(self, world: World, options: Options, settings: RenderSettings
+                      ) -> DLPVData:
+        return prepare(world, options)
+
+    def render_view(self, data: DLPVData, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        with timer.stage("gbuffer"):
+            gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp,
+                                settings.seed)
+        vols = build_volumes(data, options, timer)
+        with timer.stage("shade"):
+            mixed, delta = shade(data, gb, vols)
+        with timer.stage("assemble"):
+            stats = {"lights": float(len(data.lights.lights)),
+                     "vpls_delta": float(vols.vpls_delta),
+                     "volume_cell": data.grid.cell if data.grid else 0.0}
+            layers = assemble(gb, view.frame, mixed, delta, stats)
+        if not data.world.has_virtual:
+            assert not np.any(layers.delta), "dlpv: delta must vanish without virtual objects"
+        return layers
+
+
+__all__ = ["DLPVData", "DLPVMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
+           "inject_delta", "inject_regular", "prepare", "rsm_pair"]

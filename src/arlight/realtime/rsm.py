@@ -1,0 +1,165 @@
+"""Reflective shadow maps (Dachsbacher & Stamminger 2005) by ray casting from the light.
+
+An RSM of ``N × N`` texels stores, per texel, the surface the light sees first: position,
+normal (turned towards the light), diffuse albedo, role, the flux that reaches it ``Φ_r``
+(W) and the flux it reflects ``Φ_p = ρ Φ_r`` (W) — every texel is a diffuse VPL (Franke
+§2.5, Eq. 12). The texel → direction maps are equal-measure, so every texel of one light
+carries the same share of its emission:
+
+* ``point``: uniform sphere (``mi.warp.square_to_uniform_sphere``), ``Φ_r = I · 4π/N²``;
+* ``cosine`` (area-light patch): Malley's cosine-weighted hemisphere around the normal,
+  ``Φ_r = I0 · π/N²`` (equal projected solid angle per texel);
+* ``spot``: uniform cone of the cutoff angle, ``Φ_r = I0 · falloff(θ) · 2π(1−cos θ_c)/N²``;
+* ``directional``: an orthographic ``N × N`` grid over the disk that covers ``bounds`` (a
+  bounding sphere), ``Φ_r = E · (2r/N)²``.
+
+The same rays are cast into the mixed view (``R_ρ``) and the real-only view (``R_µ``)
+(Franke §4.3: "the same process is repeated for a second RSM R^µ"), so a texel whose ray
+hits the same real surface in both carries bit-identical values.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_MISS, SceneView
+from arlight.errors import InputError
+from arlight.realtime.gbuffer import facing, surface_albedo
+from arlight.realtime.light_reduction import ReducedLight
+
+BYTES_PER_TEXEL = 4 * 32
+"""Rough memory per RSM texel while it is built (rays, interaction, outputs), bytes."""
+
+
+@dataclass
+class LightRays:
+    """The ``N²`` rays of one light's RSM and the flux each carries (W, RGB)."""
+
+    origin: mi.Point3f
+    direction: mi.Vector3f
+    flux: mi.Color3f
+    res: int
+
+
+@dataclass
+class RSM:
+    """One reflective shadow map (Dr.Jit arrays of ``res²`` texels).
+
+    Attributes:
+        position, normal, albedo: the surface each texel sees (normal towards the light).
+        role: −1 miss, 0 real, 1 virtual. shape: shape index (−1 miss).
+        t: ray distance (m). direction: unit direction of the light's ray (travel).
+        flux_in: ``Φ_r`` (W) reaching the texel's surface; 0 on a miss.
+        flux_out: ``Φ_p = ρ Φ_r`` (W), the VPL's flux.
+    """
+
+    position: mi.Point3f
+    normal: mi.Vector3f
+    albedo: mi.Color3f
+    role: mi.Int32
+    shape: mi.Int32
+    t: mi.Float
+    direction: mi.Vector3f
+    flux_in: mi.Color3f
+    flux_out: mi.Color3f
+    res: int
+
+    @property
+    def valid(self) -> mi.Bool:
+        return self.role != ROLE_MISS
+
+
+def check_memory(res: int, count: int = 2) -> None:
+    """InputError (field ``options.rsm_size``) when ``count`` RSMs of ``res²`` texels would
+    not fit in the available memory (``MemAvailable`` of ``/proc/meminfo``)."""
+    need = BYTES_PER_TEXEL * res * res * count
+    avail = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+    except OSError:  # pragma: no cover - not Linux
+        return
+    if avail is not None and need > avail:
+        raise InputError(f"{count} RSMs of {res}² texels need about {need / 2**30:.1f} GiB; "
+                         f"{avail / 2**30:.1f} GiB available", field="options.rsm_size")
+
+
+def _texel_uv(res: int) -> mi.Point2f:
+    i = dr.arange(mi.UInt32, res * res)
+    u = (mi.Float(i % res) + 0.5) / res
+    v = (mi.Float(i // res) + 0.5) / res
+    return mi.Point2f(u, v)
+
+
+def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float]) -> LightRays:
+    """The rays of ``light``'s RSM. ``bounds``: (centre, radius) of the region a
+    directional light's map must cover (m)."""
+    uv = _texel_uv(res)
+    i0 = mi.Color3f(*[float(x) for x in light.intensity])
+    pos = mi.Point3f(*[float(x) for x in light.position])
+    if light.kind == "point":
+        d = mi.warp.square_to_uniform_sphere(uv)
+        flux = i0 * (4.0 * math.pi / res**2)
+        origin = dr.zeros(mi.Point3f, res * res) + pos
+    elif light.kind in ("cosine", "spot"):
+        frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in light.axis]))
+        if light.kind == "cosine":
+            local = mi.warp.square_to_cosine_hemisphere(uv)
+            flux = i0 * (math.pi / res**2)
+        else:
+            local = mi.warp.square_to_uniform_cone(uv, float(light.cos_cutoff))
+            cut, beam = math.acos(light.cos_cutoff), math.acos(light.cos_beam)
+            ang = dr.acos(dr.clip(local.z, -1.0, 1.0))
+            width = max(cut - beam, 1e-9)
+            fall = dr.select(local.z >= light.cos_beam, 1.0, dr.clip((cut - ang) / width, 0.0,
+                                                                       1.0))
+            flux = i0 * (fall * (2.0 * math.pi * (1.0 - light.cos_cutoff) / res**2))
+        d = frame.to_world(local)
+        origin = dr.zeros(mi.Point3f, res * res) + pos
+    else:
+        centre, radius = bounds
+        axis = np.asarray(light.axis, np.float64)
+        frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
+        r = float(radius)
+        local = mi.Vector3f((2.0 * uv.x - 1.0) * r, (2.0 * uv.y - 1.0) * r, 0.0)
+        start = np.asarray(centre, np.float64) - axis * (4.0 * r + 1.0)
+        origin = mi.Point3f(*[float(x) for x in start]) + frame.to_world(local)
+        d = dr.zeros(mi.Vector3f, res * res) + mi.Vector3f(*[float(x) for x in axis])
+        flux = i0 * ((2.0 * r / res) ** 2)
+    flux = dr.zeros(mi.Color3f, res * res) + flux
+    dr.eval(origin, d, flux)
+    return LightRays(origin, d, flux, res)
+
+
+def render_rsm(view: SceneView, rays: LightRays) -> RSM:
+    """Cast ``rays`` into ``view``: the RSM of that view (``R_ρ`` for ``views.mixed``,
+    ``R_µ`` for ``views.real``)."""
+    ray = mi.Ray3f(rays.origin, rays.direction)
+    si = view.scene.ray_intersect(ray)
+    valid = si.is_valid()
+    role = view.hit_role(si)
+    shape = view.hit_shape(si)
+    n = facing(si.sh_frame.n, -ray.d)
+    albedo = surface_albedo(si, valid)
+    flux_in = dr.select(valid, rays.flux, mi.Color3f(0.0))
+    flux_out = flux_in * albedo
+    t = dr.select(valid, si.t, dr.inf)
+    pos = mi.Point3f(si.p)
+    dr.eval(pos, n, albedo, role, shape, t, flux_in, flux_out)
+    return RSM(pos, n, albedo, role, shape, t, mi.Vector3f(ray.d), flux_in, flux_out, rays.res)
+
+
+def shared_texels(a: RSM, b: RSM) -> mi.Bool:
+    """Texels that see the same surface point in both maps (same shape and distance): their
+    VPLs cancel in a delta (Franke §4.3.1: "VPLs visible in both RSMs are eliminated")."""
+    return (a.shape == b.shape) & ((a.t == b.t) | ((a.role == ROLE_MISS) & (b.role == ROLE_MISS)))
+
+
+__all__ = ["RSM", "LightRays", "check_memory", "light_rays", "render_rsm", "shared_texels"]

@@ -1,0 +1,349 @@
+"""2-band (4-coefficient) RGB spherical-harmonic volumes: light propagation volumes (LPVs).
+
+A volume holds, per cell, the radiant intensity ``I(ω)`` (W/sr) of the light in that cell as
+2-band real SH, one coefficient vector per colour channel (Kaplanyan & Dachsbacher 2010,
+"Cascaded light propagation volumes" [KD10]; Franke 2013 §4.2, thesis §5.3.1: "three RGBA 3-D
+textures"). Coefficients are ordered ``l(l+1)+m`` and use the basis of
+:mod:`arlight.sphere.sh` (polar axis +y): ``Y_00 = 0.282095``,
+``(Y_1-1, Y_10, Y_11) = 0.488603 · (−x, y, z)``.
+
+* :func:`cosine_lobe` — SH of a clamped cosine lobe ``<d, ω>+`` (the shape of every injected
+  VPL, Franke Eq. 12, and of the reprojected face fluxes of [KD10]).
+* :func:`inject` — scatter-add lobes of given flux at points (Dr.Jit).
+* :func:`propagation_matrices` / :func:`propagate` — [KD10] face-flux propagation as a
+  gather: each cell collects, from each of its 6 neighbours, the flux that crosses the 5
+  faces of the cell not shared with that neighbour, evaluated from the neighbour's SH towards
+  each face centre, multiplied by the face's solid angle and reprojected as a cosine lobe
+  through that face. The whole step is linear: one 4×4 matrix per axis direction. Optional
+  dampening by the directional derivative of the intensity (Franke §4.4, [KD10]).
+  :func:`propagate_numpy` is the plain NumPy peer (same maths, for tests and benchmarks).
+* :func:`query_irradiance` — trilinear lookup and the irradiance a surface of normal ``n``
+  receives: the SH evaluated "with the inverse normal" (Franke Alg. 1) after convolution with
+  the clamped cosine, ``E(n) = Σ_l Â_l Σ_m c_lm Y_lm(−n) / s²`` with ``Â_0 = π``,
+  ``Â_1 = 2π/3`` and ``s`` the cell size (radiance ≈ intensity / s², [KD10]).
+
+Units: positions in metres (world), flux in W, intensities in W/sr, irradiance in W/m².
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+Y00 = 0.5 / math.sqrt(math.pi)
+"""``Y_00 = 1/(2√π) ≈ 0.282095``."""
+Y1 = math.sqrt(3.0 / (4.0 * math.pi))
+"""Band-1 normalisation ``√(3/4π) ≈ 0.488603``."""
+COS_LOBE_0 = math.sqrt(math.pi) / 2.0
+"""SH band-0 coefficient of the clamped cosine ``<d, ω>+``: ``√π/2 ≈ 0.886227``."""
+COS_LOBE_1 = math.sqrt(math.pi / 3.0)
+"""Band-1 factor of the clamped cosine: ``√(π/3) ≈ 1.023328`` (times ``Y_1m(d)/Y1``)."""
+A_HAT = (math.pi, 2.0 * math.pi / 3.0)
+"""Clamped-cosine convolution weights ``Â_0 = π``, ``Â_1 = 2π/3`` (Ramamoorthi & Hanrahan)."""
+
+AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]],
+                dtype=np.int64)
+"""The 6 propagation directions (source → destination offsets), in this order."""
+
+
+def basis(d: np.ndarray) -> np.ndarray:
+    """2-band SH basis ``(..., 4)`` of unit directions ``d (..., 3)`` (NumPy)."""
+    d = np.asarray(d, np.float64)
+    return np.stack([np.full(d.shape[:-1], Y00), -Y1 * d[..., 0], Y1 * d[..., 1],
+                     Y1 * d[..., 2]], axis=-1)
+
+
+def cosine_lobe(d: np.ndarray) -> np.ndarray:
+    """SH coefficients ``(..., 4)`` of ``<d, ω>+`` for unit ``d``; ``∫ <d,ω>+ dω = π``."""
+    b = basis(d)
+    return np.concatenate([np.full(b.shape[:-1] + (1,), COS_LOBE_0),
+                           b[..., 1:] * (COS_LOBE_1 / Y1)], axis=-1)
+
+
+def rect_solid_angle(dist: float, a: float, b: float) -> float:
+    """Solid angle (sr) of an ``2a × 2b`` rectangle centred on the axis at distance ``dist``:
+    ``4 atan(ab / (d √(d² + a² + b²)))``."""
+    return 4.0 * math.atan(a * b / (dist * math.sqrt(dist * dist + a * a + b * b)))
+
+
+def face_solid_angles() -> tuple[float, float]:
+    """[KD10] solid angles (sr) of the destination cell's faces seen from the source centre:
+    the far face at 1.5 cells (``≈ 0.4006697``) and each of the 4 side faces
+    (``≈ 0.4234414``); together they subtend the shared face, ``2π/3``."""
+    front = rect_solid_angle(1.5, 0.5, 0.5)
+    side = (2.0 * math.pi / 3.0 - front) / 4.0
+    return front, side
+
+
+def propagation_matrices() -> np.ndarray:
+    """``(6, 4, 4)`` matrices ``M_d``: the coefficients a cell receives from its neighbour at
+    ``−AXES[d]`` are ``M_d @ c_neighbour`` ([KD10] §5.2).
+
+    For each of the 5 faces f (far face: evaluation direction ``ω_f = d``, reprojection
+    normal ``d``; side face with axis ``s``: ``ω_f = normalize(d + s/2)``, normal ``s``), the
+    flux through f is ``Φ_f = Δω_f · I(ω_f)`` (W) and re-enters the destination as the lobe
+    ``Φ_f/π · <n_f, ω>+``: ``M_d = Σ_f (Δω_f/π) cosine_lobe(n_f) ⊗ basis(ω_f)``.
+    The band-0 row sums to exactly 1 over the 6 directions: flux is conserved.
+    """
+    front, side = face_solid_angles()
+    out = np.zeros((6, 4, 4))
+    for k, d in enumerate(AXES.astype(np.float64)):
+        out[k] += front / math.pi * np.outer(cosine_lobe(d), basis(d))
+        for s in AXES.astype(np.float64):
+            if abs(s @ d) > 0.5:
+                continue
+            w = (d + 0.5 * s) / np.linalg.norm(d + 0.5 * s)
+            out[k] += side / math.pi * np.outer(cosine_lobe(s), basis(w))
+    return out
+
+
+@dataclass(frozen=True)
+class Grid:
+    """An axis-aligned cubic grid of ``n³`` cells of size ``cell`` (m) from ``origin``."""
+
+    origin: np.ndarray
+    cell: float
+    n: int
+
+    @property
+    def size(self) -> float:
+        """Edge length of the volume, metres."""
+        return self.cell * self.n
+
+    @property
+    def centre(self) -> np.ndarray:
+        return self.origin + 0.5 * self.size
+
+    @staticmethod
+    def around(lo: np.ndarray, hi: np.ndarray, n: int, scale: float = 2.0) -> Grid:
+        """Franke's placement (thesis §4.4.1, §5.3): a cube of edge ``scale`` × the largest
+        edge of the bounding box ``[lo, hi]``, world-axis aligned, its centre snapped to the
+        cell lattice so that small motions of the object do not shift the cells (the volume
+        stays axis-stable)."""
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        edge = max(float(np.max(hi - lo)), 1e-6) * scale
+        cell = edge / n
+        centre = np.round((lo + hi) / 2.0 / cell) * cell
+        return Grid(origin=centre - edge / 2.0, cell=cell, n=int(n))
+
+
+@dataclass
+class SHVolume:
+    """``n³`` cells × 4 SH coefficients × RGB: ``coeffs[k]`` is a ``mi.Color3f`` of ``n³``
+    entries, cell ``(i, j, l)`` at flat index ``i + n (j + n l)`` (x fastest)."""
+
+    grid: Grid
+    coeffs: list
+
+    @staticmethod
+    def zeros(grid: Grid) -> SHVolume:
+        m = grid.n ** 3
+        return SHVolume(grid, [dr.zeros(mi.Color3f, m) for _ in range(4)])
+
+    def numpy(self) -> np.ndarray:
+        """``(n, n, n, 4, 3)`` float64 array indexed ``[z, y, x, k, c]``."""
+        n = self.grid.n
+        arr = np.stack([np.array(c, dtype=np.float64).reshape(3, -1).T for c in self.coeffs],
+                       axis=1)
+        return arr.reshape(n, n, n, 4, 3)
+
+    @staticmethod
+    def from_numpy(grid: Grid, arr: np.ndarray) -> SHVolume:
+        n = grid.n
+        flat = np.asarray(arr, np.float32).reshape(n ** 3, 4, 3)
+        return SHVolume(grid, [mi.Color3f(*(np.ascontiguousarray(flat[:, k, c])
+                                             for c in range(3))) for k in range(4)])
+
+    def total_flux(self) -> np.ndarray:
+        """``∫ I dω`` summed over cells, RGB (W): ``Σ c_00 · √(4π)``."""
+        return _channel_sums(self.coeffs[0]) * math.sqrt(4.0 * math.pi)
+
+
+def _channel_sums(c: mi.Color3f) -> np.ndarray:
+    """Sum over lanes of each channel, float64 ``(3,)``."""
+    return np.array([float(np.sum(np.array(ch, dtype=np.float64))) for ch in (c.x, c.y, c.z)])
+
+
+def cell_index(grid: Grid, p: mi.Point3f) -> tuple[mi.UInt32, mi.Bool]:
+    """Flat cell index of world points and whether they lie inside the volume."""
+    inv = 1.0 / grid.cell
+    o = [float(x) for x in grid.origin]
+    ix = mi.Int32(dr.floor((p.x - o[0]) * inv))
+    iy = mi.Int32(dr.floor((p.y - o[1]) * inv))
+    iz = mi.Int32(dr.floor((p.z - o[2]) * inv))
+    n = grid.n
+    inside = (ix >= 0) & (iy >= 0) & (iz >= 0) & (ix < n) & (iy < n) & (iz < n)
+    return mi.UInt32(ix + n * (iy + n * iz)), inside
+
+
+def inject(vol: SHVolume, position: mi.Point3f, direction: mi.Vector3f, flux: mi.Color3f,
+           active: mi.Bool, offset: mi.Vector3f | None = None) -> int:
+    """Add cosine lobes ``flux/π · <direction, ω>+`` (Franke Eq. 12) into ``vol`` (in place).
+
+    Each lobe goes into the cell containing ``position + offset`` (Franke §4.3.1: "half the
+    size of a voxel along its normal"); lobes outside the volume are dropped. Negative
+    ``flux`` injects antiradiance (Eq. 13: ``R_µ`` texels enter with a minus sign).
+    Returns the number of lobes injected.
+    """
+    p = position if offset is None else position + offset
+    idx, inside = cell_index(vol.grid, p)
+    act = active & inside
+    scale = flux * (1.0 / math.pi)
+    c0 = scale * COS_LOBE_0
+    f1 = COS_LOBE_1
+    vals = [c0, scale * (-f1 * direction.x), scale * (f1 * direction.y),
+            scale * (f1 * direction.z)]
+    for k in range(4):
+        dr.scatter_reduce(dr.ReduceOp.Add, vol.coeffs[k], vals[k], idx, act)
+    dr.eval(vol.coeffs)
+    return int(dr.count(act)[0]) if dr.width(act) else 0
+
+
+def _neighbour_tables(n: int) -> list[tuple[mi.UInt32, mi.Bool]]:
+    """Per axis direction d: for each destination cell, the index of the source cell
+    ``dest − d`` and whether it exists."""
+    m = n ** 3
+    lin = dr.arange(mi.UInt32, m)
+    x, y, z = mi.Int32(lin % n), mi.Int32((lin // n) % n), mi.Int32(lin // (n * n))
+    out = []
+    for d in AXES:
+        sx, sy, sz = x - int(d[0]), y - int(d[1]), z - int(d[2])
+        ok = (sx >= 0) & (sy >= 0) & (sz >= 0) & (sx < n) & (sy < n) & (sz < n)
+        idx = mi.UInt32(dr.select(ok, sx + n * (sy + n * sz), 0))
+        dr.eval(idx, ok)
+        out.append((idx, ok))
+    return out
+
+
+def _luminance(c: mi.Color3f) -> mi.Float:
+    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+
+
+def propagate(vol: SHVolume, steps: int, dampening: bool = False,
+              stats: dict | None = None) -> SHVolume:
+    """``steps`` iterations of [KD10] propagation; returns the accumulated volume
+    ``Σ_{k=0..steps} P^k V_0`` (the injected light plus every propagated step, as the LPV's
+    "accumulated result of all iterations", Franke §4.2).
+
+    ``dampening`` (Franke §4.4, thesis §5.3.3; [KD10]'s light-bleeding heuristic, our exact
+    reading): the contribution a cell receives from its neighbour along ``d`` is scaled by
+    ``1 − max(0, g)`` with ``g = (|Y(d)·c_dst| − |Y(d)·c_src|) / (|Y(d)·c_dst| + |Y(d)·c_src|)``
+    (luminance of the intensity towards ``d`` in the current step's wavefront): light that
+    would flow towards a cell already carrying more intensity in that direction (back into
+    the surface it came from, or across a sharp negative/positive edge) is damped, uniform
+    regions pass unchanged. The factor depends on ratios only, so the result still scales
+    linearly with the light; without dampening every step is exactly linear.
+
+    ``stats`` (optional dict) receives ``flux_per_step``: total flux of each wavefront.
+    """
+    grid = vol.grid
+    mats = propagation_matrices()
+    tables = _neighbour_tables(grid.n)
+    cur = [mi.Color3f(c) for c in vol.coeffs]
+    acc = [mi.Color3f(c) for c in vol.coeffs]
+    dirs = AXES.astype(np.float64)
+    fluxes = []
+    for _ in range(int(steps)):
+        new = [dr.zeros(mi.Color3f, grid.n ** 3) for _ in range(4)]
+        if dampening:
+            toward = [basis(d) for d in dirs]
+            own = [_luminance(sum((cur[k] * float(toward[a][k]) for k in range(4)),
+                                  mi.Color3f(0.0))) for a in range(6)]
+        for a, (idx, ok) in enumerate(tables):
+            src = [dr.gather(mi.Color3f, cur[k], idx, ok) for k in range(4)]
+            m = mats[a]
+            w = None
+            if dampening:
+                i_src = dr.abs(dr.gather(mi.Float, own[a], idx, ok))
+                i_dst = dr.abs(own[a])
+                den = i_src + i_dst
+                g = dr.select(den > 0, (i_dst - i_src) / dr.select(den > 0, den, 1.0), 0.0)
+                w = 1.0 - dr.maximum(g, 0.0)
+            for r in range(4):
+                term = src[0] * float(m[r, 0])
+                for k in range(1, 4):
+                    if m[r, k] != 0.0:
+                        term = term + src[k] * float(m[r, k])
+                new[r] = new[r] + (term if w is None else term * w)
+        dr.eval(new)
+        cur = new
+        acc = [acc[k] + cur[k] for k in range(4)]
+        dr.eval(acc)
+        if stats is not None:
+            fluxes.append(_channel_sums(cur[0]) * math.sqrt(4 * math.pi))
+    if stats is not None:
+        stats["flux_per_step"] = fluxes
+    return SHVolume(grid, acc)
+
+
+def propagate_numpy(arr: np.ndarray, steps: int) -> np.ndarray:
+    """Plain NumPy peer of :func:`propagate` without dampening: ``arr`` is ``(n, n, n, 4, C)``
+    indexed ``[z, y, x, k, c]``; returns the accumulated volume (same maths, float64)."""
+    mats = propagation_matrices()
+    cur = np.asarray(arr, np.float64)
+    acc = cur.copy()
+    for _ in range(int(steps)):
+        new = np.zeros_like(cur)
+        for a, d in enumerate(AXES):
+            moved = mats[a] @ cur  # (4, 4) @ (n, n, n, 4, C)
+            # destination (x, y, z) receives from source (x, y, z) − d
+            sl_dst = [slice(None)] * 3
+            sl_src = [slice(None)] * 3
+            for ax_xyz, ax_arr in ((0, 2), (1, 1), (2, 0)):
+                s = int(d[ax_xyz])
+                if s > 0:
+                    sl_dst[ax_arr], sl_src[ax_arr] = slice(s, None), slice(None, -s)
+                elif s < 0:
+                    sl_dst[ax_arr], sl_src[ax_arr] = slice(None, s), slice(-s, None)
+            new[tuple(sl_dst)] += moved[tuple(sl_src)]
+        cur = new
+        acc += cur
+    return acc
+
+
+def query_irradiance(vol: SHVolume, p: mi.Point3f, n: mi.Vector3f,
+                     active: mi.Bool | bool = True) -> mi.Color3f:
+    """Irradiance (W/m², RGB) at points ``p`` with unit normals ``n`` from the light in the
+    volume: trilinear interpolation of the cell coefficients (cell centres), then
+    ``E = Σ_l Â_l c_lm Y_lm(−n) / s²`` (Franke Alg. 1 evaluates "with the inverse normal";
+    [KD10]: radiance ≈ intensity / s²). Zero outside the volume (Franke's cut-off)."""
+    g = vol.grid
+    n_ = g.n
+    inv = 1.0 / g.cell
+    o = [float(x) for x in g.origin]
+    fx = (p.x - o[0]) * inv - 0.5
+    fy = (p.y - o[1]) * inv - 0.5
+    fz = (p.z - o[2]) * inv - 0.5
+    inside = (fx > -0.5) & (fy > -0.5) & (fz > -0.5) & (fx < n_ - 0.5) & (fy < n_ - 0.5) & (
+        fz < n_ - 0.5) & active
+    x0 = dr.clip(mi.Int32(dr.floor(fx)), 0, n_ - 1)
+    y0 = dr.clip(mi.Int32(dr.floor(fy)), 0, n_ - 1)
+    z0 = dr.clip(mi.Int32(dr.floor(fz)), 0, n_ - 1)
+    tx = dr.clip(fx - mi.Float(x0), 0.0, 1.0)
+    ty = dr.clip(fy - mi.Float(y0), 0.0, 1.0)
+    tz = dr.clip(fz - mi.Float(z0), 0.0, 1.0)
+    x1, y1, z1 = dr.minimum(x0 + 1, n_ - 1), dr.minimum(y0 + 1, n_ - 1), dr.minimum(z0 + 1,
+                                                                                     n_ - 1)
+    w0 = A_HAT[0] * Y00
+    w1 = A_HAT[1] * Y1
+    sh_w = [mi.Float(w0), -w1 * (-n.x), w1 * (-n.y), w1 * (-n.z)]
+    out = mi.Color3f(0.0)
+    for cx, wx in ((x0, 1.0 - tx), (x1, tx)):
+        for cy, wy in ((y0, 1.0 - ty), (y1, ty)):
+            for cz, wz in ((z0, 1.0 - tz), (z1, tz)):
+                idx = mi.UInt32(cx + n_ * (cy + n_ * cz))
+                w = wx * wy * wz
+                e = mi.Color3f(0.0)
+                for k in range(4):
+                    e = e + dr.gather(mi.Color3f, vol.coeffs[k], idx, inside) * sh_w[k]
+                out = out + e * w
+    return dr.select(inside, out * (inv * inv), mi.Color3f(0.0))
+
+
+__all__ = ["AXES", "Grid", "SHVolume", "basis", "cell_index", "cosine_lobe",
+           "face_solid_angles", "inject", "propagate", "propagate_numpy",
+           "propagation_matrices", "query_irradiance", "rect_solid_angle"]

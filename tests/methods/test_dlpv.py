@@ -1,0 +1,153 @@
+"""``dlpv`` (Franke 2013): exact identities of the delta volume and the method's contract.
+
+Each test names the wrong implementation it rejects."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from arlight.errors import InputError
+from arlight.methods import RenderSettings, get_method
+from arlight.methods.dlpv import (
+    SPEC,
+    build_volumes,
+    inject_delta,
+    inject_regular,
+    prepare,
+    rsm_pair,
+)
+from arlight.realtime.sh_volume import SHVolume, propagate
+from arlight.scene.load import parse_scene
+from tests.conftest import LOOK
+
+SMALL = {"volume_size": 16, "steps": 8, "rsm_size": 64}
+
+
+def box_scene(virtual: bool = True, light: str = "point", w: int = 40, h: int = 30) -> dict:
+    """A white floor and a grey back wall; a red virtual cube on the floor; one light."""
+    shapes = [
+        {"name": "floor", "role": "real", "type": "rectangle", "size": [3, 3],
+         "normal": [0, 1, 0], "material": {"type": "diffuse", "albedo": 0.8}},
+        {"name": "wall", "role": "real", "type": "rectangle", "size": [3, 2],
+         "transform": {"translate": [0, 1, -0.6]}, "material": {"type": "diffuse",
+                                                                 "albedo": 0.5}},
+    ]
+    if virtual:
+        shapes.append({"name": "cube", "role": "virtual", "type": "box", "size": [0.4] * 3,
+                       "transform": {"translate": [0.0, 0.2, 0.0]},
+                       "material": {"type": "diffuse", "albedo": [0.9, 0.1, 0.1]}})
+    lights = {"point": [{"type": "point", "position": [0.3, 1.5, 0.4], "intensity": 3.0}],
+              "area": [{"type": "area", "size": [0.4, 0.4], "normal": [0, -1, 0],
+                        "transform": {"translate": [0.3, 1.5, 0.4]}, "radiance": 10.0},
+                       {"type": "constant", "radiance": 0.1}]}[light]
+    return {"camera": {"resolution": [w, h], "fov_y_deg": 45, "look_at": LOOK},
+            "shapes": shapes, "lights": lights}
+
+
+def make(d: dict, value: float = 0.3):
+    scene = parse_scene(d)
+    return scene.with_frame(np.full((scene.camera.height, scene.camera.width, 3), value,
+                                    np.float32))
+
+
+def run(scene, **opts):
+    return get_method("dlpv")(scene, RenderSettings(options={**SMALL, **opts}))
+
+
+@pytest.mark.parametrize("light", ["point", "area"])
+def test_no_virtual_object_returns_the_frame_exactly(light):
+    """No virtual object → composite == frame bit for bit, delta == 0, mask == 0; rejects a
+    delta computed as LPV(ρ) − LPV(µ) with float residue, or any shading of real pixels."""
+    scene = make(box_scene(virtual=False, light=light))
+    layers = run(scene)
+    assert np.array_equal(layers.composite, scene.frame)
+    assert not layers.delta.any() and not layers.mask.any()
+
+
+def _opts(**kw):
+    return SPEC.parse_options({**SMALL, **kw})
+
+
+@pytest.mark.parametrize("direct", [False, True])
+def test_delta_volume_equals_difference_of_two_lpvs(direct):
+    """With dampening off, V_Δ (split injection, shared texels eliminated) equals LPV(R_ρ) −
+    LPV(R_µ) built and propagated as two separate volumes, to float tolerance — the linear
+    part of Franke §4.3 tested exactly. Rejects a sign error on R_µ, a wrong offset on one
+    side, or eliminating texels that are not identical."""
+    data = prepare(parse_scene(box_scene()).world, _opts())
+    pairs = rsm_pair(data, data.grid, 64)
+    v_delta = SHVolume.zeros(data.grid)
+    inject_delta(v_delta, pairs, direct=direct)
+    v_rho, v_mu = SHVolume.zeros(data.grid), SHVolume.zeros(data.grid)
+    inject_regular(v_rho, pairs, 0, direct=direct)
+    inject_regular(v_mu, pairs, 1, direct=direct)
+    d = propagate(v_delta, 8).numpy()
+    two = propagate(v_rho, 8).numpy() - propagate(v_mu, 8).numpy()
+    scale = np.abs(propagate(v_rho, 8).numpy()).max()
+    assert np.abs(d).max() > 1e-3 * scale  # the object changes something
+    assert np.allclose(d, two, atol=2e-5 * scale, rtol=0)
+
+
+@pytest.mark.parametrize("dampening", [False, True])
+def test_delta_scales_linearly_with_the_light(dampening):
+    """Lights × k → V_Δ × k (bitwise for k = 2, float tolerance for k = 3), with and
+    without dampening; rejects clamping, absolute thresholds or a dampening that depends on
+    the light's level."""
+    data = prepare(parse_scene(box_scene()).world, _opts(dampening=dampening))
+    opts = _opts(dampening=dampening)
+    base = build_volumes(data, opts).delta.numpy()
+    for k in (2.0, 3.0):
+        data.lights = data.lights.scaled(k)
+        scaled = build_volumes(data, opts).delta.numpy()
+        data.lights = data.lights.scaled(1.0 / k)
+        if k == 2.0:
+            assert np.array_equal(scaled, 2.0 * base)
+        else:
+            assert np.allclose(scaled, k * base, atol=1e-5 * np.abs(k * base).max(), rtol=0)
+
+
+def test_shadow_is_negative_and_bleeding_is_red():
+    """The cube's shadow on the floor (below/behind it, away from the light) gets a negative
+    delta; near the red cube the real surfaces receive more red than blue bounce. Rejects an
+    inverted direct injection (shadow brighter) and a bounce without the cube's albedo."""
+    scene = make(box_scene(w=80, h=60))
+    layers = run(scene, volume_size=32, steps=16, rsm_size=128)
+    d = layers.delta
+    real = layers.mask == 0
+    lum = d @ np.array([0.2126, 0.7152, 0.0722])
+    assert lum[real].min() < -0.02  # a visible shadow
+    assert (lum[real] < -1e-3).sum() > 30
+    pos = real & (d[..., 0] > 1e-4)
+    assert pos.any() and (d[pos, 0].sum() > 2 * d[pos, 2].sum())
+
+
+def test_virtual_pixels_are_lit_and_shadowed_by_direct_light():
+    """Virtual pixels get ρ/π (E_direct + E_indirect): the cube's top faces the light and is
+    brighter than its front; all values finite and non-negative."""
+    layers = run(make(box_scene(w=80, h=60)))
+    m = layers.mask > 0.5
+    assert m.sum() > 50
+    assert np.all(layers.mixed[m] >= 0) and layers.mixed[m, 0].max() > 0.05
+
+
+@pytest.mark.parametrize("opt,value", [("volume_size", 1), ("volume_size", 1000),
+                                       ("steps", -1), ("rsm_size", 0)])
+def test_bad_options_are_input_errors(opt, value):
+    with pytest.raises(InputError) as e:
+        run(make(box_scene()), **{opt: value})
+    assert e.value.field == f"options.{opt}"
+
+
+def test_rsm_that_does_not_fit_in_memory_is_an_input_error():
+    with pytest.raises(InputError) as e:
+        run(make(box_scene()), rsm_size=16384 * 1)
+    assert e.value.field == "options.rsm_size"
+
+
+def test_no_light_is_an_input_error():
+    d = box_scene()
+    d["lights"] = []
+    with pytest.raises(InputError) as e:
+        run(make(d))
+    assert e.value.field == "lights"

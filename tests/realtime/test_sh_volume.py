@@ -1,0 +1,197 @@
+"""2-band SH volumes and Kaplanyan–Dachsbacher propagation (Franke digest checklist 14, 15).
+
+Each test names the wrong implementation it rejects."""
+
+from __future__ import annotations
+
+import math
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from arlight.backend.variant import ensure_variant
+
+ensure_variant()
+
+from arlight.realtime import sh_volume as sv  # noqa: E402
+from arlight.sphere import sh  # noqa: E402
+
+
+def _fib(n: int) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = i * math.pi * (3 - math.sqrt(5))
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def test_basis_is_arlights_sh_basis():
+    """Rejects a sign or axis convention different from arlight.sphere.sh (a volume filled
+    from one and read with the other would turn light around)."""
+    d = _fib(50)
+    assert np.allclose(sv.basis(d), sh.sh_basis(d, 1)[:, :4], atol=1e-12)
+
+
+def test_cosine_lobe_coefficients():
+    """The closed-form lobe (√π/2, √(π/3) d) equals the numerical projection of <d, ω>+;
+    rejects the wrong constants (e.g. 0.25/0.5, the normalised-intensity variant)."""
+    w = _fib(200_000)
+    d = np.array([0.3, -0.5, 0.81])
+    d /= np.linalg.norm(d)
+    f = np.maximum(w @ d, 0.0)
+    proj = (sv.basis(w) * f[:, None]).sum(0) * 4 * math.pi / len(w)
+    assert np.allclose(proj, sv.cosine_lobe(d), atol=2e-4)
+
+
+def test_face_solid_angles():
+    """Far face 0.4006697 sr, side faces 0.4234414 sr ([KD10]), together the shared face
+    2π/3; checked against a direct numerical integral over the side face. Rejects face
+    angles taken at the wrong distance (e.g. the far face at 1 cell)."""
+    front, side = sv.face_solid_angles()
+    assert front == pytest.approx(0.4006696846, abs=1e-9)
+    assert front + 4 * side == pytest.approx(2 * math.pi / 3, abs=1e-12)
+    # side face x = 0.5, y ∈ [0.5, 1.5] (along the axis), z ∈ [−0.5, 0.5], seen from origin
+    k = 800
+    y = 0.5 + (np.arange(k) + 0.5) / k
+    z = -0.5 + (np.arange(k) + 0.5) / k
+    yy, zz = np.meshgrid(y, z)
+    r2 = 0.25 + yy**2 + zz**2
+    omega = (0.5 / r2**1.5).sum() / k**2
+    assert omega == pytest.approx(side, rel=1e-5)
+
+
+def _random_volume(n: int, seed: int = 0, margin: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    a = np.zeros((n, n, n, 4, 3))
+    inner = slice(margin, n - margin)
+    a[inner, inner, inner] = rng.normal(size=a[inner, inner, inner].shape)
+    return a
+
+
+def test_drjit_propagation_equals_numpy_peer():
+    """The Dr.Jit gather kernel and the NumPy scatter peer agree; rejects an off-by-one or a
+    swapped axis in the neighbour tables."""
+    g = sv.Grid(np.zeros(3), 0.1, 9)
+    a = _random_volume(9)
+    a[2, 3, 7, :, 1] = 5.0
+    out = sv.propagate(sv.SHVolume.from_numpy(g, a), 6).numpy()
+    ref = sv.propagate_numpy(a, 6)
+    assert np.allclose(out, ref, atol=2e-5 * np.abs(ref).max())
+
+
+def test_propagation_is_linear():
+    """prop(aX + bY) = a prop(X) + b prop(Y) without dampening, also for negative
+    (antiradiance) values; rejects clamping negative intensities to zero."""
+    g = sv.Grid(np.zeros(3), 0.1, 8)
+    x, y = _random_volume(8, 1), _random_volume(8, 2)
+    p = lambda v: sv.propagate(sv.SHVolume.from_numpy(g, v), 5).numpy()  # noqa: E731
+    lhs = p(2.0 * x - 3.0 * y)
+    rhs = 2.0 * p(x) - 3.0 * p(y)
+    assert np.allclose(lhs, rhs, atol=1e-4 * np.abs(rhs).max())
+
+
+def test_propagation_never_creates_energy():
+    """Positive light injected in the interior: the flux of every wavefront equals the
+    injected flux while it is inside the volume and never grows (the boundary only removes
+    light). Rejects a wrong reprojection normalisation (Δω/4π instead of Δω/π: loses 3/4 per
+    step) and too large face angles (gains)."""
+    n = 24
+    g = sv.Grid(np.zeros(3), 0.05, n)
+    a = np.zeros((n, n, n, 4, 3))
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        z, y, x = rng.integers(10, 14, size=3)
+        d = rng.normal(size=3)
+        a[z, y, x, :, :] += sv.cosine_lobe(d / np.linalg.norm(d))[:, None] * rng.uniform(
+            0.5, 2.0, size=3)
+    vol = sv.SHVolume.from_numpy(g, a)
+    f0 = vol.total_flux()
+    stats: dict = {}
+    sv.propagate(vol, 30, stats=stats)
+    fl = np.array(stats["flux_per_step"])
+    assert np.allclose(fl[:8], f0, rtol=1e-5)  # interior: conserved
+    assert np.all(fl <= f0 * (1 + 1e-5))  # never more than injected
+    assert np.all(np.diff(fl, axis=0) <= 1e-5 * f0)  # non-increasing
+    assert fl[-1, 0] < f0[0] * (1 - 1e-3)  # and the boundary does remove light
+
+
+def test_light_spreads_one_cell_per_step():
+    """After k steps light from one cell has reached exactly the cells within L1 distance k
+    (each step moves to face neighbours); rejects a stencil that jumps further."""
+    n = 15
+    g = sv.Grid(np.zeros(3), 0.1, n)
+    a = np.zeros((n, n, n, 4, 3))
+    a[7, 7, 7, 0, :] = 1.0
+    out = sv.propagate(sv.SHVolume.from_numpy(g, a), 3).numpy()
+    zz, yy, xx = np.meshgrid(*[np.arange(n)] * 3, indexing="ij")
+    dist = np.abs(zz - 7) + np.abs(yy - 7) + np.abs(xx - 7)
+    lit = np.abs(out).max(axis=(3, 4)) > 0
+    assert not lit[dist > 3].any()
+    assert lit[dist == 3].any() and lit[dist <= 1].all()
+
+
+def test_dampening_keeps_uniform_regions_and_scales_linearly():
+    """Dampening leaves a uniform field unchanged (away from the boundary) and is invariant to
+    the light's scale (bitwise for ×2); rejects an absolute threshold or a per-cell clamp."""
+    n = 10
+    g = sv.Grid(np.zeros(3), 0.1, n)
+    a = np.zeros((n, n, n, 4, 3))
+    a[..., 0, :] = 1.0
+    plain = sv.propagate(sv.SHVolume.from_numpy(g, a), 2).numpy()
+    damp = sv.propagate(sv.SHVolume.from_numpy(g, a), 2, dampening=True).numpy()
+    assert np.allclose(plain[3:7, 3:7, 3:7], damp[3:7, 3:7, 3:7], rtol=1e-6)
+    x = _random_volume(8, 5)
+    g8 = sv.Grid(np.zeros(3), 0.1, 8)
+    one = sv.propagate(sv.SHVolume.from_numpy(g8, x), 4, dampening=True).numpy()
+    two = sv.propagate(sv.SHVolume.from_numpy(g8, 2.0 * x), 4, dampening=True).numpy()
+    assert np.array_equal(two, 2.0 * one)
+    assert not np.allclose(one, sv.propagate(sv.SHVolume.from_numpy(g8, x), 4).numpy())
+
+
+def test_dampening_reduces_backflow():
+    """A lobe pointing +x next to a brighter cell on its −x side: with dampening the light
+    that flows back towards the brighter cell is reduced; rejects a no-op dampening."""
+    n = 9
+    g = sv.Grid(np.zeros(3), 0.1, n)
+    a = np.zeros((n, n, n, 4, 3))
+    a[4, 4, 4, :, 0] = sv.cosine_lobe(np.array([1.0, 0, 0]))
+    a[4, 4, 3, :, 0] = 4.0 * sv.cosine_lobe(np.array([0.0, 1.0, 0]))
+    plain = sv.propagate(sv.SHVolume.from_numpy(g, a), 1).numpy()
+    damp = sv.propagate(sv.SHVolume.from_numpy(g, a), 1, dampening=True).numpy()
+    back = (4, 4, 3)  # receives only from (4,4,4), along −x
+    moved_plain = plain[back] - a[back]  # the accumulated volume keeps the injected light
+    moved_damp = damp[back] - a[back]
+    assert np.abs(moved_damp).sum() < 0.5 * np.abs(moved_plain).sum()
+
+
+def test_query_uniform_radiance_gives_pi_L():
+    """A volume of isotropic radiance L (intensity L s² per cell) gives E = π L for every
+    normal; rejects a missing /s² or the wrong convolution weights Â_l."""
+    n, s, L = 6, 0.2, 0.7
+    g = sv.Grid(np.array([-0.6, -0.6, -0.6]), s, n)
+    a = np.zeros((n, n, n, 4, 3))
+    a[..., 0, :] = L * s * s * math.sqrt(4 * math.pi)  # I(ω) = L s² → c00 = I √(4π)
+    vol = sv.SHVolume.from_numpy(g, a)
+    d = _fib(7)
+    p = mi.Point3f(*[np.full(7, 0.05, np.float32)] * 3)
+    nn = mi.Vector3f(*[np.ascontiguousarray(d[:, i], np.float32) for i in range(3)])
+    e = np.array(sv.query_irradiance(vol, p, nn)).reshape(3, -1)
+    assert np.allclose(e, math.pi * L, rtol=1e-5)
+    # outside the volume: nothing (Franke's cut-off)
+    far = mi.Point3f(5.0, 0.0, 0.0)
+    assert np.all(np.array(sv.query_irradiance(vol, far, mi.Vector3f(0, 1, 0))) == 0)
+
+
+def test_query_directional_lobe_matches_cosine_convolution():
+    """A single lobe's irradiance follows Â_0 c00 Y00 + Â_1 c1·Y1(−n): facing the light more
+    than facing away; rejects evaluating with +n instead of the inverse normal."""
+    n, s = 4, 1.0
+    g = sv.Grid(np.zeros(3), s, n)
+    a = np.zeros((n, n, n, 4, 3))
+    a[..., :, 0] = sv.cosine_lobe(np.array([0.0, -1.0, 0.0]))  # light travelling down
+    vol = sv.SHVolume.from_numpy(g, a)
+    p = mi.Point3f(2.0, 2.0, 2.0)
+    up = np.array(sv.query_irradiance(vol, p, mi.Vector3f(0, 1, 0))).ravel()[0]
+    down = np.array(sv.query_irradiance(vol, p, mi.Vector3f(0, -1, 0))).ravel()[0]
+    assert up > 0 and up > 5 * abs(down)
