@@ -10,7 +10,9 @@ Options (``RenderSettings.options``, declared in :data:`OPTIONS`; ``arlight meth
 prints them): ``env_mode`` (``mis`` | ``miss_only``), ``mirror_lower_hemisphere``,
 ``reproject``, ``mode`` (``onepass`` | ``twopass``: the same tracer run separately on the mixed
 and the real view, with the same random numbers — the baseline of the equivalence test and
-of the ray counts).
+of the ray counts), ``caustics`` (``none`` | ``photons``: differential caustic photon
+mapping, :mod:`arlight.methods.photons`) with ``photons``, ``photon_radius`` (m),
+``ppm_iterations``, ``ppm_alpha``.
 
 Stats: ``seconds``, ``samples``, ``spp``, ``samples_per_second`` and ray counts per ray type
 (``rays_mixed_radiance``, ``rays_real_radiance``, ``rays_mixed_shadow``,
@@ -21,7 +23,10 @@ tracer's second phase) and ``phase1_seconds`` / ``phase2_seconds`` (mixed/shared
 compacted real continuations, synchronised wall time; both are parts of ``time_trace``).
 Stages, seconds: ``time_prepare`` (Mitsuba scenes), ``time_setup`` (tracer, reprojection
 table, frame upload), ``time_trace``, ``time_assemble``; ``time_pose`` when the view moves
-objects.
+objects; with caustics ``time_photons`` (t_p: shooting and tracing) and
+``time_photon_index`` (t_b: hash grid build), the density estimation being part of
+``time_trace`` (t_r), plus ``photons_emitted``, ``photons_stored``, ``photons_shared``,
+``photons_mixed_only``, ``photons_real_only``, ``photon_radius``.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from arlight.methods.base import (
     layers_from_passes,
 )
 from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions, lane_keys
+from arlight.methods.photons import PhotonMap, PhotonSettings, build_photon_maps, gather_caustics
 from arlight.methods.reference import PathScenes, frame_gather, prepare_scenes
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.scene.model import FrameView, World
@@ -56,6 +62,19 @@ OPTIONS: dict[str, Field] = {
     "mode": Field("choice", "onepass", "`onepass`: Kán's four ray types in one pass; "
                   "`twopass`: the same tracer on each view separately (baseline)",
                   choices=("onepass", "twopass")),
+    "caustics": Field("choice", "none", "`photons`: caustic photon map from point/spot lights "
+                      "through glass and mirrors, differential (Kán §4.1.2, "
+                      "docs/methods/photons.md); `none`: path tracing only",
+                      choices=("none", "photons")),
+    "photons": Field("int", 200_000, "photons emitted per photon map (with `caustics = "
+                     "photons`)", min=1, max=100_000_000),
+    "photon_radius": Field("float", 0.01, "kernel radius h of the density estimate (Kán Eq. "
+                           "4.4–4.5); first radius under PPM", "m", min=0.0, max=1.0e6,
+                           exclusive_min=True),
+    "ppm_iterations": Field("int", 1, "photon maps with shrinking radius (progressive photon "
+                            "mapping; 1: Kán's fixed radius)", min=1, max=4096),
+    "ppm_alpha": Field("float", 0.7, "Hachisuka's alpha: h_{i+1}^2 = h_i^2 (i + alpha)/(i + 1)",
+                       min=0.0, max=1.0, exclusive_min=True),
 }
 OPTION_NAMES = tuple(OPTIONS)
 
@@ -64,6 +83,9 @@ def _check(opts: Options) -> None:
     if opts.mirror_lower_hemisphere and opts.env_mode != "miss_only":
         raise InputError("mirroring the lower hemisphere needs env_mode = 'miss_only'",
                          file="method 'onepass'", field="options.mirror_lower_hemisphere")
+    if opts.ppm_alpha >= 1.0:
+        raise InputError("must be < 1 (the radius would not shrink)", file="method 'onepass'",
+                         field="options.ppm_alpha")
 
 
 SPEC = MethodSpec(
@@ -82,6 +104,13 @@ def tracer_from_options(opts: Options, settings: RenderSettings) -> TracerOption
                          env_mode=opts.env_mode,
                          mirror_lower_hemisphere=opts.mirror_lower_hemisphere,
                          reproject=opts.reproject)
+
+
+def photon_settings(opts: Options, settings: RenderSettings) -> PhotonSettings:
+    """The caustic photon map's settings from validated options and the render settings."""
+    return PhotonSettings(photons=opts.photons, radius=opts.photon_radius,
+                          ppm_iterations=opts.ppm_iterations, ppm_alpha=opts.ppm_alpha,
+                          max_depth=settings.max_depth, seed=settings.seed)
 
 
 def tracer_options(settings: RenderSettings) -> tuple[TracerOptions, str]:
@@ -116,6 +145,15 @@ class OnePassMethod(BaseMethod):
                                    tracer_from_options(options, settings), view.camera, frame)
             background = frame_gather(frame)
         counts = dict.fromkeys(RAY_TYPES, 0)
+        pmap: PhotonMap | None = None
+        photon_stats: dict[str, float] = {}
+        if options.caustics == "photons":
+            ps = photon_settings(options, settings)
+            with timer.stage("photons"):  # t_p: emission and tracing (Kán Table 5.2)
+                maps, photon_stats = build_photon_maps(data.world, views, ps)
+            with timer.stage("photon_index"):  # t_b: the hash grids
+                pmap = PhotonMap.build(maps, ps.radii())
+            photon_stats["photon_radius"] = ps.radius
 
         def kernel(rays, pixel, seed, lanes):
             key = lane_keys(lanes, seed)
@@ -136,6 +174,10 @@ class OnePassMethod(BaseMethod):
             for p in parts:
                 for k, v in p.items():
                     counts[k] += v
+            if pmap is not None:  # caustics L S+ D: density estimation after the camera walk
+                cm, cr = gather_caustics(views, pmap, r, key, settings.max_depth,
+                                         tracer.reproj)
+                lm, lr = lm + cm, lr + cr
             return differential_samples(lm, lr, m, background(pixel))
 
         with timer.stage("trace"):
@@ -144,6 +186,7 @@ class OnePassMethod(BaseMethod):
                              progress="onepass" if settings.progress else None)
         with timer.stage("assemble"):
             stats = ray_stats(counts, res.lanes)
+            stats.update(photon_stats)
             if mode == "onepass":
                 prof = tracer.profile
                 stats.update(forked_lanes=float(prof["forked_lanes"]),
