@@ -151,3 +151,14 @@ def test_no_light_is_an_input_error():
     with pytest.raises(InputError) as e:
         run(make(d))
     assert e.value.field == "lights"
+
+
+def test_antialiased_gbuffer_gives_fractional_coverage():
+    """gbuffer_spp = 4: the mask is the virtual fraction of 4 stratified samples (multiples
+    of 1/4, some edge pixels strictly between 0 and 1); rejects a mask taken from one
+    sample."""
+    layers = run(make(box_scene(w=40, h=30)), gbuffer_spp=4)
+    m = layers.mask
+    assert np.allclose(m * 4, np.round(m * 4))
+    assert ((m > 0) & (m < 1)).sum() >= 4
+    assert np.isfinite(layers.composite).all()

@@ -122,3 +122,20 @@ def test_gbuffer_roles_and_albedo():
     to_cam = np.array(gb.to_camera).reshape(3, -1).T
     assert np.all((n * to_cam).sum(1)[role.ravel() >= 0] >= -1e-6)
     _ = mi  # variant in use
+
+
+def test_ambient_polynomial_equals_sh_irradiance():
+    """The Dr.Jit quadratic form of the 9-coefficient irradiance equals
+    arlight.sphere.sh.irradiance for random normals and a random SH; rejects a basis
+    convention mismatch (e.g. a sign flip of the band-1 terms)."""
+    from arlight.realtime.light_reduction import LightSet
+    from arlight.realtime.shading import ambient_irradiance, ambient_irradiance_dr
+
+    rng = np.random.default_rng(0)
+    ls = LightSet([], rng.normal(size=(9, 3)))
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    ref = ambient_irradiance(ls, n)
+    got = ambient_irradiance_dr(ls, mi.Vector3f(*(np.ascontiguousarray(n[:, i], np.float32)
+                                                 for i in range(3))))
+    assert np.allclose(np.array(got).reshape(3, -1).T, ref, atol=1e-4 * np.abs(ref).max())

@@ -48,7 +48,7 @@ ENTRY_POINT_GROUP = "arlight.methods"
 BUILTINS: dict[str, str] = {
     "reference": "arlight.methods.reference:ReferenceMethod",
     "onepass": "arlight.methods.onepass:OnePassMethod",
-    "dlpv": "arlight.methods.dlpv:DLPVMethod",
+    "dlpv": "arlight.methods.dlpv:DLPVMethod", "dir": "arlight.methods.dir:DIRMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 

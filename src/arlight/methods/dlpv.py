@@ -46,7 +46,7 @@ from arlight.realtime.gbuffer import GBuffer, render_gbuffer, resolve, resolve_s
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, check_memory, light_rays, render_rsm, shared_texels
 from arlight.realtime.sh_volume import Grid, SHVolume, inject, propagate, query_irradiance
-from arlight.realtime.shading import ambient_irradiance, direct_irradiance, virtual_bounds
+from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, virtual_bounds
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
@@ -185,8 +185,7 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
     virt = gb.virtual
     real = gb.valid & ~virt
     e_dir = direct_irradiance(data.views.mixed, data.lights, gb.position, gb.normal, virt)
-    e_amb_np = ambient_irradiance(data.lights, np.array(gb.normal, np.float64).reshape(3, -1).T)
-    e_amb = mi.Color3f(*(np.ascontiguousarray(e_amb_np[:, c], np.float32) for c in range(3)))
+    e_amb = ambient_irradiance_dr(data.lights, gb.normal)
     e_ind = mi.Color3f(0.0)
     delta = mi.Color3f(0.0)
     if vols.rho is not None:
@@ -207,11 +206,15 @@ def assemble(gb: GBuffer, frame: np.ndarray, mixed: mi.Color3f, delta: mi.Color3
     mean over virtual samples (``B + delta`` where none), ``delta`` = mean over the other
     samples, so the composite is the per-sample composite's mean."""
     virt = resolve_scalar(gb, mi.Float(gb.virtual))
+    bg = np.asarray(frame, np.float32)
+    if gb.spp == 1:
+        d = resolve(gb, delta)
+        m = np.where(virt[..., None] > 0, resolve(gb, mixed), bg + d)
+        return Layers.assemble(bg, m, d, virt, stats=stats)
     n_v = virt * gb.spp
     n_r = gb.spp - n_v
     sum_m = resolve(gb, mixed) * gb.spp
     sum_d = resolve(gb, delta) * gb.spp
-    bg = np.asarray(frame, np.float64)
     d = np.where(n_r[..., None] > 0, sum_d / np.maximum(n_r, 1)[..., None], 0.0)
     m = np.where(n_v[..., None] > 0, sum_m / np.maximum(n_v, 1)[..., None], bg + d)
     return Layers.assemble(bg, m, d, virt, stats=stats)

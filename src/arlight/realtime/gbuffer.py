@@ -82,7 +82,7 @@ def render_gbuffer(view: SceneView, camera: Camera, spp: int = 1, seed: int = 0)
     role = view.hit_role(si)
     valid = si.is_valid()
     to_cam = -ray.d
-    n = facing(si.sh_frame.n, to_cam)
+    n = facing(mi.Vector3f(si.sh_frame.n), to_cam)
     albedo = surface_albedo(si, valid)
     depth = dr.select(valid, si.t, dr.inf)
     pos = mi.Point3f(si.p)
@@ -91,14 +91,18 @@ def render_gbuffer(view: SceneView, camera: Camera, spp: int = 1, seed: int = 0)
 
 
 def resolve(gb: GBuffer, values: mi.Color3f) -> np.ndarray:
-    """Per-pixel mean ``(H, W, 3)`` float64 of per-lane values."""
-    arr = np.array(values, dtype=np.float64).reshape(3, -1).T
+    """Per-pixel mean ``(H, W, 3)`` float32 of per-lane values."""
+    arr = np.array(values, dtype=np.float32).reshape(3, -1).T
+    if gb.spp == 1:
+        return arr.reshape(gb.height, gb.width, 3)
     return arr.reshape(gb.height, gb.width, gb.spp, 3).mean(axis=2)
 
 
 def resolve_scalar(gb: GBuffer, values: mi.Float) -> np.ndarray:
-    """Per-pixel mean ``(H, W)`` float64 of per-lane scalars."""
-    arr = np.array(values, dtype=np.float64)
+    """Per-pixel mean ``(H, W)`` float32 of per-lane scalars."""
+    arr = np.array(values, dtype=np.float32)
+    if gb.spp == 1:
+        return arr.reshape(gb.height, gb.width)
     return arr.reshape(gb.height, gb.width, gb.spp).mean(axis=2)
 
 

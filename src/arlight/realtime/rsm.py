@@ -146,7 +146,7 @@ def render_rsm(view: SceneView, rays: LightRays) -> RSM:
     valid = si.is_valid()
     role = view.hit_role(si)
     shape = view.hit_shape(si)
-    n = facing(si.sh_frame.n, -ray.d)
+    n = facing(mi.Vector3f(si.sh_frame.n), -ray.d)
     albedo = surface_albedo(si, valid)
     flux_in = dr.select(valid, rays.flux, mi.Color3f(0.0))
     flux_out = flux_in * albedo

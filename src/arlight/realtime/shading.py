@@ -72,6 +72,27 @@ def ambient_irradiance(lights: LightSet, n: np.ndarray) -> np.ndarray:
     return np.asarray(irradiance(lights.ambient_sh, n), np.float64).reshape(len(n), 3)
 
 
+def ambient_irradiance_dr(lights: LightSet, n: mi.Vector3f) -> mi.Color3f:
+    """:func:`ambient_irradiance` as a Dr.Jit expression: the 9-coefficient irradiance is a
+    quadratic polynomial of the normal, ``E(n) = nᵀ A n + b·n + c`` per channel (Ramamoorthi &
+    Hanrahan 2001, Eq. 12), fitted exactly from :func:`arlight.sphere.sh.irradiance` at 26
+    directions (so it follows that module's basis convention)."""
+    if not np.any(lights.ambient_sh):
+        return mi.Color3f(0.0)
+    d = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
+                  if (x, y, z) != (0, 0, 0)], np.float64)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    e = ambient_irradiance(lights, d)  # (26, 3)
+    x, y, z = d.T
+    feats = np.stack([x * x, y * y, z * z, x * y, y * z, x * z, x, y, z, np.ones_like(x)], 1)
+    coef, *_ = np.linalg.lstsq(feats, e, rcond=None)  # (10, 3)
+    terms = [n.x * n.x, n.y * n.y, n.z * n.z, n.x * n.y, n.y * n.z, n.x * n.z, n.x, n.y, n.z]
+    out = mi.Color3f(*[float(c) for c in coef[9]])
+    for f, row in zip(terms, coef[:9], strict=True):
+        out += mi.Color3f(*[float(c) for c in row]) * f
+    return out
+
+
 def virtual_bounds(world: World, view: SceneView) -> tuple[np.ndarray, np.ndarray] | None:
     """World-space bounding box (lo, hi) of the virtual shapes loaded in ``view`` (None if
     there are none)."""
@@ -94,5 +115,5 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
     return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
 
 
-__all__ = ["ambient_irradiance", "direct_irradiance", "emitted_intensity", "scene_bounds",
-           "virtual_bounds"]
+__all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_irradiance",
+           "emitted_intensity", "scene_bounds", "virtual_bounds"]
