@@ -303,8 +303,29 @@ class _Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
+_SIGNALS: list[int] = []
+"""Signals received by :func:`main` (Typer turns KeyboardInterrupt into exit code 130)."""
+
+
 def _on_signal(signum: int, _frame: object) -> None:
+    _SIGNALS.append(signum)
     raise _Interrupted(signum)
+
+
+def _interrupted(signum: int, committed: int) -> int:
+    """The one line after SIGINT/SIGTERM; returns 128 + the signal number."""
+    import signal
+
+    from arlight import outputs_atomic
+
+    done = outputs_atomic.COMMITTED[committed:]
+    name = "SIGTERM" if signum == signal.SIGTERM else "interrupt (SIGINT)"
+    if done:
+        _error(f"{name}: stopped after writing {', '.join(map(str, done))}")
+    else:
+        _error(f"{name}: stopped; the output was not written (an existing output is left "
+               "as it was)")
+    return 128 + int(signum)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -330,19 +351,14 @@ def main(argv: list[str] | None = None) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, _on_signal)
     committed = len(outputs_atomic.COMMITTED)
+    _SIGNALS.clear()
     try:
         rv = app(args=args, standalone_mode=False, prog_name="arlight")
+        if _SIGNALS:
+            return _interrupted(_SIGNALS[0], committed)
         return rv if isinstance(rv, int) else 0
     except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", signal.SIGINT)
-        done = outputs_atomic.COMMITTED[committed:]
-        name = "SIGTERM" if signum == signal.SIGTERM else "interrupt (SIGINT)"
-        if done:
-            _error(f"{name}: stopped after writing {', '.join(map(str, done))}")
-        else:
-            _error(f"{name}: stopped; the output was not written (an existing output "
-                   "is left as it was)")
-        return 128 + int(signum)
+        return _interrupted(getattr(exc, "signum", signal.SIGINT), committed)
     except ArlightError as exc:
         if debug:
             traceback.print_exc()

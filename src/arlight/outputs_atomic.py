@@ -297,7 +297,7 @@ class StagedOutput:
         files = sorted(str(p.relative_to(self.staging)) for p in self.staging.rglob("*")
                        if p.is_file())
         (self.staging / MANIFEST).write_text(json.dumps(
-            {"writer": self.writer, "written": time.time(), "files": files}, indent=1),
+            {"writer": self.writer, "files": files}, indent=1),
             encoding="utf-8")
         os.chmod(self.staging, 0o777 & ~_umask())
         new = self.out.parent / self.staging.name.replace(".tmp-", ".new-", 1)

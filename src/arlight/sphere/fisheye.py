@@ -102,7 +102,7 @@ class FisheyeCamera:
 
         try:
             fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        except cv2.error as exc:  # a parse error of the YAML/XML
+        except (cv2.error, SystemError) as exc:  # a parse error of the YAML/XML
             msg = " ".join(str(exc).split())
             raise ValueError(f"{path}: cannot parse calibration file ({msg[-160:]})") from exc
         if not fs.isOpened():
