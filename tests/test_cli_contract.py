@@ -382,8 +382,6 @@ def test_internal_error_is_one_line_exit_1_and_debug_shows_traceback(tmp_path):
     assert r.returncode == 1 and "Traceback" in r.stderr
 
 
-@pytest.mark.xfail(strict=True, reason="arlight.scene.load reads the file as UTF-8 without "
-                   "catching UnicodeDecodeError (scene/* is not part of the CLI; reported)")
 def test_non_utf8_scene_file_is_bad_input(tmp_path):
     f = tmp_path / "latin1.toml"
     f.write_bytes(b"name = '\xe9\xff'\n")

@@ -34,7 +34,13 @@ def _read_file(path: str | Path) -> tuple[dict[str, Any], Path]:
     path = Path(path)
     if not path.is_file():
         raise InputError("scene file not found", file=str(path))
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not UTF-8 text (byte {exc.start}); scene files are UTF-8 TOML or "
+                         "JSON", file=str(path)) from exc
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror})", file=str(path)) from exc
     try:
         data = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
