@@ -115,7 +115,7 @@ def eval_command(
     total = 0.0
     for name in scene_names:
         w, h = get_scene(name, quick=quick).resolution
-        one = estimate(w, h, max(spp, *sweep_spp), paths=2)
+        one = estimate(w, h, max([spp, *sweep_spp]), paths=2)
         check_estimate(one, f"scene {name} ({w}×{h}, {spp} spp)", force)
         gt = estimate(w, h, gt_spp, paths=2)
         check_estimate(gt, f"the ground truth of {name} ({w}×{h}, {gt_spp} spp)", force)
