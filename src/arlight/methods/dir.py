@@ -51,7 +51,7 @@ from arlight.timing import StageTimer
 OPTIONS: dict[str, Field] = {
     "vpls": Field("int", 256, "virtual point lights per frame, all lights together (Knecht "
                   "2010, Franke Fig. 5.19: 256)", "", min=1, max=65536),
-    "clamp_distance": Field("float", 0.02, "geometry-term clamp: G ≤ 1/d_c² (Eq. 2.45)", "m",
+    "clamp_distance": Field("float", 0.05, "geometry-term clamp: G ≤ 1/d_c² (Eq. 2.45)", "m",
                             min=0.0, max=1.0e6),
     "interleave": Field("int", 4, "interleaved sampling block k (k² VPL subsets; 1: every "
                         "VPL at every pixel)", "pixels", min=1, max=16),
