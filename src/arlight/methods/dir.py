@@ -76,7 +76,7 @@ SPEC = MethodSpec(
     description="Differential instant radiosity (Knecht et al. 2010): RSM VPLs with "
                 "ray-traced visibility, mixed minus real.",
     options=OPTIONS,
-    capabilities=Capabilities(interactive=True),
+    capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"})),
     check=_check,
 )
 

@@ -76,7 +76,7 @@ SPEC = MethodSpec(
     description="Delta Light Propagation Volumes (Franke 2013): one SH volume of the change "
                 "of light, real time.",
     options=OPTIONS,
-    capabilities=Capabilities(interactive=True),
+    capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"})),
 )
 
 
