@@ -253,6 +253,17 @@ def _area(light: Light) -> Node:
             "emitter": {"type": "area", "radiance": _rgb(p["radiance"])}}
 
 
+def _sphere(light: Light) -> Node:
+    """A uniformly emitting sphere: radiance I/(πr²) makes its intensity I in every
+    direction (its projected area is πr² from anywhere outside)."""
+    p = light.params
+    r = float(p["radius"])
+    return {"type": "sphere", "center": [float(x) for x in p["position"]], "radius": r,
+            "bsdf": {"type": "diffuse", "reflectance": _rgb([0, 0, 0])},
+            "emitter": {"type": "area",
+                        "radiance": _rgb([float(c) / (np.pi * r * r) for c in p["intensity"]])}}
+
+
 LIGHTS: dict[str, Callable[[Light], Node]] = {
     "envmap": _envmap,
     "sh": _envmap,  # its radiance_map is the SH expansion sampled on the sphere
@@ -261,6 +272,7 @@ LIGHTS: dict[str, Callable[[Light], Node]] = {
     "spot": _spot,
     "directional": _directional,
     "area": _area,  # an emitting one-sided rectangle (a shape node)
+    "sphere": _sphere,  # an emitting sphere (a shape node)
 }
 """Light type -> emitter node, or a shape node with an ``emitter`` for area lights."""
 

@@ -234,8 +234,9 @@ def emit_photons(world: World, views: SceneViews, n_photons: int, seed: int) -> 
         for cone in merge_cones(spheres, pos):
             theta = _half_angle(cone, pos)
             omega = 4 * math.pi if theta >= math.pi else 2 * math.pi * (1 - math.cos(theta))
-            i_axis = _intensity(em, mi.Point3f(*(float(x) for x in pos)),
-                                mi.Point3f(*(float(x) for x in cone.center)))
+            i_axis = _intensity(em, mi.Point3f(*(dr.opaque(mi.Float, float(x)) for x in pos)),
+                                mi.Point3f(*(dr.opaque(mi.Float, float(x))
+                                             for x in cone.center)))
             lum = float(np.mean(np.array(i_axis)))
             plans.append((pos, em, cone, theta, max(lum, 1e-12) * omega))
     if not plans:
@@ -246,28 +247,34 @@ def emit_photons(world: World, views: SceneViews, n_photons: int, seed: int) -> 
     for k, (pos, em, cone, theta, w) in enumerate(plans):
         m = max(1, int(math.isqrt(int(n_photons * w / total_w))))
         n = m * m
+        # per-frame values enter the kernels as opaque variables, not literals: a new seed or
+        # a moved generator must not compile new kernels every frame
+        def op(x: float) -> mi.Float:
+            return dr.opaque(mi.Float, float(x))
+
         idx = dr.arange(mi.UInt32, n)
-        key = mi.sample_tea_32(idx, mi.UInt32((seed * 7919 + k) & 0xFFFFFFFF), 4)[0]
+        key = mi.sample_tea_32(idx, dr.opaque(mi.UInt32, (seed * 7919 + k) & 0xFFFFFFFF), 4)[0]
         jit = mi.Point2f(mi.sample_tea_float32(key, 0, 6), mi.sample_tea_float32(key, 1, 6))
-        u = mi.Point2f((mi.Float(idx % m) + jit.x) / m, (mi.Float(idx // m) + jit.y) / m)
-        origin = mi.Point3f(*(float(x) for x in pos))
+        mu, mf = dr.opaque(mi.UInt32, m), op(m)
+        u = mi.Point2f((mi.Float(idx % mu) + jit.x) / mf, (mi.Float(idx // mu) + jit.y) / mf)
+        origin = mi.Point3f(*(op(x) for x in pos))
         if theta >= math.pi:  # light inside the bounding sphere: the whole sphere
             d = mi.warp.square_to_uniform_sphere(u)
-            pdf = mi.Float(1 / (4 * math.pi))
+            pdf = dr.full(mi.Float, 1 / (4 * math.pi), n)
             target = origin + d
         else:
             c = cone.center
             axis = (c - pos) / np.linalg.norm(c - pos)
             dist = float(np.linalg.norm(c - pos))
             rd = cone.radius * dist / math.sqrt(dist * dist - cone.radius ** 2)
-            frame = mi.Frame3f(mi.Vector3f(*(float(x) for x in axis)))
-            q = mi.warp.square_to_uniform_disk_concentric(u) * rd
-            target = (mi.Point3f(*(float(x) for x in c)) + frame.s * q.x + frame.t * q.y)
+            frame = mi.Frame3f(mi.Vector3f(*(op(x) for x in axis)))
+            q = mi.warp.square_to_uniform_disk_concentric(u) * op(rd)
+            target = (mi.Point3f(*(op(x) for x in c)) + frame.s * q.x + frame.t * q.y)
             v = target - origin
             r = dr.norm(v)
             d = v / r
-            pdf = r * r * r / (dist * math.pi * rd * rd)  # p(ω) = r²/(cos θ · A), cos = d/r
-        flux = _intensity(em, origin, target) / (pdf * n)
+            pdf = r * r * r / (op(dist * math.pi * rd * rd))  # p(ω) = r²/(cos θ · A), cos = d/r
+        flux = _intensity(em, origin, target) / (pdf * op(n))
         rays_o.append(dr.zeros(mi.Point3f, n) + origin)
         rays_d.append(mi.Vector3f(d))
         fluxes.append(flux)
@@ -356,8 +363,8 @@ def trace_photons(views: SceneViews, emitted: EmittedPhotons, max_depth: int,
         z = dr.zeros(mi.Float, 0)
         return StoredPhotons(mi.Point3f(z, z, z), mi.Vector3f(z, z, z), mi.Color3f(z, z, z),
                              dr.zeros(mi.UInt32, 0))
-    key = mi.sample_tea_32(dr.arange(mi.UInt32, n), mi.UInt32((seed * 31 + 17) & 0xFFFFFFFF),
-                           4)[0]
+    key = mi.sample_tea_32(dr.arange(mi.UInt32, n),
+                           dr.opaque(mi.UInt32, (seed * 31 + 17) & 0xFFFFFFFF), 4)[0]
     p, wi, phi, stored, touched = _photon_walk(views.mixed, emitted.rays, emitted.flux, key, md)
     same = views.mixed is views.real
     cls = dr.select(touched & ~same, mi.UInt32(MIXED_ONLY), mi.UInt32(SHARED))

@@ -192,6 +192,14 @@ LIGHT_TYPES: dict[str, dict[str, Field]] = {
         "radiance": Field("rgb", REQUIRED, "emitted radiance (front side)", "W/(sr·m²)",
                           min=0.0),
     },
+    "sphere": {
+        "position": Field("vec3", REQUIRED, "centre", "m", **_POS),
+        "radius": Field("float", REQUIRED, "radius of the emitting sphere (a small bulb; a "
+                        "point light's physical stand-in, e.g. for caustic ground truth)", "m",
+                        **_LEN),
+        "intensity": Field("rgb", REQUIRED, "radiant intensity in every direction; the "
+                           "surface radiance is intensity / (π radius²)", "W/sr", min=0.0),
+    },
 }
 
 CAMERA_FIELDS: dict[str, Field] = {
