@@ -14,9 +14,17 @@ def test_eval_quick_default_runs_every_method_on_every_scene(tmp_path):
     expected = {(m, s) for m in available_methods() for s in list_scenes()}
     assert {(c["method"], c["scene"]) for c in cells} == expected
     assert not [c for c in cells if c.get("error")], "a cell failed"
-    assert not [c for c in cells if c.get("skipped")], "a built-in method skipped a scene"
-    assert all({"prepare", "trace"} <= set(c["stages"]) for c in cells)
+    # a method may skip only the scenes its capabilities exclude (dlpv/dir: diffuse only)
+    from arlight.evaluate.suite import get_scene
+    from arlight.methods import get_method
+
+    allowed = {(m, s) for m, s in expected
+               if get_method(m).spec.unsupported_reason(get_scene(s, quick=True).world)}
+    skipped = {(c["method"], c["scene"]) for c in cells if c.get("skipped")}
+    assert skipped == allowed, "a built-in method skipped a scene it supports"
+    assert all("prepare" in c["stages"] and len(c["stages"]) >= 2
+               for c in cells if not c.get("skipped"))
     md = (out / "report.md").read_text()
     assert "Grand comparison" in md and "Stage times, ms" in md
-    for m, s in expected:
+    for m, s in expected - allowed:
         assert (out / "grids" / f"{s}__{m}.png").is_file()
