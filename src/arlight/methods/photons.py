@@ -27,9 +27,10 @@ path-traced radiance without double counting. Three stages, timed by ``onepass``
    virtual glass), and are retraced in µ with the same random numbers (the retraced prefix
    is bit-identical), where they become *real-only* photons (real caustics that the virtual
    object blocks, subtracted through ``L_r``).
-3. **Index** (``t_b``, :class:`PhotonMap`): a uniform hash grid with cell size ``2h``
-   (``h`` the kernel radius): bucket keys computed in Dr.Jit, a stable NumPy sort, bucket
-   start/end tables. A fixed-radius query visits the 2×2×2 cells overlapping the query ball.
+3. **Index** (``t_b``, :class:`PhotonMap`): a uniform grid with cell size ``h`` (the kernel
+   radius) wrapped into ``2^n ≥ 2N`` buckets (low bits of the cell coordinates, so any 3×3×3
+   block of cells has distinct buckets): keys computed in Dr.Jit, a stable NumPy sort,
+   bucket start/end tables. A fixed-radius query visits the ≤ 27 cells its ball overlaps.
    (``benchmarks/bench_photons.py`` measures it against ``scipy.spatial.cKDTree``.)
 4. **Density estimation** (in ``t_r``, :func:`gather_caustics`): at the first non-delta hit
    of each camera sample after a (possibly empty) chain of delta-specular vertices, the
@@ -70,7 +71,6 @@ PHOTON_LIGHTS = ("point", "spot")
 """Light types that shoot caustic photons (delta positions: a path tracer finds none of their
 caustics, so the photon estimate adds without double counting)."""
 SHARED, MIXED_ONLY, REAL_ONLY = 0, 1, 2
-_HASH = (73856093, 19349663, 83492791)
 _DIMS = 8
 
 
@@ -404,23 +404,35 @@ def trace_photons(views: SceneViews, emitted: EmittedPhotons, max_depth: int,
 
 
 # --------------------------------------------------------------------------------- index
-def _bucket(p: mi.Point3f, inv_cell: mi.Float, mask: mi.UInt32, dx: int = 0, dy: int = 0,
-            dz: int = 0, base: mi.Point3f | None = None) -> mi.UInt32:
-    """Hash-grid bucket of the cell holding ``p`` (``base``: cell coordinates precomputed)."""
-    if base is None:
-        base = dr.floor(p * inv_cell)
-    ix = mi.UInt32(mi.Int32(base.x) + dx)
-    iy = mi.UInt32(mi.Int32(base.y) + dy)
-    iz = mi.UInt32(mi.Int32(base.z) + dz)
-    return ((ix * _HASH[0]) ^ (iy * _HASH[1]) ^ (iz * _HASH[2])) & mask
+def _grid_bits(size: int, cells: np.ndarray) -> tuple[int, int, int]:
+    """Bits of the x, y, z cell coordinates in a bucket id of a table of ``size`` = 2^n
+    buckets (n ≥ 6): each axis keeps ≥ 2 bits (3 neighbouring cells never share a bucket);
+    the rest go one by one to the axis that wraps most (``cells``: the photons' extent in
+    cells per axis), so a flat photon cloud does not waste bits on its thin axis."""
+    n = int(math.log2(size))
+    bits = [2, 2, 2]
+    for _ in range(n - 6):
+        a = int(np.argmax([cells[i] / (1 << bits[i]) for i in range(3)]))
+        bits[a] += 1
+    return bits[0], bits[1], bits[2]
+
+
+def _bucket(ix: mi.Int32, iy: mi.Int32, iz: mi.Int32, mx: mi.UInt32, my: mi.UInt32,
+            mz: mi.UInt32, sy: mi.UInt32, sz: mi.UInt32) -> mi.UInt32:
+    """Bucket of the integer cell (ix, iy, iz): the low bits of each coordinate side by side
+    (``m*`` masks, ``s*`` shifts). The grid wraps around: cells far apart may share a
+    bucket (their photons fail the distance test), but any 3×3×3 block of cells maps to 27
+    distinct buckets, so a query never visits a bucket twice."""
+    return ((mi.UInt32(ix) & mx) | ((mi.UInt32(iy) & my) << sy)
+            | ((mi.UInt32(iz) & mz) << sz))
 
 
 @dataclass
 class PhotonMap:
-    """K hash grids over stored photons (one per PPM iteration), as flat Dr.Jit tables.
+    """K grids over stored photons (one per PPM iteration), as flat Dr.Jit tables.
 
-    Photons of map i are sorted by bucket; ``start[off_i + b] .. end[off_i + b]`` indexes the
-    photons of bucket ``b`` of map i. Cell size ``2 h_i``; table size a power of two ≥ 2·count.
+    Map i has cell size ``h_i`` and ``2^n ≥ 2·count`` buckets (:func:`_bucket`); its photons
+    are sorted by bucket and ``start[off_i + b] .. end[off_i + b]`` indexes bucket ``b``.
     """
 
     p: mi.Point3f
@@ -430,22 +442,33 @@ class PhotonMap:
     start: mi.UInt32
     end: mi.UInt32
     radius: mi.Float
-    inv_cell: mi.Float
-    tmask: mi.UInt32
-    toff: mi.UInt32
+    bits: tuple[mi.UInt32, ...]  # per map: mx, my, mz, sy, sz, table offset
     radii: list[float]
     stored: int
 
     @staticmethod
     def build(maps: list[StoredPhotons], radii: list[float]) -> PhotonMap:
-        """Sort each map's photons into its hash grid (keys in Dr.Jit, stable NumPy sort)."""
-        ps, wis, fl, cl, st, en, tm, to = [], [], [], [], [], [], [], []
+        """Sort each map's photons into its grid (keys in Dr.Jit, stable NumPy sort)."""
+        ps, wis, fl, cl, st, en = [], [], [], [], [], []
+        bits: list[list[int]] = [[] for _ in range(6)]
         poff = toff = 0
         for sp, h in zip(maps, radii, strict=True):
             n = sp.count
-            size = 1 << max(4, int(math.ceil(math.log2(max(2 * n, 1)))))
-            inv = 1.0 / (2.0 * h)
-            keys = np.asarray(_bucket(sp.p, mi.Float(inv), mi.UInt32(size - 1)), dtype=np.uint32)
+            size = 1 << max(6, int(math.ceil(math.log2(max(2 * n, 1)))))
+            if n:
+                lo = np.array([dr.min(sp.p[i])[0] for i in range(3)], dtype=np.float64)
+                hi = np.array([dr.max(sp.p[i])[0] for i in range(3)], dtype=np.float64)
+                cells = (hi - lo) / h + 1.0
+            else:
+                cells = np.ones(3)
+            bx, by, bz = _grid_bits(size, cells)
+            row = [(1 << bx) - 1, (1 << by) - 1, (1 << bz) - 1, bx, bx + by, toff]
+            for j, v in enumerate(row):
+                bits[j].append(v)
+            cell = dr.floor(sp.p * dr.opaque(mi.Float, 1.0 / h))
+            u = [dr.opaque(mi.UInt32, v) for v in row[:5]]
+            keys = np.asarray(_bucket(mi.Int32(cell.x), mi.Int32(cell.y), mi.Int32(cell.z),
+                                      *u), dtype=np.uint32)
             order = np.argsort(keys, kind="stable").astype(np.uint32)
             counts = np.bincount(keys, minlength=size)
             ends = np.cumsum(counts).astype(np.uint32)
@@ -457,8 +480,6 @@ class PhotonMap:
             cl.append(dr.gather(mi.UInt32, sp.cls, o))
             st.append(starts + poff)
             en.append(ends + poff)
-            tm.append(size - 1)
-            to.append(toff)
             poff += n
             toff += size
 
@@ -471,8 +492,7 @@ class PhotonMap:
             cls=dr.concat(cl) if len(cl) > 1 else cl[0],
             start=mi.UInt32(np.concatenate(st)), end=mi.UInt32(np.concatenate(en)),
             radius=mi.Float(np.array(radii, np.float32)),
-            inv_cell=mi.Float(np.array([1.0 / (2.0 * h) for h in radii], np.float32)),
-            tmask=mi.UInt32(np.array(tm, np.uint32)), toff=mi.UInt32(np.array(to, np.uint32)),
+            bits=tuple(mi.UInt32(np.array(b, np.uint32)) for b in bits),
             radii=list(radii), stored=poff)
         dr.eval(pm.p, pm.wi, pm.flux, pm.cls, pm.start, pm.end)
         return pm
@@ -481,32 +501,26 @@ class PhotonMap:
                  active: mi.Bool) -> tuple[mi.Color3f, mi.Color3f]:
         """Kernel sums ``Σ Φ_p K(|x − x_p|/h)/h²`` (W/m²) of map ``which`` at ``x`` over
         photons arriving on the side ``n`` faces (Kán Eq. 4.4–4.5, d = 2), split into the
-        mixed (shared + mixed-only) and real (shared + real-only) solutions."""
+        mixed (shared + mixed-only) and real (shared + real-only) solutions.
+
+        One symbolic loop per query: it visits the (up to 3×3×3) cells of size h that the
+        ball of radius h overlaps, loading a cell's photon range when the previous one is
+        done, so each iteration handles one photon or one cell."""
         m = dr.width(x)
         h = dr.gather(mi.Float, self.radius, which, active)
-        inv = dr.gather(mi.Float, self.inv_cell, which, active)
-        tmask = dr.gather(mi.UInt32, self.tmask, which, active)
-        toff = dr.gather(mi.UInt32, self.toff, which, active)
-        base = dr.floor((x - h) * inv)
-        cells = []  # (start, end) of the 8 candidate cells, duplicate buckets emptied
-        buckets = []
-        for k in range(8):
-            b = _bucket(x, inv, tmask, k & 1, (k >> 1) & 1, (k >> 2) & 1, base)
-            dup = dr.full(mi.Bool, False, m)
-            for bj in buckets:
-                dup |= bj == b
-            buckets.append(b)
-            s = dr.gather(mi.UInt32, self.start, toff + b, active)
-            e = dr.gather(mi.UInt32, self.end, toff + b, active)
-            cells.append((s, dr.select(dup | ~active, s, e)))
+        mx, my, mz, sy, sz, toff = (dr.gather(mi.UInt32, b, which, active) for b in self.bits)
+        lo = dr.floor((x - h) / h)
+        hi = dr.floor((x + h) / h)
+        lo_i = [mi.Int32(lo.x), mi.Int32(lo.y), mi.Int32(lo.z)]
+        span = [mi.Int32(hi.x) - lo_i[0], mi.Int32(hi.y) - lo_i[1], mi.Int32(hi.z) - lo_i[2]]
         h2 = h * h
         norm = (2.0 / math.pi) / h2
         zero_c = dr.zeros(mi.Color3f, m)
-        state = (dr.zeros(mi.UInt32, m), dr.zeros(mi.UInt32, m), dr.zeros(mi.UInt32, m),
+        state = (dr.select(active, 0, 27), dr.zeros(mi.UInt32, m), dr.zeros(mi.UInt32, m),
                  mi.Color3f(zero_c), mi.Color3f(zero_c))
 
         def cond(k, cur, end, acc_m, acc_r):
-            return (k < 8) | (cur < end)
+            return (k < 27) | (cur < end)
 
         def body(k, cur, end, acc_m, acc_r):
             proc = cur < end
@@ -520,18 +534,20 @@ class PhotonMap:
             acc_m += dr.select(use & (cls != REAL_ONLY), c, 0.0)
             acc_r += dr.select(use & (cls != MIXED_ONLY), c, 0.0)
             cur = dr.select(proc, cur + 1, cur)
-            load = ~proc & (k < 8)
-            s, e = cells[7]
-            for j in range(6, -1, -1):
-                s = dr.select(k == j, cells[j][0], s)
-                e = dr.select(k == j, cells[j][1], e)
-            cur = dr.select(load, s, cur)
-            end = dr.select(load, e, end)
+            load = ~proc & (k < 27)
+            d = [mi.Int32(k % 3), mi.Int32((k // 3) % 3), mi.Int32(k // 9)]
+            inside = load & (d[0] <= span[0]) & (d[1] <= span[1]) & (d[2] <= span[2])
+            b = _bucket(lo_i[0] + d[0], lo_i[1] + d[1], lo_i[2] + d[2], mx, my, mz, sy, sz)
+            s = dr.gather(mi.UInt32, self.start, toff + b, inside)
+            e = dr.gather(mi.UInt32, self.end, toff + b, inside)
+            cur = dr.select(inside, s, cur)
+            end = dr.select(inside, e, end)
             k = dr.select(load, k + 1, k)
             return k, cur, end, acc_m, acc_r
 
-        _, _, _, acc_m, acc_r = dr.while_loop(state=state, cond=cond, body=body,
-                                              label="photon_gather")
+        k0, cur0, end0, acc_m, acc_r = state
+        _, _, _, acc_m, acc_r = dr.while_loop(state=(mi.UInt32(k0), cur0, end0, acc_m, acc_r),
+                                              cond=cond, body=body, label="photon_gather")
         return acc_m, acc_r
 
 
