@@ -434,3 +434,30 @@ def test_sphere_light_has_the_point_lights_intensity():
     se = s.stderr["real"].astype(np.float64)
     assert np.all(np.abs(diff) <= 4 * se + 1e-3 * a.real)
     assert a.real.mean() > 0.1
+
+
+@pytest.mark.parametrize("option,needle", [("photons=0", "options.photons"),
+                                           ("photon_radius=-0.01", "options.photon_radius")])
+def test_cli_bad_photon_option_exits_2(tmp_path, option, needle):
+    """`arlight render` with zero photons or a negative radius: exit status 2 and one message
+    naming the option, no traceback, no output written."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from arlight.io.images import write_png
+
+    d = sphere_scene(w=16, h=12)
+    d["frame"] = {"image": "frame.png"}
+    (tmp_path / "scene.json").write_text(json.dumps(d))
+    write_png(tmp_path / "frame.png", np.full((12, 16, 3), 90, np.uint8))
+    exe = shutil.which("arlight", path=str(Path(sys.executable).parent))
+    out = tmp_path / "out"
+    r = subprocess.run([exe, "render", str(tmp_path / "scene.json"), "-m", "onepass",
+                        "--option", "caustics=photons", "--option", option, "-o", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert needle in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()
