@@ -20,6 +20,7 @@ import os
 import statistics
 import time
 
+import drjit as dr
 import numpy as np
 from results import publish
 
@@ -68,6 +69,7 @@ def main() -> None:
     vol_np = rng.normal(size=(grid.n, grid.n, grid.n, 4, 3))
     vol = SHVolume.from_numpy(grid, vol_np)
     propagate(vol, opts.steps)
+    dr.sync_thread()
     peer = {"drjit": [], "drjit_damped": [], "numpy": []}
     for _ in range(args.repeats):
         for name, (method, settings, state) in states.items():
@@ -75,9 +77,11 @@ def main() -> None:
             stats[name].append(layers.stats)
         t = time.perf_counter()
         propagate(vol, opts.steps)
+        dr.sync_thread()  # dr.eval only launches the LLVM kernels; wait for them
         peer["drjit"].append(time.perf_counter() - t)
         t = time.perf_counter()
         propagate(vol, opts.steps, dampening=True)
+        dr.sync_thread()
         peer["drjit_damped"].append(time.perf_counter() - t)
     for _ in range(max(1, args.repeats // 3)):  # the NumPy peer is slow; fewer repeats
         t = time.perf_counter()

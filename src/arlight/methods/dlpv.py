@@ -45,8 +45,18 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, render_gbuffer, resolve, resolve_scalar
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, check_memory, light_rays, render_rsm, shared_texels
-from arlight.realtime.sh_volume import Grid, SHVolume, inject, propagate, query_irradiance
-from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, virtual_bounds
+from arlight.realtime.sh_volume import (
+    Grid,
+    SHVolume,
+    inject,
+    propagate,
+    query_irradiance_compact,
+)
+from arlight.realtime.shading import (
+    ambient_irradiance_dr,
+    direct_irradiance_compact,
+    virtual_bounds,
+)
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
@@ -184,15 +194,17 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
     """Per-lane ``(virtual radiance, delta radiance)`` (Alg. 1 / Eqs. 5.14–5.16)."""
     virt = gb.virtual
     real = gb.valid & ~virt
-    e_dir = direct_irradiance(data.views.mixed, data.lights, gb.position, gb.normal, virt)
+    e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
+                                      virt)
     e_amb = ambient_irradiance_dr(data.lights, gb.normal)
     e_ind = mi.Color3f(0.0)
     delta = mi.Color3f(0.0)
     if vols.rho is not None:
         half = 0.5 * vols.rho.grid.cell
         q = gb.position + gb.normal * half  # [KD10]: look up half a cell off the surface
-        e_ind = query_irradiance(vols.rho, q, gb.normal, virt)
-        delta = gb.albedo * (1.0 / np.pi) * query_irradiance(vols.delta, q, gb.normal, real)
+        e_ind = query_irradiance_compact(vols.rho, q, gb.normal, virt)
+        delta = gb.albedo * (1.0 / np.pi) * query_irradiance_compact(vols.delta, q, gb.normal,
+                                                                     real)
     mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_dir + e_ind + e_amb),
                       mi.Color3f(0.0))
     delta = dr.select(real, delta, mi.Color3f(0.0))

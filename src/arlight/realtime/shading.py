@@ -62,6 +62,20 @@ def direct_irradiance(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Ve
     return out
 
 
+def direct_irradiance_compact(view: SceneView, lights: LightSet, p: mi.Point3f,
+                              n: mi.Vector3f, active: mi.Bool) -> mi.Color3f:
+    """:func:`direct_irradiance` on the ``active`` lanes only (compacted, scattered back;
+    zero elsewhere), so that shadow rays are set up for those lanes alone."""
+    idx = dr.compress(active)
+    out = dr.zeros(mi.Color3f, dr.width(p))
+    if dr.width(idx) == 0 or not lights.lights:
+        return out
+    pc = mi.Point3f(dr.gather(type(p), p, idx))
+    nc = mi.Vector3f(dr.gather(type(n), n, idx))
+    dr.scatter(out, direct_irradiance(view, lights, pc, nc, mi.Bool(True)), idx)
+    return out
+
+
 def ambient_irradiance(lights: LightSet, n: np.ndarray) -> np.ndarray:
     """Irradiance (W/m², ``(N, 3)``) of the SH ambient remainder for normals ``(N, 3)``,
     unoccluded (Ramamoorthi & Hanrahan 2001)."""
@@ -116,4 +130,4 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
 
 
 __all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_irradiance",
-           "emitted_intensity", "scene_bounds", "virtual_bounds"]
+           "direct_irradiance_compact", "emitted_intensity", "scene_bounds", "virtual_bounds"]
