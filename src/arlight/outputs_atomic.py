@@ -244,12 +244,14 @@ def _rename_exchange(a: Path, b: Path) -> bool:
 
 def _test_hook(point: str) -> None:
     """Interruption tests: with ``ARLIGHT_TEST_SWAP_HOOK=PREFIX`` create ``PREFIX.<point>``
-    and sleep ``ARLIGHT_TEST_SWAP_SLEEP`` seconds (default 5) at each point of the swap."""
+    at each point of the swap and sleep ``ARLIGHT_TEST_SWAP_SLEEP`` seconds (default 5) there
+    — only at ``ARLIGHT_TEST_SWAP_POINT`` when that is set."""
     prefix = os.environ.get("ARLIGHT_TEST_SWAP_HOOK")
     if not prefix:
         return
     Path(f"{prefix}.{point}").touch()
-    time.sleep(float(os.environ.get("ARLIGHT_TEST_SWAP_SLEEP", "5")))
+    if os.environ.get("ARLIGHT_TEST_SWAP_POINT", point) == point:
+        time.sleep(float(os.environ.get("ARLIGHT_TEST_SWAP_SLEEP", "5")))
 
 
 class StagedOutput:
