@@ -83,7 +83,8 @@ class PhotonSettings:
         radius: kernel radius ``h`` of the density estimate, metres (first map under PPM).
         ppm_iterations: number of photon maps with shrinking radii (1: Kán's fixed radius).
         ppm_alpha: Hachisuka's α in ``h_{i+1}² = h_i² (i + α)/(i + 1)``, in (0, 1).
-        max_depth: longest photon path in vertices (Mitsuba's convention, -1: 64).
+        max_depth: longest light path in vertices, Mitsuba's convention: a photon makes at most
+            ``max_depth − 2`` specular bounces before the diffuse hit (-1: 64 vertices).
         seed: seed of the photon random numbers.
     """
 
@@ -337,7 +338,7 @@ def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt
         store = valid & ~delta & (nspec > 0)
         stored |= store
         sp = dr.select(store, si.p, sp)
-        go = valid & delta & (depth + 2 <= max_depth)
+        go = valid & delta & (depth + 3 <= max_depth)  # L S^(depth+1) D: depth + 3 vertices
         base = depth * _DIMS
         s1 = mi.sample_tea_float32(key, base, 6)
         s2 = mi.Point2f(mi.sample_tea_float32(key, base + 1, 6),
