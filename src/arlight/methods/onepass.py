@@ -44,7 +44,13 @@ from arlight.methods.base import (
     layers_from_passes,
 )
 from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions, lane_keys
-from arlight.methods.photons import PhotonMap, PhotonSettings, build_photon_maps, gather_caustics
+from arlight.methods.photons import (
+    PhotonMap,
+    PhotonSettings,
+    build_indices,
+    build_photon_maps,
+    gather_caustics,
+)
 from arlight.methods.reference import PathScenes, frame_gather, prepare_scenes
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.scene.model import FrameView, World
@@ -146,13 +152,14 @@ class OnePassMethod(BaseMethod):
             background = frame_gather(frame)
         counts = dict.fromkeys(RAY_TYPES, 0)
         pmap: PhotonMap | None = None
+        pmap_real: PhotonMap | None = None
         photon_stats: dict[str, float] = {}
         if options.caustics == "photons":
             ps = photon_settings(options, settings)
             with timer.stage("photons"):  # t_p: emission and tracing (Kán Table 5.2)
                 maps, photon_stats = build_photon_maps(data.world, views, ps)
             with timer.stage("photon_index"):  # t_b: the hash grids
-                pmap = PhotonMap.build(maps, ps.radii())
+                pmap, pmap_real = build_indices(maps, ps.radii(), views)
             photon_stats["photon_radius"] = ps.radius
 
         def kernel(rays, pixel, seed, lanes):
@@ -176,7 +183,7 @@ class OnePassMethod(BaseMethod):
                     counts[k] += v
             if pmap is not None:  # caustics L S+ D: density estimation after the camera walk
                 cm, cr = gather_caustics(views, pmap, r, key, settings.max_depth,
-                                         tracer.reproj)
+                                         tracer.reproj, pmap_real)
                 lm, lr = lm + cm, lr + cr
             return differential_samples(lm, lr, m, background(pixel))
 

@@ -307,6 +307,14 @@ class StoredPhotons:
     def count(self) -> int:
         return dr.width(self.cls)
 
+    def without(self, cls: int) -> StoredPhotons:
+        """The photons not of class ``cls`` (same order)."""
+        keep = dr.compress(self.cls != cls)
+        return StoredPhotons(dr.gather(mi.Point3f, self.p, keep),
+                             dr.gather(mi.Vector3f, self.wi, keep),
+                             dr.gather(mi.Color3f, self.flux, keep),
+                             dr.gather(mi.UInt32, self.cls, keep))
+
     def class_counts(self) -> dict[str, int]:
         c = np.bincount(np.asarray(self.cls, dtype=np.int64), minlength=3)
         return {"photons_shared": int(c[0]), "photons_mixed_only": int(c[1]),
@@ -466,10 +474,13 @@ class PhotonMap:
             row = [(1 << bx) - 1, (1 << by) - 1, (1 << bz) - 1, bx, bx + by, toff]
             for j, v in enumerate(row):
                 bits[j].append(v)
-            cell = dr.floor(sp.p * dr.opaque(mi.Float, 1.0 / h))
-            u = [dr.opaque(mi.UInt32, v) for v in row[:5]]
-            keys = np.asarray(_bucket(mi.Int32(cell.x), mi.Int32(cell.y), mi.Int32(cell.z),
-                                      *u), dtype=np.uint32)
+            if n:
+                cell = dr.floor(sp.p * dr.opaque(mi.Float, 1.0 / h))
+                u = [dr.opaque(mi.UInt32, v) for v in row[:5]]
+                keys = np.asarray(_bucket(mi.Int32(cell.x), mi.Int32(cell.y),
+                                          mi.Int32(cell.z), *u), dtype=np.uint32)
+            else:
+                keys = np.zeros(0, np.uint32)
             order = np.argsort(keys, kind="stable").astype(np.uint32)
             counts = np.bincount(keys, minlength=size)
             ends = np.cumsum(counts).astype(np.uint32)
@@ -624,12 +635,26 @@ def _gather_walk(view: SceneView, rays: mi.Ray3f, key: mi.UInt32, max_depth: int
     return qp, qn, qf, found, qt, qrole, touched
 
 
+def build_indices(maps: list[StoredPhotons], radii: list[float], views: SceneViews
+                  ) -> tuple[PhotonMap, PhotonMap | None]:
+    """The index over all photons and, when the views differ, one over the photons the real
+    solution uses (shared + real-only): the µ walks of forked camera samples query only
+    that, so a caustic of virtual glass (all mixed-only) costs them nothing."""
+    full = PhotonMap.build(maps, radii)
+    if views.mixed is views.real:
+        return full, None
+    return full, PhotonMap.build([m.without(MIXED_ONLY) for m in maps], radii)
+
+
 def gather_caustics(views: SceneViews, pmap: PhotonMap, rays: mi.Ray3f, key: mi.UInt32,
-                    max_depth: int, reprojector=None) -> tuple[mi.Color3f, mi.Color3f]:
+                    max_depth: int, reprojector=None, pmap_real: PhotonMap | None = None
+                    ) -> tuple[mi.Color3f, mi.Color3f]:
     """Caustic radiance ``(L_m, L_r)`` per camera sample (W·sr⁻¹·m⁻²), one-pass style.
 
     The walk in ρ gives ``L_m``; where it touched no virtual shape it is the walk of µ too,
-    so ``L_r`` comes from the same point; the other lanes are compacted and walked in µ.
+    so ``L_r`` comes from the same point; the other lanes are compacted and walked in µ,
+    querying ``pmap_real`` (the shared and real-only photons, :func:`build_indices`) when
+    given, else ``pmap``.
     With camera-image reprojection (Kán §5.2) a mixed path that reaches a real diffuse point
     through virtual specular vertices takes that point's radiance from the frame, which
     already shows the real caustic there, so only the difference ``Σ_m − Σ_r`` is added.
@@ -653,16 +678,20 @@ def gather_caustics(views: SceneViews, pmap: PhotonMap, rays: mi.Ray3f, key: mi.
     lr = qf * sr
     dr.eval(lm, lr, touched)
     fork = dr.compress(touched)
-    if dr.width(fork) > 0:
+    real_map = pmap if pmap_real is None else pmap_real
+    if dr.width(fork) > 0 and real_map.stored == 0:
+        lr = mi.Color3f(lr)
+        dr.scatter(lr, dr.zeros(mi.Color3f, dr.width(fork)), fork)
+    elif dr.width(fork) > 0:
         key_b = dr.gather(mi.UInt32, key, fork)
         qp2, qn2, qf2, found2, _, _, _ = _gather_walk(views.real, dr.gather(mi.Ray3f, rays, fork),
                                                    key_b, md)
-        _, sr2 = pmap.estimate(qp2, qn2, dr.gather(mi.UInt32, which, fork), found2)
+        _, sr2 = real_map.estimate(qp2, qn2, dr.gather(mi.UInt32, which, fork), found2)
         lr = mi.Color3f(lr)
         dr.scatter(lr, qf2 * sr2, fork)
     return lm, lr
 
 
 __all__ = ["GENERATOR_MATERIALS", "PHOTON_LIGHTS", "PhotonMap", "PhotonSettings",
-           "StoredPhotons", "build_photon_maps", "emit_photons", "gather_caustics",
+           "StoredPhotons", "build_indices", "build_photon_maps", "emit_photons", "gather_caustics",
            "merge_cones", "trace_photons"]
