@@ -139,3 +139,36 @@ def test_ambient_polynomial_equals_sh_irradiance():
     got = ambient_irradiance_dr(ls, mi.Vector3f(*(np.ascontiguousarray(n[:, i], np.float32)
                                                  for i in range(3))))
     assert np.allclose(np.array(got).reshape(3, -1).T, ref, atol=1e-4 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("rotation", [0.0, 70.0])
+def test_environment_map_splits_into_lights_and_ambient(rotation):
+    """An environment map becomes directional lights (its highlights) plus SH ambient; the
+    irradiance on an upward and a sideways surface matches the map's cosine integral (3 %;
+    the 9-coefficient SH of the remainder is the only approximation), also with the map
+    rotated. Rejects a dropped remainder, lights pointing the wrong way (direction of travel
+    vs towards the light) or an unrotated SH."""
+    from arlight.demo import DEMO_DIR
+    from arlight.realtime.shading import ambient_irradiance
+    from arlight.sphere.envmap import equirect_directions, equirect_solid_angle
+
+    d = area_light_scene()
+    d["lights"] = [{"type": "envmap", "file": str(DEMO_DIR / "lebombo_512x256.hdr"),
+                    "rotation_deg": rotation}]
+    world = parse_scene(d).world
+    light = world.lights[0]
+    ls = reduce_lights(world, env_lights=4)
+    assert 1 <= len(ls.lights) <= 4 and all(x.kind == "directional" for x in ls.lights)
+    img = np.asarray(light.radiance_map, np.float64) * light.params.get("scale", 1.0)
+    h = img.shape[0]
+    dirs = equirect_directions(h, img.shape[1])
+    a = math.radians(rotation)
+    rot = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    dirs = dirs @ rot.T
+    omega = equirect_solid_angle(h, img.shape[1])
+    for n in (np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])):
+        want = (img * (np.maximum(dirs @ n, 0) * omega)[..., None]).sum(axis=(0, 1))
+        got = ambient_irradiance(ls, n[None])[0]
+        for x in ls.lights:
+            got = got + x.intensity * max(0.0, float(-x.axis @ n))
+        assert np.allclose(got, want, rtol=0.03), (n, got, want)
