@@ -139,9 +139,14 @@ def test_bad_options_are_input_errors(opt, value):
     assert e.value.field == f"options.{opt}"
 
 
-def test_rsm_that_does_not_fit_in_memory_is_an_input_error():
+def test_rsm_that_does_not_fit_in_memory_is_an_input_error(monkeypatch):
+    """The memory check runs before any work (made to fail on any machine by pretending a
+    texel needs 1 TB; the real check compares with MemAvailable)."""
+    import arlight.realtime.rsm as rsm
+
+    monkeypatch.setattr(rsm, "BYTES_PER_TEXEL", 2**40)
     with pytest.raises(InputError) as e:
-        run(make(box_scene()), rsm_size=16384 * 1)
+        run(make(box_scene()), rsm_size=64)
     assert e.value.field == "options.rsm_size"
 
 
@@ -200,3 +205,29 @@ def test_quality_against_ground_truth(name):
     or scale, a misplaced volume."""
     r = suite_quality("dlpv", name)
     assert r["all"] < 0.97 and r["virtual"] < 0.6 and r["ring"] < 1.15, r
+
+
+def test_volume_placement_is_axis_stable():
+    """Franke §4.4.1: the cube is 2 × the largest bounding-box edge around the objects; its
+    cells stay on one lattice when the object moves (origin shifts by whole cells only), so
+    the volume does not flicker. Rejects centring the grid on the moving bounding box."""
+    from arlight.realtime.sh_volume import Grid
+
+    lo, hi = np.array([0.1, 0.0, -0.2]), np.array([0.4, 0.2, 0.0])
+    g0 = Grid.around(lo, hi, 32)
+    assert g0.size == pytest.approx(0.6) and np.all(g0.origin <= lo) and np.all(
+        g0.origin + g0.size >= hi)
+    for shift in (0.003, 0.011, -0.027):
+        g = Grid.around(lo + shift, hi + shift, 32)
+        k = (g.origin - g0.origin) / g0.cell
+        assert np.allclose(k, np.round(k), atol=1e-9)
+
+
+def test_cli_bad_option_exits_2(tmp_path):
+    """Bad input through the command line: one line naming the field, exit status 2."""
+    from arlight.cli import main
+    from arlight.demo import demo_scene_path
+
+    for opt in ("steps=-1", "volume_size=1", "rsm_size=0"):
+        assert main(["render", str(demo_scene_path()), "-m", "dlpv", "--option", opt, "-o",
+                     str(tmp_path / "out")]) == 2
