@@ -49,6 +49,7 @@ from arlight.realtime.sh_volume import (
     Grid,
     SHVolume,
     inject,
+    plane_response,
     propagate,
     query_irradiance_compact,
 )
@@ -70,6 +71,8 @@ OPTIONS: dict[str, Field] = {
                        "(Franke §4.4)"),
     "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
                            "§4.3.2); off: indirect change only"),
+    "calibrate": Field("bool", True, "divide volume reads by the LPV's response to a uniformly "
+                       "lit plane (1.9 at 32³, 32 steps, damped; ours, not Franke's)"),
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
     "env_lights": Field("int", 4, "directional lights extracted from an environment map's "
@@ -99,6 +102,7 @@ class DLPVData:
     views: SceneViews
     lights: LightSet
     grid: Grid | None
+    read_scale: float = 1.0
 
 
 @dataclass
@@ -118,7 +122,10 @@ def prepare(world: World, options: Options) -> DLPVData:
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
     grid = None if bounds is None else Grid.around(*bounds, n=options.volume_size,
                                                      scale=options.volume_scale)
-    return DLPVData(world, views, lights, grid)
+    scale = 1.0
+    if options.calibrate and grid is not None:
+        scale = 1.0 / plane_response(options.volume_size, options.steps, options.dampening)
+    return DLPVData(world, views, lights, grid, scale)
 
 
 def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[tuple[RSM, RSM]]:
@@ -202,9 +209,10 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
     if vols.rho is not None:
         half = 0.5 * vols.rho.grid.cell
         q = gb.position + gb.normal * half  # [KD10]: look up half a cell off the surface
-        e_ind = query_irradiance_compact(vols.rho, q, gb.normal, virt)
-        delta = gb.albedo * (1.0 / np.pi) * query_irradiance_compact(vols.delta, q, gb.normal,
-                                                                     real)
+        k = float(data.read_scale)
+        e_ind = query_irradiance_compact(vols.rho, q, gb.normal, virt) * k
+        delta = gb.albedo * (k / np.pi) * query_irradiance_compact(vols.delta, q, gb.normal,
+                                                                   real)
     mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_dir + e_ind + e_amb),
                       mi.Color3f(0.0))
     delta = dr.select(real, delta, mi.Color3f(0.0))
