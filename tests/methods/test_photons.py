@@ -523,3 +523,27 @@ def test_caustic_renders_are_deterministic():
     c = get_method("onepass")(scene, RenderSettings(spp=4, seed=1, options={
         "caustics": "photons", "photons": 30_000}))
     assert not np.array_equal(a.composite, c.composite)
+
+
+def test_real_caustic_seen_in_a_virtual_mirror_is_not_added_twice():
+    """A virtual mirror shows the table where a real glass sphere focuses its caustic. With
+    camera-image reprojection (Kán §5.2) those pixels take the frame, which already holds
+    the real caustic, so the photon estimate adds only Σ_m − Σ_r there (≈ 0: the mirror
+    barely touches the photons); without reprojection the proxy is shaded and the caustic
+    is added. Rejects adding Σ_m at reprojected points (the caustic counted twice)."""
+    c, lp, focus = focus_geometry()
+    cam, m = np.array([0.35, 0.55, 0.55]), np.array([-0.05, 0.15, -0.25])
+    n = (cam - m) / np.linalg.norm(cam - m) + (focus - m) / np.linalg.norm(focus - m)
+    mirror = {"name": "mirror", "role": "virtual", "type": "rectangle", "size": [0.2, 0.2],
+              "normal": [float(x) for x in n / np.linalg.norm(n)],
+              "transform": {"translate": [float(x) for x in m]},
+              "material": {"type": "mirror", "reflectance": 0.9}}
+    scene = make(sphere_scene(glass_role="real", extra=[mirror]))
+    gains = {}
+    for rp in (True, False):
+        on = render(scene, True, photons=100_000, photon_radius=0.004, reproject=rp)
+        off = get_method("onepass")(scene, RenderSettings(spp=4, options={"reproject": rp}))
+        in_mirror = on.mask > 0.99
+        gains[rp] = float((on.mixed - off.mixed)[in_mirror].sum())
+    assert gains[False] > 1.0
+    assert abs(gains[True]) < 0.02 * gains[False]
