@@ -297,8 +297,10 @@ class Validator:
             x = self.number(value, field)
             if k == "int" and (not isinstance(value, int) or isinstance(value, bool)):
                 raise self.fail(field, f"expected an integer, got {value!r}")
+            if k == "int":
+                x = int(value)  # exact, and errors print "-1", not "-1.0"
             self._range(x, spec, field)
-            return int(x) if k == "int" else x
+            return x
         if k == "rgb":
             rgb = [self.number(value, field)] * 3 if not isinstance(value, list | tuple) \
                 else self.vector(value, 3, field)
