@@ -37,6 +37,7 @@ from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, render_gbuffer
+from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, light_rays, render_rsm, shared_texels
 from arlight.realtime.shading import (
@@ -55,10 +56,7 @@ OPTIONS: dict[str, Field] = {
                             min=0.0, max=1.0e6),
     "interleave": Field("int", 4, "interleaved sampling block k (k² VPL subsets; 1: every "
                         "VPL at every pixel)", "pixels", min=1, max=16),
-    "env_lights": Field("int", 4, "directional lights extracted from an environment map's "
-                        "highlights (median cut); the rest is SH ambient", "", min=0, max=256),
-    "area_grid": Field("int", 1, "cosine point lights per side of an area light", "", min=1,
-                       max=16),
+    **REDUCTION_OPTIONS,
 }
 
 

@@ -43,6 +43,7 @@ from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, render_gbuffer, resolve, resolve_scalar
+from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, check_memory, light_rays, render_rsm, shared_texels
 from arlight.realtime.sh_volume import (
@@ -75,10 +76,7 @@ OPTIONS: dict[str, Field] = {
                        "lit plane (1.9 at 32³, 32 steps, damped; ours, not Franke's)"),
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
-    "env_lights": Field("int", 4, "directional lights extracted from an environment map's "
-                        "highlights (median cut); the rest is SH ambient", "", min=0, max=256),
-    "area_grid": Field("int", 1, "cosine point lights per side of an area light", "", min=1,
-                       max=16),
+    **REDUCTION_OPTIONS,
     "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
                          max=64),
 }

@@ -321,6 +321,17 @@ class StoredPhotons:
                 "photons_real_only": int(c[2])}
 
 
+
+def _specular_bounce(bsdf, ctx, si, s1: mi.Float, s2: mi.Point2f, go: mi.Bool, weight,
+                     ray: mi.Ray3f):
+    """Continue the lanes ``go`` through their (delta) BSDF: the weight times the sampled
+    BSDF weight, the ray along the sampled direction; lanes whose weight became 0 stop.
+    Returns ``(weight, ray, go)``."""
+    bs, w = bsdf.sample(ctx, si, s1, s2, go)
+    weight = dr.select(go, weight * w, weight)
+    ray = dr.select(go, si.spawn_ray(si.to_world(bs.wo)), ray)
+    return weight, ray, go & (dr.max(weight) > 0)
+
 def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt32,
                  max_depth: int) -> tuple[mi.Point3f, mi.Vector3f, mi.Color3f, mi.Bool, mi.Bool]:
     """Trace photons in ``view`` through delta-specular vertices; a photon is stored at its
@@ -351,10 +362,7 @@ def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt
         s1 = mi.sample_tea_float32(key, base, 6)
         s2 = mi.Point2f(mi.sample_tea_float32(key, base + 1, 6),
                         mi.sample_tea_float32(key, base + 2, 6))
-        bs, w = bsdf.sample(ctx, si, s1, s2, go)
-        phi = dr.select(go, phi * w, phi)
-        ray = dr.select(go, si.spawn_ray(si.to_world(bs.wo)), ray)
-        go &= dr.max(phi) > 0
+        phi, ray, go = _specular_bounce(bsdf, ctx, si, s1, s2, go, phi, ray)
         return ray, phi, go, depth + 1, nspec + 1, stored, touched, sp
 
     ray, phi, _, _, _, stored, touched, sp = dr.while_loop(state=state, cond=cond, body=body,
@@ -624,10 +632,7 @@ def _gather_walk(view: SceneView, rays: mi.Ray3f, key: mi.UInt32, max_depth: int
         s1 = mi.sample_tea_float32(key, base, 6)
         s2 = mi.Point2f(mi.sample_tea_float32(key, base + 1, 6),
                         mi.sample_tea_float32(key, base + 1, 7))
-        bs, w = bsdf.sample(ctx, si, s1, s2, go)
-        beta = dr.select(go, beta * w, beta)
-        ray = dr.select(go, si.spawn_ray(si.to_world(bs.wo)), ray)
-        go &= dr.max(beta) > 0
+        beta, ray, go = _specular_bounce(bsdf, ctx, si, s1, s2, go, beta, ray)
         return ray, beta, go, depth + 1, touched, qp, qn, qf, found, qt, qrole
 
     out = dr.while_loop(state=state, cond=cond, body=body, label="caustic_walk")

@@ -28,8 +28,17 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.scene.model import World
+from arlight.scene.schema import Field
 
 KINDS = ("point", "cosine", "spot", "directional")
+
+OPTIONS: dict[str, Field] = {
+    "env_lights": Field("int", 4, "directional lights extracted from an environment map's "
+                        "highlights (median cut); the rest is SH ambient", "", min=0, max=256),
+    "area_grid": Field("int", 1, "cosine point lights per side of an area light", "", min=1,
+                       max=16),
+}
+"""The light-reduction settings every method built on :func:`reduce_lights` exposes."""
 
 
 @dataclass(frozen=True)
