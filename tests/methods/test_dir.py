@@ -14,7 +14,6 @@ from arlight.methods import RenderSettings, get_method
 from arlight.methods.dir import SPEC, make_vpls
 from arlight.realtime.gbuffer import render_gbuffer
 from arlight.realtime.shading import SHADOW_EPS
-from arlight.scene.load import parse_scene
 from tests.methods.test_dlpv import box_scene, make
 
 
@@ -111,13 +110,6 @@ def test_bad_options(opts, field):
     assert e.value.field == field
 
 
-def test_no_light_is_an_input_error():
-    d = box_scene()
-    d["lights"] = []
-    with pytest.raises(InputError) as e:
-        run(make(d))
-    assert e.value.field == "lights"
-    _ = parse_scene  # noqa: F841
 
 
 @pytest.mark.parametrize("name", ["bunny-box", "cornell-near-field", "red-paper"])

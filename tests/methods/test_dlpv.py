@@ -150,11 +150,14 @@ def test_rsm_that_does_not_fit_in_memory_is_an_input_error(monkeypatch):
     assert e.value.field == "options.rsm_size"
 
 
-def test_no_light_is_an_input_error():
+@pytest.mark.parametrize("method", ["dlpv", "dir"])
+def test_no_light_is_an_input_error(method):
+    """Both real-time methods reduce the scene's lights; with none there is nothing to
+    reduce (rejects silently rendering black)."""
     d = box_scene()
     d["lights"] = []
     with pytest.raises(InputError) as e:
-        run(make(d))
+        get_method(method)(make(d), RenderSettings())
     assert e.value.field == "lights"
 
 
