@@ -3,12 +3,14 @@ extent caps, every documented form of `rotate`, `two_sided`, the `[render]` tabl
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from arlight.errors import InputError
 from arlight.io.images import write_exr, write_png
-from arlight.scene.load import parse_scene, render_defaults
+from arlight.scene.load import parse_scene, read_render_table
 
 CAM = {"resolution": [8, 6], "fov_y_deg": 40,
        "look_at": {"origin": [0, 1, 3], "target": [0, 0, 0]}}
@@ -125,12 +127,14 @@ def test_two_sided_flag_reaches_the_bsdf():
     assert describe_material(parse_scene(d).shapes[0].material)["type"] == "twosided"
 
 
-def test_render_table_is_validated_and_read():
+def test_render_table_is_validated_and_read(tmp_path):
     d = _scene(render={"method": "onepass", "spp": 16, "max_depth": 3,
                        "options": {"reproject": False}})
-    assert render_defaults(parse_scene(d)) == {"method": "onepass", "spp": 16, "max_depth": 3,
-                                               "options": {"reproject": False}}
-    assert render_defaults(parse_scene(_scene())) == {}
+    (tmp_path / "r.json").write_text(json.dumps(d))
+    (tmp_path / "n.json").write_text(json.dumps(_scene()))
+    assert read_render_table(tmp_path / "r.json") == {
+        "method": "onepass", "spp": 16, "max_depth": 3, "options": {"reproject": False}}
+    assert read_render_table(tmp_path / "n.json") == {}
     _fails(_scene(render={"spp": 0}), "render.spp", ">=")
     _fails(_scene(render={"max_depth": 0}), "render.max_depth")
     _fails(_scene(render={"sample_count": 4}), "render.sample_count", "unknown field")

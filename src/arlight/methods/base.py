@@ -28,6 +28,7 @@ import numpy as np
 from arlight.composite import composite
 from arlight.errors import InputError
 from arlight.methods.spec import MethodSpec, Options
+from arlight.scene.load import RENDER_DEFAULTS
 from arlight.scene.model import ARScene, FrameView, World
 from arlight.timing import StageTimer
 
@@ -48,10 +49,10 @@ class RenderSettings:
             keys are errors; defaults fill the rest; ``arlight methods NAME`` lists them).
     """
 
-    spp: int = 64
-    max_depth: int = 8
+    spp: int = RENDER_DEFAULTS["spp"]  # the one set of defaults, shared with scene files
+    max_depth: int = RENDER_DEFAULTS["max_depth"]
     rr_depth: int = 5
-    seed: int = 0
+    seed: int = RENDER_DEFAULTS["seed"]
     spp_per_pass: int | None = None
     progress: bool = False
     options: dict[str, Any] = field(default_factory=dict)

@@ -148,16 +148,6 @@ def render_table(v: Validator, tab: Any) -> dict[str, Any]:
     return {k: x for k, x in out.items() if k in tab}
 
 
-def render_defaults(scene: ARScene | World) -> dict[str, Any]:
-    """The render settings a scene file stores in ``[render]`` (``method``, ``spp``,
-    ``max_depth``, ``seed``, ``options``): only those it gives, already validated."""
-    tab = scene.raw.get("render")
-    if tab is None:
-        return {}
-    file = str(scene.source) if scene.source else "<scene>"
-    return render_table(Validator(file, Path(".")), tab)
-
-
 RENDER_DEFAULTS: dict[str, Any] = {"method": "reference", "spp": 64, "max_depth": 8, "seed": 0}
 """Render settings used when neither the command line nor the scene's ``[render]`` gives
 them (documented in :data:`arlight.scene.schema.RENDER_FIELDS`)."""
