@@ -225,9 +225,6 @@ class MethodSpec:
         return rows
 
 
-__all__ = ["Capabilities", "Field", "MethodSpec", "Options"]
-
-
 def parse_option_pairs(pairs: list[str], form: str = "key=value") -> dict[str, str]:
     """``--option`` arguments as ``{key: value}``; values stay strings (each method's option
     table converts them by kind, see :meth:`MethodSpec.parse_options`). ``form`` is how the
@@ -241,3 +238,6 @@ def parse_option_pairs(pairs: list[str], form: str = "key=value") -> dict[str, s
             raise InputError(f"expected {form}, got {pair!r}", field="--option")
         out[key.strip()] = value
     return out
+
+
+__all__ = ["Capabilities", "Field", "MethodSpec", "Options", "parse_option_pairs"]
