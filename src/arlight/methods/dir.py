@@ -47,6 +47,7 @@ from arlight.realtime.shading import (
     scene_bounds,
 )
 from arlight.scene.model import FrameView, World
+from arlight.sphere.sh import LUMINANCE
 from arlight.timing import StageTimer
 
 OPTIONS: dict[str, Field] = {
@@ -96,7 +97,7 @@ def vpl_counts(lights: LightSet, total: int, bounds: tuple[np.ndarray, float]) -
     powers = []
     for lt in lights.lights:
         if lt.kind == "directional":
-            y = float(np.asarray(lt.intensity) @ np.array([0.2126, 0.7152, 0.0722]))
+            y = float(np.asarray(lt.intensity) @ LUMINANCE)
             powers.append(y * math.pi * radius * radius)
         else:
             powers.append(lt.power)

@@ -29,6 +29,7 @@ import numpy as np
 from arlight.errors import InputError
 from arlight.scene.model import World
 from arlight.scene.schema import Field
+from arlight.sphere.sh import LUMINANCE, project_equirect, rotate
 
 KINDS = ("point", "cosine", "spot", "directional")
 
@@ -73,7 +74,7 @@ class ReducedLight:
     @property
     def power(self) -> float:
         """Emitted power (W, luminance-weighted mean of RGB); 0 for directional lights."""
-        y = float(np.asarray(self.intensity) @ np.array([0.2126, 0.7152, 0.0722]))
+        y = float(np.asarray(self.intensity) @ LUMINANCE)
         if self.kind == "point":
             return 4.0 * math.pi * y
         if self.kind == "cosine":
@@ -126,7 +127,6 @@ def _area(name: str, p: dict, grid: int) -> list[ReducedLight]:
 def _environment(name: str, image: np.ndarray, rotation_deg: float, env_lights: int,
                  threshold_factor: float) -> tuple[list[ReducedLight], np.ndarray]:
     from arlight.light.extract import auto_threshold, median_cut, split_highlights
-    from arlight.sphere.sh import project_equirect
 
     img = np.asarray(image, np.float64)[..., :3]
     rot = _rot_y(rotation_deg)
@@ -142,8 +142,6 @@ def _environment(name: str, image: np.ndarray, rotation_deg: float, env_lights: 
                                            x.irradiance.copy(), source=name))
     sh = project_equirect(np.asarray(rest, np.float64), 2)
     if abs(rotation_deg) > 0.0:
-        from arlight.sphere.sh import rotate
-
         sh = rotate(sh, rot)
     return lights, np.asarray(sh, np.float64).reshape(9, 3)
 
