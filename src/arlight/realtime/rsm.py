@@ -31,6 +31,7 @@ from arlight.backend.mitsuba_scene import ROLE_MISS, SceneView
 from arlight.errors import InputError
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.realtime.light_reduction import ReducedLight
+from arlight.realtime.shading import spot_falloff
 
 BYTES_PER_TEXEL = 4 * 32
 """Rough memory per RSM texel while it is built (rays, interaction, outputs), bytes."""
@@ -115,11 +116,7 @@ def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float]) 
             flux = i0 * (math.pi / res**2)
         else:
             local = mi.warp.square_to_uniform_cone(uv, float(light.cos_cutoff))
-            cut, beam = math.acos(light.cos_cutoff), math.acos(light.cos_beam)
-            ang = dr.acos(dr.clip(local.z, -1.0, 1.0))
-            width = max(cut - beam, 1e-9)
-            fall = dr.select(local.z >= light.cos_beam, 1.0, dr.clip((cut - ang) / width, 0.0,
-                                                                       1.0))
+            fall = spot_falloff(light, local.z)  # every texel lies inside the cone
             flux = i0 * (fall * (2.0 * math.pi * (1.0 - light.cos_cutoff) / res**2))
         d = frame.to_world(local)
         origin = dr.zeros(mi.Point3f, res * res) + pos

@@ -28,11 +28,16 @@ def emitted_intensity(light: ReducedLight, w_out: mi.Vector3f) -> mi.Color3f:
     c = dr.dot(axis, w_out)
     if light.kind == "cosine":
         return i0 * dr.maximum(c, 0.0)
+    return i0 * dr.select(c > light.cos_cutoff, spot_falloff(light, c), 0.0)
+
+
+def spot_falloff(light: ReducedLight, c: mi.Float) -> mi.Float:
+    """Mitsuba's spot profile at ``c = <axis, ω>``: 1 inside the beam, falling linearly in
+    angle to 0 at the cutoff (not masked outside the cone)."""
     cut, beam = math.acos(light.cos_cutoff), math.acos(light.cos_beam)
     width = max(cut - beam, 1e-9)
     ang = dr.acos(dr.clip(c, -1.0, 1.0))
-    fall = dr.select(c >= light.cos_beam, 1.0, dr.clip((cut - ang) / width, 0.0, 1.0))
-    return i0 * dr.select(c > light.cos_cutoff, fall, 0.0)
+    return dr.select(c >= light.cos_beam, 1.0, dr.clip((cut - ang) / width, 0.0, 1.0))
 
 
 def direct_irradiance(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
@@ -130,4 +135,5 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
 
 
 __all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_irradiance",
-           "direct_irradiance_compact", "emitted_intensity", "scene_bounds", "virtual_bounds"]
+           "direct_irradiance_compact", "emitted_intensity", "scene_bounds", "spot_falloff",
+           "virtual_bounds"]
