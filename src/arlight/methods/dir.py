@@ -36,7 +36,7 @@ import numpy as np
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.realtime.gbuffer import GBuffer, render_gbuffer
+from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, light_rays, render_rsm, shared_texels
@@ -245,10 +245,6 @@ def interleave_filter(gb: GBuffer, values: list, k: int) -> list:
     return out
 
 
-def _image(c: mi.Color3f, h: int, w: int) -> np.ndarray:
-    return np.array(c, np.float64).reshape(3, -1).T.reshape(h, w, 3)
-
-
 class DIRMethod(BaseMethod):
     """Differential instant radiosity (Knecht et al. 2010)."""
 
@@ -263,7 +259,6 @@ class DIRMethod(BaseMethod):
 
     def render_view(self, data: DIRData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
-        h, w = view.camera.height, view.camera.width
         with timer.stage("gbuffer"):
             gb = render_gbuffer(data.views.mixed, view.camera, 1, settings.seed)
         virt = gb.virtual
@@ -293,13 +288,9 @@ class DIRMethod(BaseMethod):
             e_amb = ambient_irradiance_dr(data.lights, gb.normal)
             delta = dr.select(real, rho * (e_dm - e_dr + e_id), mi.Color3f(0.0))
             mixed = dr.select(virt, rho * (e_dm + e_im + e_amb), mi.Color3f(0.0))
-            bg = np.asarray(view.frame, np.float32)
-            d_img = _image(delta, h, w)
-            v = np.array(virt).reshape(h, w)
-            m_img = np.where(v[..., None], _image(mixed, h, w), bg + d_img)
-            layers = Layers.assemble(bg, m_img, d_img, v.astype(np.float32),
-                                     stats={"vpls": float(vpls.count if vpls else 0),
-                                            "shadow_rays": float(rays)})
+            layers = assemble(gb, view.frame, mixed, delta,
+                              {"vpls": float(vpls.count if vpls else 0),
+                               "shadow_rays": float(rays)})
         if not data.world.has_virtual:
             assert not np.any(layers.delta), "dir: delta must vanish without virtual objects"
         return layers

@@ -42,7 +42,7 @@ import numpy as np
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.realtime.gbuffer import GBuffer, render_gbuffer, resolve, resolve_scalar
+from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, check_memory, light_rays, render_rsm, shared_texels
@@ -216,26 +216,6 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
     delta = dr.select(real, delta, mi.Color3f(0.0))
     dr.eval(mixed, delta)
     return mixed, delta
-
-
-def assemble(gb: GBuffer, frame: np.ndarray, mixed: mi.Color3f, delta: mi.Color3f,
-             stats: dict) -> Layers:
-    """Per-pixel layers from per-sample shading: ``mask`` = virtual fraction, ``mixed`` =
-    mean over virtual samples (``B + delta`` where none), ``delta`` = mean over the other
-    samples, so the composite is the per-sample composite's mean."""
-    virt = resolve_scalar(gb, mi.Float(gb.virtual))
-    bg = np.asarray(frame, np.float32)
-    if gb.spp == 1:
-        d = resolve(gb, delta)
-        m = np.where(virt[..., None] > 0, resolve(gb, mixed), bg + d)
-        return Layers.assemble(bg, m, d, virt, stats=stats)
-    n_v = virt * gb.spp
-    n_r = gb.spp - n_v
-    sum_m = resolve(gb, mixed) * gb.spp
-    sum_d = resolve(gb, delta) * gb.spp
-    d = np.where(n_r[..., None] > 0, sum_d / np.maximum(n_r, 1)[..., None], 0.0)
-    m = np.where(n_v[..., None] > 0, sum_m / np.maximum(n_v, 1)[..., None], bg + d)
-    return Layers.assemble(bg, m, d, virt, stats=stats)
 
 
 class DLPVMethod(BaseMethod):

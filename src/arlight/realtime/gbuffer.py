@@ -18,6 +18,7 @@ import numpy as np
 
 from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_VIRTUAL, SceneView
+from arlight.methods.base import Layers
 from arlight.scene.camera import Camera
 
 
@@ -106,5 +107,25 @@ def resolve_scalar(gb: GBuffer, values: mi.Float) -> np.ndarray:
     return arr.reshape(gb.height, gb.width, gb.spp).mean(axis=2)
 
 
-__all__ = ["GBuffer", "facing", "render_gbuffer", "resolve", "resolve_scalar",
+def assemble(gb: GBuffer, frame: np.ndarray, mixed: mi.Color3f, delta: mi.Color3f,
+             stats: dict) -> Layers:
+    """Per-pixel layers from per-sample shading: ``mask`` = virtual fraction, ``mixed`` =
+    mean over virtual samples (``B + delta`` where none), ``delta`` = mean over the other
+    samples, so the composite is the per-sample composite's mean."""
+    virt = resolve_scalar(gb, mi.Float(gb.virtual))
+    bg = np.asarray(frame, np.float32)
+    if gb.spp == 1:
+        d = resolve(gb, delta)
+        m = np.where(virt[..., None] > 0, resolve(gb, mixed), bg + d)
+        return Layers.assemble(bg, m, d, virt, stats=stats)
+    n_v = virt * gb.spp
+    n_r = gb.spp - n_v
+    sum_m = resolve(gb, mixed) * gb.spp
+    sum_d = resolve(gb, delta) * gb.spp
+    d = np.where(n_r[..., None] > 0, sum_d / np.maximum(n_r, 1)[..., None], 0.0)
+    m = np.where(n_v[..., None] > 0, sum_m / np.maximum(n_v, 1)[..., None], bg + d)
+    return Layers.assemble(bg, m, d, virt, stats=stats)
+
+
+__all__ = ["GBuffer", "assemble", "facing", "render_gbuffer", "resolve", "resolve_scalar",
            "surface_albedo"]
