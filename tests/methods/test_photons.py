@@ -330,6 +330,18 @@ def test_virtual_glass_caustic_lands_in_the_delta():
         assert on.stats[k] > 0
 
 
+def test_virtual_glass_caustic_under_ppm():
+    """Progressive maps of a virtual-glass-only caustic: every photon is mixed-only, so the
+    real solution's maps are all empty. Rejects joining the maps with a bare ``dr.concat``
+    (it fails on zero-width parts) and adding the caustic to I_r."""
+    scene = make(sphere_scene(w=24, h=18))
+    on = render(scene, True, photons=20_000, ppm_iterations=3)
+    off = render(scene, False)
+    assert on.stats["photons_mixed_only"] == on.stats["photons_stored"] > 0
+    assert (on.delta - off.delta)[on.mask == 0].max() > 0.05
+    np.testing.assert_allclose(on.real, off.real, atol=1e-6)
+
+
 def test_virtual_blocker_removes_real_caustic_exactly():
     """A virtual opaque box between the light and a real glass sphere: the real-only photons
     retraced in µ rebuild the real caustic, so I_r's caustic equals the caustic of the world

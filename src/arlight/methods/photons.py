@@ -74,6 +74,17 @@ SHARED, MIXED_ONLY, REAL_ONLY = 0, 1, 2
 _DIMS = 8
 
 
+def _concat(parts: list, cls):
+    """Dr.Jit arrays of type ``cls`` (a 3-vector type or ``mi.UInt32``) joined in order.
+    Empty parts are skipped: ``dr.concat`` rejects zero-width arrays."""
+    parts = [x for x in parts if dr.width(x) > 0] or parts[:1]
+    if len(parts) == 1:
+        return cls(parts[0])
+    if cls is mi.UInt32:
+        return dr.concat(parts)
+    return cls(*[dr.concat([x[c] for x in parts]) for c in range(3)])
+
+
 @dataclass(frozen=True)
 class PhotonSettings:
     """Settings of the caustic photon map.
@@ -281,12 +292,8 @@ def emit_photons(world: World, views: SceneViews, n_photons: int, seed: int) -> 
         fluxes.append(flux)
         count += n
 
-    def cat(arrays, cls):
-        return cls(*[dr.concat([a[i] for a in arrays]) for i in range(3)]) if len(arrays) > 1 \
-            else cls(arrays[0])
-
-    rays = mi.Ray3f(cat(rays_o, mi.Point3f), cat(rays_d, mi.Vector3f))
-    flux = cat(fluxes, mi.Color3f)
+    rays = mi.Ray3f(_concat(rays_o, mi.Point3f), _concat(rays_d, mi.Vector3f))
+    flux = _concat(fluxes, mi.Color3f)
     dr.eval(rays, flux)
     power = np.array([float(dr.sum(flux[i])[0]) for i in range(3)])
     return EmittedPhotons(rays, flux, count, len(plans), power)
@@ -401,21 +408,8 @@ def trace_photons(views: SceneViews, emitted: EmittedPhotons, max_depth: int,
             parts.append((dr.gather(mi.Point3f, p2, k2), dr.gather(mi.Vector3f, wi2, k2),
                           dr.gather(mi.Color3f, phi2, k2),
                           dr.full(mi.UInt32, REAL_ONLY, dr.width(k2))))
-    parts = [x for x in parts if dr.width(x[3]) > 0]
-    if not parts:
-        z = dr.zeros(mi.Float, 0)
-        return StoredPhotons(mi.Point3f(z, z, z), mi.Vector3f(z, z, z), mi.Color3f(z, z, z),
-                             dr.zeros(mi.UInt32, 0))
-
-    def cat(i, cls):
-        if len(parts) == 1:
-            return parts[0][i]
-        if cls is mi.UInt32:
-            return dr.concat([x[i] for x in parts])
-        return cls(*[dr.concat([x[i][c] for x in parts]) for c in range(3)])
-
-    out = StoredPhotons(cat(0, mi.Point3f), cat(1, mi.Vector3f), cat(2, mi.Color3f),
-                        cat(3, mi.UInt32))
+    out = StoredPhotons(*(_concat([x[i] for x in parts], cls) for i, cls in
+                          enumerate((mi.Point3f, mi.Vector3f, mi.Color3f, mi.UInt32))))
     dr.eval(out.p, out.wi, out.flux, out.cls)
     return out
 
@@ -503,13 +497,9 @@ class PhotonMap:
             poff += n
             toff += size
 
-        def cat3(arrs, cls):
-            return cls(*[dr.concat([a[c] for a in arrs]) if len(arrs) > 1 else arrs[0][c]
-                         for c in range(3)])
-
         pm = PhotonMap(
-            p=cat3(ps, mi.Point3f), wi=cat3(wis, mi.Vector3f), flux=cat3(fl, mi.Color3f),
-            cls=dr.concat(cl) if len(cl) > 1 else cl[0],
+            p=_concat(ps, mi.Point3f), wi=_concat(wis, mi.Vector3f), flux=_concat(fl, mi.Color3f),
+            cls=_concat(cl, mi.UInt32),
             start=mi.UInt32(np.concatenate(st)), end=mi.UInt32(np.concatenate(en)),
             radius=mi.Float(np.array(radii, np.float32)),
             bits=tuple(mi.UInt32(np.array(b, np.uint32)) for b in bits),
