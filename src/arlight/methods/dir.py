@@ -39,7 +39,7 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
-from arlight.realtime.rsm import RSM, light_rays, render_rsm, shared_texels
+from arlight.realtime.rsm import RSM, concat_rays, light_rays, render_rsm, shared_texels
 from arlight.realtime.shading import (
     SHADOW_EPS,
     ambient_irradiance_dr,
@@ -118,26 +118,9 @@ class VPLs:
 def make_vpls(data: DIRData, total: int) -> VPLs:
     """``R_ρ``/``R_µ`` VPL maps of every light, concatenated."""
     sides = vpl_counts(data.lights, total, data.bounds)
-    parts_r, parts_m = [], []
-    for lt, s in zip(data.lights.lights, sides, strict=True):
-        rays = light_rays(lt, s, data.bounds)
-        parts_r.append(render_rsm(data.views.mixed, rays))
-        parts_m.append(render_rsm(data.views.real, rays))
-
-    def cat(parts: list[RSM]) -> RSM:
-        if len(parts) == 1:
-            return parts[0]
-        fields = {}
-        for name in ("position", "normal", "albedo", "role", "shape", "t", "direction",
-                     "flux_in", "flux_out"):
-            arrays = [getattr(p, name) for p in parts]
-            tp = type(arrays[0])
-            np_arrays = [np.array(a) for a in arrays]
-            joined = np.concatenate(np_arrays, axis=-1)
-            fields[name] = tp(joined) if joined.ndim == 1 else tp(*joined)
-        return RSM(**fields, res=0)
-
-    rho, mu = cat(parts_r), cat(parts_m)
+    rays = concat_rays([light_rays(lt, s, data.bounds)
+                        for lt, s in zip(data.lights.lights, sides, strict=True)])
+    rho, mu = render_rsm(data.views.mixed, rays), render_rsm(data.views.real, rays)
     shared = shared_texels(rho, mu)
     dr.eval(shared)
     return VPLs(rho, mu, shared, int(sum(s * s for s in sides)))

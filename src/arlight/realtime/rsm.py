@@ -135,6 +135,19 @@ def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float]) 
     return LightRays(origin, d, flux, res)
 
 
+def concat_rays(parts: list[LightRays]) -> LightRays:
+    """The rays of several lights as one batch (``res`` 0: not a square map), so that one
+    :func:`render_rsm` per view casts them all."""
+    if len(parts) == 1:
+        return parts[0]
+
+    def cat(arrays: list):
+        return type(arrays[0])(*(dr.concat([a[i] for a in arrays]) for i in range(3)))
+
+    return LightRays(cat([p.origin for p in parts]), cat([p.direction for p in parts]),
+                     cat([p.flux for p in parts]), 0)
+
+
 def render_rsm(view: SceneView, rays: LightRays) -> RSM:
     """Cast ``rays`` into ``view``: the RSM of that view (``R_ρ`` for ``views.mixed``,
     ``R_µ`` for ``views.real``)."""
@@ -159,4 +172,5 @@ def shared_texels(a: RSM, b: RSM) -> mi.Bool:
     return (a.shape == b.shape) & ((a.t == b.t) | ((a.role == ROLE_MISS) & (b.role == ROLE_MISS)))
 
 
-__all__ = ["RSM", "LightRays", "check_memory", "light_rays", "render_rsm", "shared_texels"]
+__all__ = ["RSM", "LightRays", "check_memory", "concat_rays", "light_rays", "render_rsm",
+           "shared_texels"]
