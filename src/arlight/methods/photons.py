@@ -55,13 +55,19 @@ the average over the maps.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView, SceneViews
+from arlight.backend.mitsuba_scene import (
+    LIGHT_PREFIX,
+    ROLE_REAL,
+    ROLE_VIRTUAL,
+    SceneView,
+    SceneViews,
+)
 from arlight.errors import InputError
 from arlight.scene.model import World
 
@@ -210,8 +216,13 @@ class EmittedPhotons:
     rays: mi.Ray3f
     flux: mi.Color3f
     count: int
-    cones: int
-    power: np.ndarray = field(default_factory=lambda: np.zeros(3))  # Σ Φ, watts
+
+    @property
+    def power(self) -> np.ndarray:
+        """``Σ Φ``, watts (read back from the device: for tests, not the per-frame path)."""
+        if self.count == 0:
+            return np.zeros(3)
+        return np.array([float(dr.sum(self.flux[i])[0]) for i in range(3)])
 
 
 def _light_emitters(world: World, view: SceneView) -> list[tuple[np.ndarray, mi.Emitter]]:
@@ -220,7 +231,7 @@ def _light_emitters(world: World, view: SceneView) -> list[tuple[np.ndarray, mi.
     for i, light in enumerate(world.lights):
         if light.type in PHOTON_LIGHTS:
             out.append((np.asarray(light.params["position"], dtype=np.float64),
-                        by_id[f"light{i}"]))
+                        by_id[f"{LIGHT_PREFIX}{i}"]))
     return out
 
 
@@ -253,7 +264,7 @@ def emit_photons(world: World, views: SceneViews, n_photons: int, seed: int) -> 
             plans.append((pos, em, cone, theta, max(lum, 1e-12) * omega))
     if not plans:
         empty = dr.zeros(mi.Ray3f, 0)
-        return EmittedPhotons(empty, dr.zeros(mi.Color3f, 0), 0, 0)
+        return EmittedPhotons(empty, dr.zeros(mi.Color3f, 0), 0)
     total_w = sum(p[4] for p in plans)
     rays_o, rays_d, fluxes, count = [], [], [], 0
     for k, (pos, em, cone, theta, w) in enumerate(plans):
@@ -295,8 +306,7 @@ def emit_photons(world: World, views: SceneViews, n_photons: int, seed: int) -> 
     rays = mi.Ray3f(_concat(rays_o, mi.Point3f), _concat(rays_d, mi.Vector3f))
     flux = _concat(fluxes, mi.Color3f)
     dr.eval(rays, flux)
-    power = np.array([float(dr.sum(flux[i])[0]) for i in range(3)])
-    return EmittedPhotons(rays, flux, count, len(plans), power)
+    return EmittedPhotons(rays, flux, count)
 
 
 # ------------------------------------------------------------------------------- tracing
@@ -564,13 +574,12 @@ class PhotonMap:
 def build_photon_maps(world: World, views: SceneViews, ps: PhotonSettings
                       ) -> tuple[list[StoredPhotons], dict[str, float]]:
     """Shoot and trace the K photon maps (stage ``photons``, ``t_p``); stats of the shoot."""
-    maps, emitted, power = [], 0, np.zeros(3)
+    maps, emitted = [], 0
     for i in range(ps.ppm_iterations):
         seed = (ps.seed * 1_000_003 + i) & 0x7FFFFFFF
         em = emit_photons(world, views, ps.photons, seed)
         maps.append(trace_photons(views, em, ps.max_depth, seed))
         emitted += em.count
-        power += em.power
     stats = {"photons_emitted": float(emitted),
              "photons_stored": float(sum(m.count for m in maps))}
     for m in maps:
