@@ -137,13 +137,13 @@ def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[tuple[RSM, RSM]]:
 
 
 def inject_delta(vol: SHVolume, pairs: list[tuple[RSM, RSM]], direct: bool,
-                 indirect: bool = True, eliminate: bool = True) -> int:
+                 indirect: bool = True) -> int:
     """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``; shared texels
-    skipped when ``eliminate``. Returns the texels injected (VPL pairs, per kind)."""
+    skipped. Returns the texels injected (VPL pairs, per kind)."""
     half = 0.5 * vol.grid.cell
     count = 0
     for r_rho, r_mu in pairs:
-        keep = ~shared_texels(r_rho, r_mu) if eliminate else mi.Bool(True)
+        keep = ~shared_texels(r_rho, r_mu)
         for r, sign in ((r_rho, 1.0), (r_mu, -1.0)):
             act = r.valid & keep
             if indirect:
