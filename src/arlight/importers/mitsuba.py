@@ -269,19 +269,16 @@ def _safe(name: str) -> str:
 
 
 def _write_ply(path: Path, v: np.ndarray, f: np.ndarray, n: np.ndarray | None) -> None:
-    """Binary little-endian PLY: float x y z [nx ny nz], faces as uchar count + int32."""
-    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if n is not None else [])
-    head = ["ply", "format binary_little_endian 1.0", "comment arlight import-mitsuba",
-            f"element vertex {len(v)}", *(f"property float {p}" for p in props),
-            f"element face {len(f)}", "property list uchar int vertex_indices", "end_header"]
-    verts = np.hstack([v, n]) if n is not None else v
-    faces = np.zeros(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    faces["n"], faces["i"] = 3, f.astype(np.int32)
+    """Binary PLY through trimesh (vertices in file order, unmerged; ``nx ny nz`` when ``n``
+    is given, as :func:`arlight.scene.mesh.read_mesh` reads them back)."""
+    import trimesh
+
     from arlight.io.images import atomic_write
 
+    mesh = trimesh.Trimesh(v, f, vertex_normals=n, process=False)
+    data = trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=n is not None)
     with atomic_write(path, ".ply") as tmp:
-        tmp.write_bytes(("\n".join(head) + "\n").encode("ascii")
-                        + np.ascontiguousarray(verts, dtype="<f4").tobytes() + faces.tobytes())
+        tmp.write_bytes(data)
 
 
 def import_mitsuba(xml: str | Path, out: str | Path, virtual: Sequence[str] = ()) -> Path:
