@@ -253,15 +253,6 @@ def _step(cur: list, idxs: list, oks: list, dampening: bool) -> list:
     return new
 
 
-def _run(cur: list, idxs: list, oks: list, steps: int, dampening: bool) -> list:
-    acc = [mi.Color3f(c) for c in cur]
-    for _ in range(steps):
-        cur = _step(cur, idxs, oks, dampening)
-        acc = [acc[k] + cur[k] for k in range(4)]
-        dr.eval(cur, acc)
-    return acc
-
-
 _MATS = propagation_matrices()
 _TOWARD = [basis(d) for d in AXES.astype(np.float64)]
 
@@ -290,17 +281,16 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     idxs = [t[0] for t in tables]
     oks = [t[1] for t in tables]
     cur = [mi.Color3f(c) for c in vol.coeffs]
-    if stats is None:
-        acc = _run(cur, idxs, oks, int(steps), bool(dampening))
-        return SHVolume(grid, list(acc))
     acc = [mi.Color3f(c) for c in cur]
     fluxes = []
     for _ in range(int(steps)):
-        cur = _step(cur, idxs, oks, dampening)
+        cur = _step(cur, idxs, oks, bool(dampening))
         acc = [acc[k] + cur[k] for k in range(4)]
         dr.eval(cur, acc)
-        fluxes.append(_channel_sums(cur[0]) * math.sqrt(4 * math.pi))
-    stats["flux_per_step"] = fluxes
+        if stats is not None:
+            fluxes.append(_channel_sums(cur[0]) * math.sqrt(4 * math.pi))
+    if stats is not None:
+        stats["flux_per_step"] = fluxes
     return SHVolume(grid, acc)
 
 
