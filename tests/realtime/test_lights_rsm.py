@@ -121,7 +121,6 @@ def test_gbuffer_roles_and_albedo():
     n = np.array(gb.normal).reshape(3, -1).T
     to_cam = np.array(gb.to_camera).reshape(3, -1).T
     assert np.all((n * to_cam).sum(1)[role.ravel() >= 0] >= -1e-6)
-    _ = mi  # variant in use
 
 
 def test_ambient_polynomial_equals_sh_irradiance():
