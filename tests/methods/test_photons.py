@@ -249,6 +249,17 @@ def virtual_sphere_map():
     return em, sp, PhotonMap.build([sp], ps.radii())
 
 
+def test_photon_path_length_follows_max_depth():
+    """``max_depth`` counts vertices, Mitsuba's convention: the ball-lens caustic L S S D
+    needs 4, so ``max_depth = 3`` stores only the photons reflected once off the sphere
+    (L S D, a few % by Fresnel). Rejects an off-by-one that lets a photon make
+    ``max_depth − 1`` specular bounces."""
+    world, views = _views(sphere_scene())
+    em = emit_photons(world, views, 20_000, seed=1)
+    stored = {d: np.asarray(trace_photons(views, em, d, seed=1).flux)[0].sum() for d in (3, 4)}
+    assert 0 < stored[3] < 0.2 * stored[4]
+
+
 def test_caustic_energy_matches_fresnel_reference(virtual_sphere_map):
     """The caustic's power on the plane (the kernel estimate integrated over a 0.5 m square
     around the sphere) equals the power through the sphere after Fresnel losses, from an
