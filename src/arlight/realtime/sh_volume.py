@@ -34,6 +34,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.realtime.shading import on_active
+
 Y00 = 0.5 / math.sqrt(math.pi)
 """``Y_00 = 1/(2√π) ≈ 0.282095``."""
 Y1 = math.sqrt(3.0 / (4.0 * math.pi))
@@ -368,14 +370,7 @@ def query_irradiance_compact(vol: SHVolume, p: mi.Point3f, n: mi.Vector3f,
     hi = [x + g.size for x in lo]
     inside = active & (p.x > lo[0]) & (p.y > lo[1]) & (p.z > lo[2]) & (p.x < hi[0]) & (
         p.y < hi[1]) & (p.z < hi[2])
-    idx = dr.compress(inside)
-    out = dr.zeros(mi.Color3f, dr.width(p))
-    if dr.width(idx) == 0:
-        return out
-    pc = mi.Point3f(dr.gather(type(p), p, idx))
-    nc = mi.Vector3f(dr.gather(type(n), n, idx))
-    dr.scatter(out, query_irradiance(vol, pc, nc), idx)
-    return out
+    return on_active(lambda pc, nc: query_irradiance(vol, pc, nc), p, n, inside)
 
 
 _PLANE_RESPONSE: dict[tuple[int, int, bool], float] = {}

@@ -71,13 +71,22 @@ def direct_irradiance_compact(view: SceneView, lights: LightSet, p: mi.Point3f,
                               n: mi.Vector3f, active: mi.Bool) -> mi.Color3f:
     """:func:`direct_irradiance` on the ``active`` lanes only (compacted, scattered back;
     zero elsewhere), so that shadow rays are set up for those lanes alone."""
+    if not lights.lights:
+        return dr.zeros(mi.Color3f, dr.width(p))
+    return on_active(lambda pc, nc: direct_irradiance(view, lights, pc, nc, mi.Bool(True)),
+                     p, n, active)
+
+
+def on_active(fn, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool) -> mi.Color3f:
+    """``fn(p, n)`` evaluated on the ``active`` lanes only (compacted with ``dr.compress``,
+    scattered back; zero elsewhere): pays off for costly per-lane work on few lanes."""
     idx = dr.compress(active)
     out = dr.zeros(mi.Color3f, dr.width(p))
-    if dr.width(idx) == 0 or not lights.lights:
+    if dr.width(idx) == 0:
         return out
     pc = mi.Point3f(dr.gather(type(p), p, idx))
     nc = mi.Vector3f(dr.gather(type(n), n, idx))
-    dr.scatter(out, direct_irradiance(view, lights, pc, nc, mi.Bool(True)), idx)
+    dr.scatter(out, fn(pc, nc), idx)
     return out
 
 
@@ -135,5 +144,5 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
 
 
 __all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_irradiance",
-           "direct_irradiance_compact", "emitted_intensity", "scene_bounds", "spot_falloff",
-           "virtual_bounds"]
+           "direct_irradiance_compact", "emitted_intensity", "on_active", "scene_bounds",
+           "spot_falloff", "virtual_bounds"]
