@@ -57,8 +57,9 @@ def run(scene, **opts):
 
 @pytest.mark.parametrize("light", ["point", "area"])
 def test_no_virtual_object_returns_the_frame_exactly(light):
-    """No virtual object → composite == frame bit for bit, delta == 0, mask == 0; rejects a
-    delta computed as LPV(ρ) − LPV(µ) with float residue, or any shading of real pixels."""
+    """No virtual object → composite == frame bit for bit, delta == 0, mask == 0; rejects any
+    shading of real pixels (no volume is built without a virtual object, so this cannot see
+    float residue of LPV(ρ) − LPV(µ); the two-volume identity test covers the volumes)."""
     scene = make(box_scene(virtual=False, light=light))
     layers = run(scene)
     assert np.array_equal(layers.composite, scene.frame)
