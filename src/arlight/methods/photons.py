@@ -338,6 +338,10 @@ class StoredPhotons:
                 "photons_real_only": int(c[2])}
 
 
+def _is_delta(flags: mi.UInt32) -> mi.Bool:
+    """Lanes whose BSDF is purely delta-specular (glass, mirror): walks continue there."""
+    return mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
+
 
 def _specular_bounce(bsdf, ctx, si, s1: mi.Float, s2: mi.Point2f, go: mi.Bool, weight,
                      ray: mi.Ray3f):
@@ -348,6 +352,7 @@ def _specular_bounce(bsdf, ctx, si, s1: mi.Float, s2: mi.Point2f, go: mi.Bool, w
     weight = dr.select(go, weight * w, weight)
     ray = dr.select(go, si.spawn_ray(si.to_world(bs.wo)), ray)
     return weight, ray, go & (dr.max(weight) > 0)
+
 
 def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt32,
                  max_depth: int) -> tuple[mi.Point3f, mi.Vector3f, mi.Color3f, mi.Bool, mi.Bool]:
@@ -369,8 +374,7 @@ def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt
         touched |= valid & (view.hit_role(si) == ROLE_VIRTUAL)
         bsdf = si.bsdf()
         flags = bsdf.flags()
-        delta = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags,
-                                                                       mi.BSDFFlags.Smooth)
+        delta = _is_delta(flags)
         store = valid & ~delta & (nspec > 0)
         stored |= store
         sp = dr.select(store, si.p, sp)
@@ -400,8 +404,8 @@ def trace_photons(views: SceneViews, emitted: EmittedPhotons, max_depth: int,
     key = mi.sample_tea_32(dr.arange(mi.UInt32, n),
                            dr.opaque(mi.UInt32, (seed * 31 + 17) & 0xFFFFFFFF), 4)[0]
     p, wi, phi, stored, touched = _photon_walk(views.mixed, emitted.rays, emitted.flux, key, md)
-    same = views.mixed is views.real
-    cls = dr.select(touched & ~same, mi.UInt32(MIXED_ONLY), mi.UInt32(SHARED))
+    same = views.mixed is views.real  # then no shape is virtual and nothing is touched
+    cls = dr.select(touched, mi.UInt32(MIXED_ONLY), mi.UInt32(SHARED))
     dr.eval(p, wi, phi, stored, cls)
     keep = dr.compress(stored)
     parts = [(dr.gather(mi.Point3f, p, keep), dr.gather(mi.Vector3f, wi, keep),
@@ -613,8 +617,7 @@ def _gather_walk(view: SceneView, rays: mi.Ray3f, key: mi.UInt32, max_depth: int
         role = view.hit_role(si)
         bsdf = si.bsdf()
         flags = bsdf.flags()
-        delta = mi.has_flag(flags, mi.BSDFFlags.Delta) & ~mi.has_flag(flags,
-                                                                       mi.BSDFFlags.Smooth)
+        delta = _is_delta(flags)
         here = valid & ~delta & mi.has_flag(flags, mi.BSDFFlags.Diffuse)
         wo = mi.Vector3f(0.0, 0.0, dr.select(si.wi.z < 0, -1.0, 1.0))
         f = bsdf.eval(ctx, si, wo, here)  # f·|cos θ| at the normal: the diffuse value
