@@ -54,6 +54,21 @@ MaxDepth = Annotated[int, typer.Option("--max-depth", help="longest path in vert
                                        "-1 = unlimited)")]
 
 
+def _check_before_work(cam, spp: int, what: str, force: bool, out: Path,
+                       known: tuple[str, ...], inputs: tuple[Path, ...] = (), layers: int = 12,
+                       renders: float = 1.0, snapshots: int = 1) -> None:
+    """The checks every rendering command makes before any work: the cost estimate of a
+    differential render of the camera ``cam`` at ``spp`` (refused beyond the limits unless
+    ``force``), then the output folder ``out`` (room for ``snapshots`` sets of ``layers``
+    images; see :func:`arlight.outputs_atomic.check_output_dir`)."""
+    from arlight.bounds import check_estimate, estimate
+    from arlight.outputs_atomic import check_output_dir
+
+    est = estimate(cam.width, cam.height, spp, paths=2, layers=layers, renders=renders)
+    check_estimate(est, what, force)
+    check_output_dir(out, known, int(est.output_bytes * snapshots), inputs)
+
+
 @app.command()
 def render(
     scene: Annotated[Path, typer.Argument(help="AR scene file (.toml or .json)")],
@@ -87,11 +102,10 @@ def render(
     """
     import numpy as np
 
-    from arlight.bounds import check_estimate, check_range, estimate
+    from arlight.bounds import check_range
     from arlight.methods import RenderSettings, get_method
     from arlight.methods.spec import parse_option_pairs
     from arlight.output import LAYER_FILES, write_layers
-    from arlight.outputs_atomic import check_output_dir
     from arlight.scene.load import load_scene, render_settings_for
 
     given = render_settings_for(scene, method, spp, max_depth, seed,
@@ -108,13 +122,12 @@ def render(
         progressive_method(method)
     sc = load_scene(scene, frame=frame)
     cam = sc.camera
+    inputs = (scene,) if ground_truth is None else (scene, ground_truth)
     # progressive mode renders `frames` frames (a time-only budget is bounded by --time)
-    est = estimate(cam.width, cam.height, spp, paths=2,
-                   renders=frames if progressive and frames else 1)
-    check_estimate(est, f"rendering {cam.width}×{cam.height} at {spp} spp", force)
-    inputs = [scene] + ([ground_truth] if ground_truth is not None else [])
-    snapshots = (int(np.log2(frames)) + 2) if progressive and frames else 1
-    check_output_dir(out, LAYER_FILES, int(est.output_bytes * snapshots), inputs)
+    _check_before_work(cam, spp, f"rendering {cam.width}×{cam.height} at {spp} spp", force,
+                       out, LAYER_FILES, inputs,
+                       renders=frames if progressive and frames else 1,
+                       snapshots=(int(np.log2(frames)) + 2) if progressive and frames else 1)
     if progressive:
         from arlight.progressive import run_cli
 
@@ -149,18 +162,16 @@ def synth(
 ) -> None:
     """Synthesise a camera frame (world without virtual objects) and its ground truth with
     Mitsuba's own path tracer (independent of every method it grades)."""
-    from arlight.bounds import check_estimate, estimate
     from arlight.io.images import write_exr, write_png
-    from arlight.outputs_atomic import StagedOutput, check_output_dir
+    from arlight.outputs_atomic import StagedOutput
     from arlight.scene.load import load_scene
     from arlight.synthetic import batch_plan, synthesize
 
     batch_plan(spp, batches)  # spp/batches errors before the scene loads
     w = load_scene(world)
     cam = w.camera
-    est = estimate(cam.width, cam.height, spp, paths=2, layers=7)
-    check_estimate(est, f"synthesising {cam.width}×{cam.height} at {spp} spp", force)
-    check_output_dir(out, SYNTH_FILES, int(est.output_bytes), [world])
+    _check_before_work(cam, spp, f"synthesising {cam.width}×{cam.height} at {spp} spp", force,
+                       out, SYNTH_FILES, (world,), layers=7)
     photo = synthesize(w, spp=spp, seed=seed, max_depth=max_depth, use_cache=not no_cache,
                        progress=True, batches=batches)
     t = w.camera.transfer
@@ -229,18 +240,14 @@ def demo(
     force: Force = False,
 ) -> None:
     """Render the bundled demo scene (a virtual bunny on a real table) and print the paths."""
-    from arlight.bounds import check_estimate, estimate
     from arlight.demo import demo_scene_path, run_demo
     from arlight.methods import get_method
     from arlight.output import LAYER_FILES
-    from arlight.outputs_atomic import check_output_dir
     from arlight.scene.load import load_scene
 
     get_method(method)
     cam = load_scene(demo_scene_path()).camera
-    est = estimate(cam.width, cam.height, spp, paths=2)
-    check_estimate(est, f"rendering the demo at {spp} spp", force)
-    check_output_dir(out, LAYER_FILES, int(est.output_bytes))
+    _check_before_work(cam, spp, f"rendering the demo at {spp} spp", force, out, LAYER_FILES)
 
     run_demo(out, spp=spp, method=method, console=console)
 
