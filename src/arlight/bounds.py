@@ -4,8 +4,8 @@ The estimate is deliberately simple and conservative (documented in ``docs/cli.m
 
 * memory: the wavefront of one pass, ``min(pixels × spp, MAX_LANES)`` lanes (at least one
   sample per pixel: a pass never holds less than the whole image) × :data:`BYTES_PER_LANE`,
-  plus the per-pixel accumulators, ``pixels × BYTES_PER_PIXEL``, plus the scene's meshes
-  (``BYTES_PER_TRIANGLE`` each, BVH included);
+  plus the per-pixel accumulators, ``pixels × BYTES_PER_PIXEL`` (the scene's meshes are
+  not counted);
 * time: ``pixels × spp × paths`` samples at :data:`SAMPLES_PER_SECOND_PER_CORE` per CPU core
   (a low rate for the LLVM backend; a GPU is much faster, so the time limit errs on the
   safe side there).
@@ -34,7 +34,6 @@ MAX_REPEATS = 1000
 MAX_LANES = 2_000_000
 BYTES_PER_LANE = 1024
 BYTES_PER_PIXEL = 512
-BYTES_PER_TRIANGLE = 200
 SAMPLES_PER_SECOND_PER_CORE = 250_000.0
 MEMORY_FRACTION = 0.75
 MAX_SECONDS = 6 * 3600.0
@@ -81,8 +80,8 @@ def _duration(s: float) -> str:
     return f"{s / 3600:.1f} h"
 
 
-def estimate(width: int, height: int, spp: int, paths: float = 1.0, triangles: int = 0,
-             layers: int = 12, renders: float = 1.0) -> Estimate:
+def estimate(width: int, height: int, spp: int, paths: float = 1.0, layers: int = 12,
+             renders: float = 1.0) -> Estimate:
     """Estimate a render of ``width × height`` pixels and ``spp`` samples per pixel.
 
     ``paths``: paths traced per sample (2 for a differential render: with and without the
@@ -91,7 +90,7 @@ def estimate(width: int, height: int, spp: int, paths: float = 1.0, triangles: i
     """
     pixels = float(width) * float(height)
     lanes = max(min(pixels * spp, MAX_LANES), pixels)
-    memory = lanes * BYTES_PER_LANE + pixels * BYTES_PER_PIXEL + triangles * BYTES_PER_TRIANGLE
+    memory = lanes * BYTES_PER_LANE + pixels * BYTES_PER_PIXEL
     rate = SAMPLES_PER_SECOND_PER_CORE * (os.cpu_count() or 1)
     seconds = pixels * spp * paths * renders / rate
     return Estimate(memory, seconds, pixels * layers * 3 * 4)
