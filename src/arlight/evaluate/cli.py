@@ -40,13 +40,6 @@ def _ints(text: str, field: str) -> list[int]:
     return vals
 
 
-def _seconds_only(seconds: float):
-    """An estimate holding only a time (the eval's total over every cell)."""
-    from arlight.bounds import Estimate
-
-    return Estimate(0.0, seconds, 0.0)
-
-
 def eval_command(
     methods: Annotated[str | None, typer.Option("--methods", "-m", help="comma-separated "
                        "registered methods (default: all, see `arlight methods`)")] = None,
@@ -84,7 +77,7 @@ def eval_command(
     (Markdown, HTML, JSON, CSV, image grids, plots)."""
     from rich.console import Console
 
-    from arlight.bounds import check_estimate, check_range, estimate
+    from arlight.bounds import Estimate, check_estimate, check_range, estimate
     from arlight.evaluate.harness import EvalConfig, run_evaluation
     from arlight.evaluate.report import REPORT_FILES, write_report
     from arlight.evaluate.suite import get_scene, list_scenes
@@ -122,7 +115,7 @@ def eval_command(
         total += gt.seconds + len(method_names) * (
             one.seconds * (repeats + 1) + sum(estimate(w, h, s, paths=2).seconds
                                               for s in sweep_spp))
-    check_estimate(_seconds_only(total),
+    check_estimate(Estimate(0.0, total, 0.0),  # the time over every cell; memory: above
                    f"{len(scene_names)} scenes × {len(method_names)} methods", force)
     check_output_dir(out, REPORT_FILES, 64 << 20)
     cfg = EvalConfig(methods=method_names, scenes=scene_names, quick=quick, spp=spp,
