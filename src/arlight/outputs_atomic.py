@@ -291,7 +291,9 @@ class StagedOutput:
                 else:
                     _remove(self.staging)
                 raise
-        COMMITTED.append(self.out)
+            # recorded before a signal held during the swap is delivered (its message names
+            # this output as written)
+            COMMITTED.append(self.out)
 
     def commit(self) -> None:
         """Write the manifest, mark the set complete, swap it in, delete the old set."""
