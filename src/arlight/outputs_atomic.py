@@ -129,8 +129,8 @@ def clean_stale(out: str | Path) -> list[Path]:
     if news and not out.exists() and not out.is_symlink():
         newest = news.pop()  # a complete set whose swap was cut short: finish it
         os.rename(newest, out)
-    for k, p in stale:
-        if p.exists() and not (k == "new" and p == out):
+    for _, p in stale:
+        if p.exists():  # the set just moved into place is gone from here
             _remove(p)
             removed.append(p)
     return removed
