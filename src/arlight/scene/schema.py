@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from arlight.bounds import MAX_SEED, MAX_SPP
 from arlight.errors import InputError
 
 REQUIRED = object()
@@ -239,10 +240,10 @@ FRAME_FIELDS: dict[str, Field] = {
 RENDER_FIELDS: dict[str, Field] = {
     "method": Field("str", None, "method to render with (`arlight methods`; default "
                     "`reference`)"),
-    "spp": Field("int", None, "samples per pixel (default 64)", "", min=1, max=1 << 20),
+    "spp": Field("int", None, "samples per pixel (default 64)", "", min=1, max=MAX_SPP),
     "max_depth": Field("int", None, "longest path in vertices, Mitsuba's convention (2 = "
                        "direct light only, -1 = unlimited; default 8)", "", min=-1, max=1024),
-    "seed": Field("int", None, "random seed (default 0)", "", min=0, max=2**32 - 1),
+    "seed": Field("int", None, "random seed (default 0)", "", min=0, max=MAX_SEED),
     "options": Field("table", {}, "method options `{key = value}` (`arlight methods NAME`); "
                      "checked against the method when rendering"),
 }
