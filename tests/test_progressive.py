@@ -142,3 +142,13 @@ def test_run_cli_rejects_wrong_ground_truth_size(tmp_path):
     with pytest.raises(InputError, match="ground truth"):
         run_cli(scene, "onepass", RenderSettings(spp=1), tmp_path / "o", 1.0, 1,
                 tmp_path / "gt.exr", Console())
+
+
+@pytest.mark.parametrize(("budget", "frames", "field"), [
+    (float("nan"), None, "time_budget"), (-1.0, None, "time_budget"), (None, -2, "frames")])
+def test_refine_refuses_budgets_that_never_end(budget, frames, field):
+    """Rejects a library entry point that trusts the CLI to validate: a NaN time budget with
+    no frame limit would refine forever (``elapsed >= nan`` is never true)."""
+    with pytest.raises(InputError) as err:
+        next(refine(object(), time_budget=budget, frames=frames))
+    assert err.value.field == field

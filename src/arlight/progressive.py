@@ -24,6 +24,7 @@ RMSE after every frame printed as it falls and written to ``error.csv`` / ``erro
 from __future__ import annotations
 
 import csv
+import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -98,6 +99,11 @@ def refine(scene: ARScene, method: str = "onepass", settings: RenderSettings | N
     at least one frame is rendered). With neither given it runs until the caller stops
     iterating.
     """
+    if time_budget is not None and not (time_budget >= 0 and math.isfinite(time_budget)):
+        raise InputError(f"must be a finite number of seconds >= 0, got {time_budget}",
+                         field="time_budget")
+    if frames is not None and frames < 0:
+        raise InputError(f"must be >= 0, got {frames}", field="frames")
     settings = settings or RenderSettings(spp=1)
     fn = progressive_method(method)
     acc = Accumulator()
