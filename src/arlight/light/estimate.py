@@ -54,13 +54,16 @@ import numpy as np
 from arlight.io.images import atomic_write
 from arlight.light.extract import (
     ExtractedLight,
-    auto_threshold,
+    highlight_regions,
+    luminance,
+    mean_luminance,
     median_cut,
-    split_highlights,
 )
 from arlight.sphere import sh as SH
 
 LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
+METHODS = ("regions", "median_cut", "variance")
+AUTO_THRESHOLD_FACTOR = 4.0  # default highlight threshold, x the mean luminance
 FORMAT_TAG = "arlight.light_estimate"
 
 # ----------------------------------------------------------------------------- foreign SH
@@ -122,6 +125,24 @@ def arcore_shader_factors() -> np.ndarray:
     return k * A / np.pi
 
 
+def _clip_band(image: np.ndarray, lum: np.ndarray, threshold: float,
+               keep: np.ndarray | None) -> Callable[[int, int, np.ndarray], np.ndarray]:
+    """A band function for :func:`arlight.sphere.sh.project_equirect`: rows ``[r0, r1)`` of
+    ``image`` clipped at luminance ``threshold`` (``L min(1, t / Y(L))``, the
+    :func:`~arlight.light.extract.split_highlights` rule), except where ``keep`` is True
+    (sources that stay in the remainder whole)."""
+
+    def band(r0: int, r1: int, rows: np.ndarray) -> np.ndarray:
+        y = lum[r0:r1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(y > threshold, np.float32(threshold) / y, np.float32(1.0))
+        if keep is not None:
+            f[keep[r0:r1]] = 1.0
+        return rows[..., :3] * f[..., None]
+
+    return band
+
+
 # ----------------------------------------------------------------------------- the type
 
 
@@ -142,6 +163,10 @@ class LightEstimate:
     ``lights``: further explicit lights; ``hdr_map``: ``(H, 2H, 3)`` equirect radiance of
     the whole environment (optional); ``timestamp`` in seconds; ``confidence`` in [0, 1]
     (for estimates from a capture: the fraction of the sphere actually observed).
+    ``main_solid_angle`` (sr) and ``main_spread`` (rad, angular radius) give the main
+    light's size for soft shadows; ``explicit_fraction`` is the share of the map's
+    luminance energy ``int Y(L) dw`` held by the explicit lights (main + extra), None when
+    not estimated from a map.
     """
 
     main_direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
@@ -151,6 +176,9 @@ class LightEstimate:
     hdr_map: np.ndarray | None = None
     timestamp: float = 0.0
     confidence: float = 1.0
+    main_solid_angle: float = 0.0
+    main_spread: float = 0.0
+    explicit_fraction: float | None = None
 
     def __post_init__(self) -> None:
         d = _vec3(self.main_direction, "main_direction")
@@ -168,6 +196,17 @@ class LightEstimate:
         self.confidence = float(self.confidence)
         if not 0.0 <= self.confidence <= 1.0:
             raise ValueError(f"confidence must be in [0, 1], got {self.confidence}")
+        self.main_solid_angle = float(self.main_solid_angle)
+        self.main_spread = float(self.main_spread)
+        for name in ("main_solid_angle", "main_spread"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        if self.explicit_fraction is not None:
+            self.explicit_fraction = float(self.explicit_fraction)
+            if not 0.0 <= self.explicit_fraction <= 1.0 + 1e-9:
+                raise ValueError(f"explicit_fraction must be in [0, 1], got "
+                                 f"{self.explicit_fraction}")
         if self.hdr_map is not None:
             self.hdr_map = np.asarray(self.hdr_map, dtype=np.float32)
 
@@ -175,44 +214,73 @@ class LightEstimate:
 
     @classmethod
     def from_envmap(cls, equirect: np.ndarray, n_lights: int = 16, sh_order: int = 2,
-                    method: str = "median_cut", threshold: float | None = None,
+                    method: str = "regions", threshold: float | None = None,
                     keep_map: bool = True, timestamp: float | None = None,
-                    confidence: float = 1.0, sh_map: np.ndarray | None = None
-                    ) -> LightEstimate:
-        """Estimate from an equirect radiance map.
+                    confidence: float = 1.0, sh_map: np.ndarray | None = None,
+                    gap_deg: float = 1.0) -> LightEstimate:
+        """Estimate from an equirect radiance map ``(H, 2H, 3)``.
 
-        Highlights above ``threshold`` (default :func:`~arlight.light.extract.auto_threshold`)
-        become ``n_lights`` lights by median cut / variance minimisation (the brightest is
-        the main light); the clipped remainder is projected to SH of ``sh_order``. With
-        ``n_lights = 0`` everything goes to SH and the main light is the SH's dominant
-        direction with zero irradiance.
+        Pixels above ``threshold`` (luminance; default 4 x the mean) hold the light
+        sources. ``method="regions"`` (default): each connected highlight region on the
+        sphere is one light (:func:`~arlight.light.extract.highlight_regions`; the number
+        adapts to the map, ``n_lights`` is the cap, ``gap_deg`` merges near fragments), so
+        the main light is the most energetic *source* with all of its energy and its size.
+        ``"median_cut"``/``"variance"``: the above-threshold part is cut into ``n_lights``
+        regions of the image (Debevec 2005 / Viriyothai & Debevec 2009). The part of the
+        map below the threshold (and of sources not made lights) is projected to SH of
+        ``sh_order``. With ``n_lights = 0`` everything goes to SH and the main light is the
+        SH's dominant direction with zero irradiance.
 
-        ``sh_map`` (default: ``equirect``) is the map whose clipped remainder goes to SH,
-        e.g. a fisheye capture with the upper hemisphere mirrored into the lower one, while
-        the lights come from the observed ``equirect`` only (mirrored lamps would otherwise
-        pull light directions to the horizon).
+        ``sh_map`` (default: ``equirect``) is the map whose remainder goes to SH, e.g. a
+        fisheye capture with the upper hemisphere mirrored into the lower one, while the
+        lights come from the observed ``equirect`` only (mirrored lamps would otherwise
+        pull light directions to the horizon; their copies are clipped, not lights).
+
+        Each step runs once per map: one float32 luminance plane, sparse highlight pixels,
+        and the SH of the clipped remainder is projected band by band without building it.
         """
+        if method not in METHODS:
+            raise ValueError(f"unknown extraction method {method!r}; use one of "
+                             f"{', '.join(METHODS)}")
         img = np.asarray(equirect, dtype=np.float32)
         full = img if sh_map is None else np.asarray(sh_map, dtype=np.float32)
+        lum = luminance(img)
+        mean = mean_luminance(lum)
+        total = 4 * np.pi * mean  # int Y(L) dw of the observed map
         lights: list[ExtractedLight] = []
-        rest = full
+        thr = AUTO_THRESHOLD_FACTOR * mean if threshold is None else float(threshold)
+        dropped = None
         if n_lights > 0:
-            thr = auto_threshold(img) if threshold is None else float(threshold)
-            bright, _ = split_highlights(img, thr)
-            _, rest = split_highlights(full, thr)
-            cand = median_cut(bright, n_lights, method=method)
-            total = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in cand)
-            lights = [lt for lt in cand if float(lt.irradiance @ SH.LUMINANCE) > 1e-9 * total]
-        coeffs = SH.project_equirect(rest, sh_order)
+            if method == "regions":
+                found = highlight_regions(img, thr, lum=lum, max_lights=n_lights,
+                                          gap_deg=gap_deg)
+                lights, dropped = found.lights, found.dropped
+            else:
+                rest_of_img = _clip_band(img, lum, thr, None)(0, img.shape[0], img)
+                bright = img - rest_of_img
+                del rest_of_img
+                cand = median_cut(bright, n_lights, method=method)
+                del bright
+                tot = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in cand)
+                lights = [lt for lt in cand if float(lt.irradiance @ SH.LUMINANCE) > 1e-9 * tot]
+        lum_full = lum if full is img else luminance(full)
+        del lum
+        band = _clip_band(full, lum_full, thr, dropped) if n_lights > 0 else None
+        coeffs = SH.project_equirect(full, sh_order, band=band)
+        del lum_full, band
+        held = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in lights)
+        fraction = min(1.0, held / total) if total > 0 else 0.0
         if lights:
             main, extra = lights[0], lights[1:]
-            direction, irr = main.direction, main.irradiance
+            kw = {"main_direction": main.direction, "main_irradiance": main.irradiance,
+                  "main_solid_angle": main.solid_angle, "main_spread": main.spread}
         else:
-            extra, direction, irr = [], SH.dominant_direction(coeffs), np.zeros(3)
-        return cls(main_direction=direction, main_irradiance=irr, sh=coeffs, lights=extra,
-                   hdr_map=full if keep_map else None,
+            extra = []
+            kw = {"main_direction": SH.dominant_direction(coeffs),
+                  "main_irradiance": np.zeros(3)}
+        return cls(sh=coeffs, lights=extra, hdr_map=full if keep_map else None,
                    timestamp=time.time() if timestamp is None else timestamp,
-                   confidence=confidence)
+                   confidence=confidence, explicit_fraction=fraction, **kw)
 
     # ------------------------------------------------------------------ queries
 
@@ -291,13 +359,17 @@ class LightEstimate:
             d = {
                 "format": FORMAT_TAG, "version": 1,
                 "main_light": {"direction_to_light": self.main_direction.tolist(),
-                               "irradiance": self.main_irradiance.tolist()},
+                               "irradiance": self.main_irradiance.tolist(),
+                               "solid_angle": self.main_solid_angle,
+                               "spread": self.main_spread},
                 "sh": {"order": SH.order_of(self.sh.shape[0]), "quantity": "radiance",
                        "basis": "arlight (docs/conventions.md, Franke Eq. 4.5)",
                        "coefficients": self.sh.tolist()},
                 "lights": [lt.to_dict() for lt in self.lights],
                 "timestamp": self.timestamp, "confidence": self.confidence,
             }
+            if self.explicit_fraction is not None:
+                d["explicit_energy_fraction"] = self.explicit_fraction
             if hdr_file is not None:
                 d["hdr_map"] = {"file": hdr_file, "mapping": "equirect"}
             return d
@@ -366,6 +438,9 @@ class LightEstimate:
                     hdr = read_linear(Path(base_dir) / str(d["hdr_map"]["file"]))
                 return cls(main_direction=ml["direction_to_light"],
                            main_irradiance=ml["irradiance"],
+                           main_solid_angle=ml.get("solid_angle", 0.0),
+                           main_spread=ml.get("spread", 0.0),
+                           explicit_fraction=d.get("explicit_energy_fraction"),
                            sh=np.asarray(d["sh"]["coefficients"], np.float64),
                            lights=[ExtractedLight.from_dict(x) for x in d.get("lights", [])],
                            hdr_map=hdr, timestamp=d.get("timestamp", 0.0),
@@ -448,7 +523,7 @@ class LightEstimate:
 
 _KEYS = {
     "arlight": {"format", "version", "main_light", "sh", "lights", "hdr_map", "timestamp",
-                "confidence"},
+                "confidence", "explicit_energy_fraction"},
     "arcore": {"layout", "environmentalHdrAmbientSphericalHarmonics",
                "environmentalHdrMainLightDirection", "environmentalHdrMainLightIntensity",
                "timestamp", "state", "confidence"},
@@ -457,7 +532,7 @@ _KEYS = {
     "webxr": {"layout", "sphericalHarmonicsCoefficients", "primaryLightDirection",
               "primaryLightIntensity", "timestamp", "confidence"},
 }
-_SUB_KEYS = {"main_light": {"direction_to_light", "irradiance"},
+_SUB_KEYS = {"main_light": {"direction_to_light", "irradiance", "solid_angle", "spread"},
              "sh": {"order", "quantity", "basis", "coefficients"},
              "hdr_map": {"file", "mapping"}}
 _SIDE_MAP = re.compile(r"\.[0-9a-f]{8}\.hdr\.exr")
@@ -484,7 +559,7 @@ def _check_keys(d: dict, layout: str) -> None:
         if not isinstance(lt, dict):
             raise ValueError(f"lights[{i}]: expected a table")
         for k in lt:
-            if k not in ("direction", "irradiance", "solid_angle"):
+            if k not in ("direction", "irradiance", "solid_angle", "spread"):
                 raise ValueError(f"lights[{i}].{k}: unknown key")
     if "confidence" in d and not isinstance(d["confidence"], int | float):
         raise ValueError("confidence: expected a number")

@@ -24,6 +24,10 @@ Algorithms:
   the two halves instead of halving the energy.
 * :func:`brightest_blob` (Kan 2014 Sec. 3.2.1): threshold -> connected components ->
   largest blob (by solid angle) -> its direction x ``room_size`` gives a point light.
+* :func:`highlight_regions`: the connected highlight regions of an equirect map on the
+  sphere (joined across the longitude seam and around each pole, fragments closer than a
+  gap merged), one light per region: a compact source (the sun) is one light with its full
+  energy and its angular size, an area source (window, softbox) keeps its extent.
 """
 
 from __future__ import annotations
@@ -42,12 +46,16 @@ class ExtractedLight:
     """A light standing for a part of the environment.
 
     ``direction``: unit vector from the scene *toward* the light; ``irradiance``: RGB
-    W/m^2 at normal incidence; ``solid_angle``: sr covered by its pixels.
+    W/m^2 at normal incidence; ``solid_angle``: sr covered by its pixels; ``spread``:
+    angular radius (rad) of the uniform cap with the same energy-weighted mean cosine
+    about ``direction`` (``acos(2 |sum e d| / sum e - 1)``; 0 for a point, the disc radius
+    for a uniform disc: the size to use for soft shadows).
     """
 
     direction: np.ndarray
     irradiance: np.ndarray
     solid_angle: float = 0.0
+    spread: float = 0.0
 
     def __post_init__(self) -> None:
         d = np.asarray(self.direction, np.float64).reshape(3)
@@ -55,6 +63,7 @@ class ExtractedLight:
         self.direction = d if abs(n - 1.0) < 1e-12 else d / n  # keep unit input bit-exact
         self.irradiance = np.asarray(self.irradiance, np.float64).reshape(3)
         self.solid_angle = float(self.solid_angle)
+        self.spread = float(self.spread)
 
     def to_directional(self) -> dict:
         """Scene-file table; ``direction`` there is the direction the light *travels*."""
@@ -69,12 +78,12 @@ class ExtractedLight:
 
     def to_dict(self) -> dict:
         return {"direction": self.direction.tolist(), "irradiance": self.irradiance.tolist(),
-                "solid_angle": self.solid_angle}
+                "solid_angle": self.solid_angle, "spread": self.spread}
 
     @classmethod
     def from_dict(cls, d: dict) -> ExtractedLight:
         return cls(direction=d["direction"], irradiance=d["irradiance"],
-                   solid_angle=d.get("solid_angle", 0.0))
+                   solid_angle=d.get("solid_angle", 0.0), spread=d.get("spread", 0.0))
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -248,12 +257,158 @@ def split_highlights(image: np.ndarray, threshold: float) -> tuple[np.ndarray, n
     return (img - rest).astype(np.float32), rest.astype(np.float32)
 
 
-def auto_threshold(image: np.ndarray, factor: float = 4.0) -> float:
-    """Default highlight threshold: ``factor`` x the solid-angle-weighted mean luminance."""
-    img = np.asarray(image, np.float64)
-    omega = equirect_solid_angle(img.shape[0], img.shape[1])
-    mean = float(((img[..., :3] @ LUMINANCE) * omega).sum() / (4 * np.pi))
-    return factor * mean
+def luminance(image: np.ndarray) -> np.ndarray:
+    """Luminance ``Y(L)`` (Rec. 709 weights) of an ``(H, W, >=3)`` map -> ``(H, W)`` float32
+    (one map-sized float32 plane; no float64 copy of the map)."""
+    img = np.asarray(image)[..., :3]
+    return np.asarray(img @ LUMINANCE.astype(np.float32), dtype=np.float32)
+
+
+def mean_luminance(lum: np.ndarray) -> float:
+    """Solid-angle-weighted mean of an equirect luminance plane ``(H, W)`` (W/(sr m^2))."""
+    H, W = lum.shape
+    return float(equirect_solid_angle(H, W)[:, 0] @ lum.sum(axis=1, dtype=np.float64)
+                 / (4 * np.pi))
+
+
+def auto_threshold(image: np.ndarray, factor: float = 4.0,
+                   lum: np.ndarray | None = None) -> float:
+    """Default highlight threshold: ``factor`` x the solid-angle-weighted mean luminance.
+    ``lum``: the map's :func:`luminance`, when the caller already has it."""
+    return factor * mean_luminance(luminance(image) if lum is None else lum)
+
+
+# ----------------------------------------------------------------------------- regions
+
+
+def sphere_components(mask: np.ndarray, gap_px: int = 0) -> tuple[np.ndarray, int]:
+    """Connected components of an equirect mask ``(H, W)`` *on the sphere*.
+
+    8-connected in the image, plus: the longitude seam (column 0 touches column W-1, rows
+    r-1..r+1), and each pole (every pixel of the top row touches every other one at +Y;
+    the same for the bottom row at -Y). With ``gap_px > 0`` parts closer than ``gap_px``
+    pixels (a disc, wrapped across the seam) are one component: the mask is dilated for
+    the labelling only. Returns ``(labels int32 (H, W), n)``: 0 off the mask, 1..n on it.
+    """
+    import cv2
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = np.ascontiguousarray(mask, dtype=np.uint8)
+    H, W = m.shape
+    if gap_px > 0:
+        g = min(int(gap_px), W // 2)
+        pad = np.concatenate([m[:, -g:], m, m[:, :g]], axis=1)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1))
+        m = np.ascontiguousarray(cv2.dilate(pad, kernel)[:, g:g + W])
+    n, labels = cv2.connectedComponents(m, connectivity=8, ltype=cv2.CV_32S)
+    del m
+    if n <= 1:
+        return np.zeros((H, W), np.int32), 0
+    pairs = []
+    left, right = labels[:, 0], labels[:, -1]
+    for shift in (-1, 0, 1):  # (r, 0) touches (r + shift, W - 1)
+        a = left[max(0, -shift):H - max(0, shift)]
+        b = right[max(0, shift):H + min(0, shift)]
+        pairs.append(np.stack([a, b], axis=1))
+    for row in (labels[0], labels[-1]):  # all labels on a pole row meet at the pole
+        ids = np.unique(row[row > 0])
+        if ids.size > 1:
+            pairs.append(np.stack([ids[:-1], ids[1:]], axis=1))
+    p = np.concatenate(pairs)
+    p = p[(p[:, 0] > 0) & (p[:, 1] > 0)]
+    graph = coo_matrix((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n, n))
+    k, comp = connected_components(graph, directed=False)
+    # component 0 is the background's; renumber the others 1..n'
+    comp = comp.astype(np.int64)
+    bg = comp[0]
+    remap = np.where(comp == bg, 0, np.where(comp < bg, comp + 1, comp))
+    remap[0] = 0
+    out = remap.astype(np.int32)[labels]
+    out[~np.asarray(mask, bool)] = 0
+    return out, int(k - 1)
+
+
+@dataclass
+class Highlights:
+    """What :func:`highlight_regions` found.
+
+    ``lights``: one light per kept region, most energetic first; ``dropped``: ``(H, W)``
+    mask of the pixels of regions *not* made lights (too faint, too wide or over the cap:
+    their energy belongs to the SH remainder), or None when none was dropped;
+    ``regions``: number of regions found; ``energy``: luminance energy above the threshold
+    in the whole map, ``sum Y(L - rest) Omega`` (W/m^2)."""
+
+    lights: list[ExtractedLight]
+    dropped: np.ndarray | None
+    regions: int
+    energy: float
+
+
+def highlight_regions(image: np.ndarray, threshold: float, lum: np.ndarray | None = None,
+                      max_lights: int = 16, gap_deg: float = 1.0, min_fraction: float = 0.01,
+                      max_spread_deg: float = 45.0) -> Highlights:
+    """The light sources of an equirect radiance map ``(H, 2H, 3)`` as lights.
+
+    Pixels brighter than ``threshold`` (luminance, W/(sr m^2)) form regions on the sphere
+    (:func:`sphere_components`: seam- and pole-aware; parts closer than ``gap_deg`` are one
+    region, so a lamp seen through a grille or a sun split by a branch stays one light).
+    Each region gives one light from the part of its radiance above the threshold (the
+    :func:`split_highlights` rule, so lights + clipped remainder = the map): direction =
+    energy centroid, irradiance = ``sum (L - rest) Omega``, ``solid_angle`` = its pixels' sr,
+    ``spread`` = its angular radius. A compact source is therefore one light with all of
+    its energy; an area source keeps its extent in ``solid_angle``/``spread``.
+
+    The number of lights adapts: a region becomes a light if it holds at least
+    ``min_fraction`` of the above-threshold energy and is no wider than
+    ``max_spread_deg`` (wider glow is ambient, better in SH); at most ``max_lights``.
+    Works on sparse pixel lists: memory is O(map luminance + highlight pixels).
+    """
+    img = np.asarray(image)[..., :3]
+    H, W = img.shape[:2]
+    lum = luminance(img) if lum is None else lum
+    mask = lum > threshold
+    gap_px = int(round(np.radians(max(gap_deg, 0.0)) * H / np.pi))
+    labels, n = sphere_components(mask, gap_px)
+    del mask
+    if n == 0:
+        return Highlights([], None, 0, 0.0)
+    flat = labels.reshape(-1)
+    idx = np.flatnonzero(flat)
+    lab = flat[idx] - 1
+    rows, cols = np.divmod(idx, W)
+    lp = lum.reshape(-1)[idx].astype(np.float64)
+    omega = equirect_solid_angle(H, W)[:, 0][rows]
+    w = omega * (1.0 - threshold / lp)  # Omega x the fraction of L above the threshold
+    e = lp * w
+    theta = (rows + 0.5) * (np.pi / H)
+    phi = (cols + 0.5) * (2 * np.pi / W)
+    st = np.sin(theta)
+    E = np.bincount(lab, e, n)
+    v = np.stack([np.bincount(lab, e * st * np.sin(phi), n),
+                  np.bincount(lab, e * np.cos(theta), n),
+                  -np.bincount(lab, e * st * np.cos(phi), n)], axis=1)
+    rgb = img.reshape(-1, 3)[idx]
+    irr = np.stack([np.bincount(lab, rgb[:, c] * w, n) for c in range(3)], axis=1)
+    sa = np.bincount(lab, omega, n)
+    norm = np.linalg.norm(v, axis=1)
+    mean_cos = np.divide(norm, E, out=np.zeros(n), where=E > 0)
+    spread = np.arccos(np.clip(2 * mean_cos - 1, -1.0, 1.0))
+    total = float(E.sum())
+    order = np.argsort(-E, kind="stable")
+    keep = np.zeros(n, bool)
+    for i in order:
+        if keep.sum() >= max_lights:
+            break
+        if E[i] >= min_fraction * total and spread[i] <= np.radians(max_spread_deg):
+            keep[i] = True
+    lights = [ExtractedLight(direction=v[i], irradiance=irr[i], solid_angle=float(sa[i]),
+                             spread=float(spread[i])) for i in order if keep[i]]
+    dropped = None
+    if not keep.all():
+        lut = np.concatenate([[False], ~keep])
+        dropped = lut[labels]
+    return Highlights(lights, dropped, n, total)
 
 
 # ----------------------------------------------------------------------------- Kan

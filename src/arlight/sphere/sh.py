@@ -216,7 +216,9 @@ def _column_trig_integrals(order: int, width: int) -> np.ndarray:
     return np.concatenate([np.stack(cols, axis=1), cols_cos, cols_sin], axis=1)
 
 
-def project_equirect(image: np.ndarray, order: int) -> np.ndarray:
+def project_equirect(image: np.ndarray, order: int,
+                     band: Callable[[int, int, np.ndarray], np.ndarray] | None = None,
+                     chunk_rows: int = 256) -> np.ndarray:
     """Project an equirect radiance map ``(H, W, C)`` onto SH -> ``(n, C)`` (Eq. 4.8).
 
     The map is taken as constant over each pixel and every basis function is integrated
@@ -226,7 +228,10 @@ def project_equirect(image: np.ndarray, order: int) -> np.ndarray:
     zero coefficients beyond l = 0, at any resolution.
 
     The integral separates: a per-row Fourier sum over columns (one matrix product) then
-    a per-row Legendre sum: O(H W L + H L^2) instead of O(H W L^2).
+    a per-row Legendre sum: O(H W L + H L^2) instead of O(H W L^2). Rows are summed in
+    bands of ``chunk_rows`` (float64 per band only), so a 4k float32 map is never copied
+    whole. ``band(r0, r1, rows)``, when given, replaces each band of rows ``[r0, r1)``
+    before it is projected: the SH of a modified map without building that map.
     """
     img = np.asarray(image)
     squeeze = img.ndim == 2
@@ -234,7 +239,14 @@ def project_equirect(image: np.ndarray, order: int) -> np.ndarray:
         img = img[..., None]
     H, W, C = img.shape
     trig = _column_trig_integrals(order, W)
-    F = np.einsum("hwc,wk->hkc", img.astype(np.float64, copy=False), trig, optimize=True)
+    F = np.empty((H, trig.shape[1], C))
+    step = max(1, int(chunk_rows))
+    for r0 in range(0, H, step):
+        rows = img[r0:r0 + step]
+        if band is not None:
+            rows = band(r0, r0 + rows.shape[0], rows)
+        F[r0:r0 + rows.shape[0]] = np.einsum("hwc,wk->hkc", rows.astype(np.float64), trig,
+                                              optimize=True)
     P = _row_legendre_integrals(order, H)
     out = np.zeros((n_coeffs(order), C), dtype=np.float64)
     sqrt2 = np.sqrt(2.0)
