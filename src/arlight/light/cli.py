@@ -284,5 +284,12 @@ def show(
     typer.echo(f"wrote {output}")
 
 
+# Probeless estimation from RGB-D (Gruber et al. 2014, issue 16): its code lives in
+# arlight.probeless.cli; only the subcommand is registered here.
+from arlight.probeless.cli import probeless as _probeless  # noqa: E402
+
+app.command("probeless")(_probeless)
+
+
 if __name__ == "__main__":
     app()

@@ -49,6 +49,7 @@ BUILTINS: dict[str, str] = {
     "reference": "arlight.methods.reference:ReferenceMethod",
     "onepass": "arlight.methods.onepass:OnePassMethod",
     "dlpv": "arlight.methods.dlpv:DLPVMethod", "dir": "arlight.methods.dir:DIRMethod",
+    "probeless": "arlight.methods.probeless:ProbelessMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 

@@ -1,0 +1,676 @@
+"""Per-frame radiance transfer, light estimation and SH differential shading (Gruber 2014).
+
+One :class:`Pipeline` runs a sequence of frames against the Mitsuba views of a world (the
+reconstruction as the real proxy, plus virtual objects):
+
+1. primary hits of the camera (positions, normals, albedo, role) in the mixed scene;
+2. samples: the regular grid of spacing ``n`` (Gruber §3.1), plus — adaptive variants — dense
+   samples at virtual silhouettes and creases and at real surfaces hit by visibility rays
+   from virtual points;
+3. transfer (E3) of every sample, ``T_real`` and ``T_mix``. Interleaved variants cast only the
+   direction subset ``f mod k`` in frame ``f`` and fuse the other ``k−1`` subsets from the
+   image-space caches of the last frames by reprojection (nearest cache cell, rejected when
+   the cached depth or normal differs: then that subset is cast again now). Points in voxels
+   of the visibility-state cache flagged *free* get the analytic unoccluded transfer (E6) and
+   no rays; cache validation cameras (one overhead, one following the user with ping-pong
+   depth maps) clear flags within 10 cm of any change of the scene's depth;
+4. light: E5 over the regular samples on real surfaces (where the sensor depth agrees);
+5. shading (E7): virtual pixels ``a_v/π T_mix·l`` (+ a Phong lobe along the dominant
+   direction for Phong materials), real pixels ``delta = a/π (T_mix − T_real)·l`` (or the
+   ratio form ``I_c (T_mix·l / T_real·l − 1)``), upsampled from the samples.
+
+Variants (Gruber Table 1 / Fig. 5): ``RM`` every pixel, all 81 directions; ``REG4``/``REG8``
+regular spacing 4/8, all directions, naive bilinear upsampling; ``ART1``/``ART4``/``ART8``
+adaptive sampling at spacing 1/4/8, interleaving over 4 frames, visibility-state cache,
+geometry-aware upsampling. Every acceleration is a field of :class:`Variant`, so each can be
+switched on its own.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_REAL, ROLE_VIRTUAL, SceneViews
+from arlight.probeless.directions import N_COEFFS, DirectionSet, unoccluded_transfer
+from arlight.probeless.estimate import SHLightFit, estimate_light
+from arlight.probeless.transfer import Transfer, compute_transfer, real_hits_from
+from arlight.realtime.gbuffer import facing, surface_albedo
+from arlight.scene.camera import Camera, look_at
+from arlight.scene.model import Shape
+from arlight.sphere import sh as SH
+
+
+@dataclass(frozen=True)
+class Variant:
+    """Which accelerations run.
+
+    Attributes:
+        name: label (the paper's names for the presets).
+        spacing: regular image-space sample spacing ``n`` in pixels (1: every pixel).
+        adaptive: dense samples at virtual edges and virtual-shadow receivers, and
+            geometry-aware upsampling (else naive bilinear upsampling of the grid).
+        interleave: ``k``: frames over which the directions are interleaved (1: all 81 rays
+            every frame, no caches).
+        state_cache: world-space visibility-state cache with cache validation cameras.
+    """
+
+    name: str
+    spacing: int = 4
+    adaptive: bool = True
+    interleave: int = 4
+    state_cache: bool = True
+
+
+VARIANTS: dict[str, Variant] = {
+    "RM": Variant("RM", 1, False, 1, False),
+    "REG4": Variant("REG4", 4, False, 1, False),
+    "REG8": Variant("REG8", 8, False, 1, False),
+    "ART1": Variant("ART1", 1, True, 4, True),
+    "ART4": Variant("ART4", 4, True, 4, True),
+    "ART8": Variant("ART8", 8, True, 4, True),
+}
+"""The variants compared by Gruber et al. (Fig. 5, Table 1)."""
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Parameters the paper does not fix (digest §6: "inferred: choose and expose").
+
+    Attributes:
+        max_distance: visibility ray length (m), 0.10 in the paper.
+        ray_offset: ray origins moved off the surface along the normal (m).
+        depth_reject: relative camera-depth difference above which a reprojected cache entry
+            is rejected and rebuilt (and a sensor depth disagrees with the proxy).
+        normal_reject: minimum cosine between a sample's and a cache entry's normal.
+        free_fraction: a point whose blocked share of rays is at most this is *free*.
+        state_voxel: edge of a visibility-state voxel (m); 2 m / 268 as Gruber's TSDF.
+        cvc_size: resolution (px, square) of the cache validation cameras.
+        cvc_threshold: depth change (m) that invalidates the state cache around a CVC pixel.
+        ridge: Tikhonov weight of E5 relative to ``σ_max²``.
+        ratio: real pixels by the ratio form of E7 instead of the additive one.
+        edge_depth: relative depth jump that makes a virtual pixel an edge (adaptive).
+        edge_normal: normal cosine below which neighbouring virtual pixels are a crease.
+    """
+
+    max_distance: float = 0.10
+    ray_offset: float = 2e-3
+    depth_reject: float = 0.03
+    normal_reject: float = 0.9
+    free_fraction: float = 0.0
+    state_voxel: float = 2.0 / 268
+    cvc_size: int = 64
+    cvc_threshold: float = 0.01
+    ridge: float = 1e-4
+    ratio: bool = False
+    edge_depth: float = 0.03
+    edge_normal: float = 0.9
+
+
+# ----------------------------------------------------------------------------- primary hits
+
+
+@dataclass
+class Hits:
+    """Per-pixel first hits ``(H, W, ...)`` of one camera in one scene view (NumPy)."""
+
+    position: np.ndarray
+    normal: np.ndarray
+    albedo: np.ndarray
+    role: np.ndarray
+    shape: np.ndarray
+    z: np.ndarray  # camera-space depth (m), inf on a miss
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.role != ROLE_MISS
+
+
+def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True) -> Hits:
+    """One ray per pixel centre into the mixed (or real) view: position, normal turned to
+    the camera, diffuse albedo, role, shape index and camera-space depth."""
+    view = views.mixed if mixed else views.real
+    h, w = camera.height, camera.width
+    v, u = np.mgrid[0:h, 0:w]
+    o, d = camera.pixel_rays(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1))
+    oo = np.ascontiguousarray(o.T, np.float32)
+    dd = np.ascontiguousarray(d.T, np.float32)
+    ray = mi.Ray3f(mi.Point3f(oo[0], oo[1], oo[2]), mi.Vector3f(dd[0], dd[1], dd[2]))
+    si = view.scene.ray_intersect(ray)
+    valid = si.is_valid()
+    n = facing(mi.Vector3f(si.sh_frame.n), -ray.d)
+    alb = surface_albedo(si, valid)
+    role = view.hit_role(si)
+    shape = view.hit_shape(si)
+    dr.eval(si.p, n, alb, role, shape, si.t)
+    t = np.array(si.t, np.float64)
+    role_np = np.array(role, np.int32).reshape(h, w)
+    forward = camera.world_from_camera[:3, 2]
+    z = np.where(np.isfinite(t) & (role_np.ravel() != ROLE_MISS), t * (d @ forward), np.inf)
+    return Hits(position=np.array(si.p, np.float64).T.reshape(h, w, 3),
+                normal=np.array(n, np.float64).T.reshape(h, w, 3),
+                albedo=np.array(alb, np.float64).T.reshape(h, w, 3),
+                role=role_np, shape=np.array(shape, np.int32).reshape(h, w),
+                z=z.reshape(h, w))
+
+
+# ----------------------------------------------------------------------------- caches
+
+
+@dataclass
+class PhaseCache:
+    """Image-space cache of one interleave phase: the partial transfer of its direction
+    subset at the regular grid of the frame that filled it, with that frame's camera."""
+
+    camera: Camera
+    spacing: int
+    real: np.ndarray      # (Hs, Ws, 16)
+    mixed: np.ndarray     # (Hs, Ws, 16)
+    cast: np.ndarray      # (Hs, Ws)
+    blocked: np.ndarray   # (Hs, Ws)
+    z: np.ndarray         # (Hs, Ws) camera depth of the cell's point
+    normal: np.ndarray    # (Hs, Ws, 3)
+    valid: np.ndarray     # (Hs, Ws) bool
+
+    @staticmethod
+    def empty(camera: Camera, spacing: int) -> PhaseCache:
+        hs = -(-camera.height // spacing)
+        ws = -(-camera.width // spacing)
+        return PhaseCache(camera, spacing, np.zeros((hs, ws, N_COEFFS)),
+                          np.zeros((hs, ws, N_COEFFS)), np.zeros((hs, ws), np.int64),
+                          np.zeros((hs, ws), np.int64), np.full((hs, ws), np.inf),
+                          np.zeros((hs, ws, 3)), np.zeros((hs, ws), bool))
+
+    def lookup(self, points: np.ndarray, normals: np.ndarray, depth_reject: float,
+               normal_reject: float) -> tuple[np.ndarray, np.ndarray]:
+        """Reproject world ``points`` into this cache's camera, nearest cell; a hit needs a
+        valid cell whose depth is within ``depth_reject`` (relative) of the point's and whose
+        normal agrees. Returns (hit mask ``(M,)``, flat cell index ``(M,)``)."""
+        uv, z = self.camera.project(points)
+        hs, ws = self.valid.shape
+        s = self.spacing
+        with np.errstate(invalid="ignore"):
+            i = np.round((uv[:, 1] - 0.5) / s)
+            j = np.round((uv[:, 0] - 0.5) / s)
+        inside = (z > 0) & np.isfinite(i) & np.isfinite(j) & (i >= 0) & (i < hs) & (j >= 0) \
+            & (j < ws)
+        ii = np.where(inside, i, 0).astype(np.int64)
+        jj = np.where(inside, j, 0).astype(np.int64)
+        cell = ii * ws + jj
+        zc = self.z.reshape(-1)[cell]
+        ok = inside & self.valid.reshape(-1)[cell]
+        with np.errstate(invalid="ignore"):
+            ok &= np.abs(zc - z) <= depth_reject * np.maximum(z, 1e-6)
+        ok &= np.einsum("ij,ij->i", self.normal.reshape(-1, 3)[cell], normals) >= normal_reject
+        return ok, cell
+
+
+def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Integer key of the voxel containing each point (21 bits per axis)."""
+    q = np.floor(np.asarray(points, np.float64) / voxel).astype(np.int64) + (1 << 20)
+    q = np.clip(q, 0, (1 << 21) - 1)
+    return (q[:, 0] << 42) | (q[:, 1] << 21) | q[:, 2]
+
+
+def _key_centres(keys: np.ndarray, voxel: float) -> np.ndarray:
+    q = np.stack([(keys >> 42) & 0x1FFFFF, (keys >> 21) & 0x1FFFFF, keys & 0x1FFFFF], axis=1)
+    return (q - (1 << 20) + 0.5) * voxel
+
+
+@dataclass
+class ValidationCamera:
+    """A cache validation camera (Gruber §3.3) and the depth map it saw last."""
+
+    camera: Camera
+    depth: np.ndarray | None = None
+
+
+def _cvc_depth(views: SceneViews, camera: Camera) -> tuple[np.ndarray, np.ndarray,
+                                                           np.ndarray]:
+    """Ray distance ``(P,)`` (inf on a miss), ray origins and directions of a CVC."""
+    h, w = camera.height, camera.width
+    v, u = np.mgrid[0:h, 0:w]
+    o, d = camera.pixel_rays(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1))
+    oo = np.ascontiguousarray(o.T, np.float32)
+    dd = np.ascontiguousarray(d.T, np.float32)
+    si = views.mixed.scene.ray_intersect(mi.Ray3f(mi.Point3f(*oo), mi.Vector3f(*dd)))
+    dr.eval(si.t)
+    t = np.array(si.t, np.float64)
+    t[~np.isfinite(t)] = np.inf
+    return t, o, d
+
+
+def overhead_camera(views: SceneViews, size: int) -> Camera:
+    """A camera above the scene's bounding box looking down (−Y) at all of it."""
+    bb = views.mixed.scene.bbox()
+    lo, hi = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
+    centre = (lo + hi) / 2
+    half = max(float(np.max(hi - lo)) / 2, 0.05)
+    fov = 60.0
+    height = half / np.tan(np.radians(fov / 2)) * 1.2 + (hi[1] - centre[1])
+    eye = centre + np.array([0.0, height, 0.0])
+    pose = look_at(eye, centre, up=(0.0, 0.0, -1.0))
+    return Camera.from_fov(size, size, fov, world_from_camera=pose)
+
+
+# ----------------------------------------------------------------------------- results
+
+
+@dataclass
+class FrameResult:
+    """What one frame produced.
+
+    Attributes:
+        fit: the light estimate of this frame (E5).
+        regular: the fused transfer of the regular samples (row-major grid order).
+        observations: ``(T_real, b, albedo)`` rows that entered E5 (to fit several frames).
+        mixed, delta, mask: shading layers ``(H, W, 3)``/``(H, W)`` when shading was asked.
+        stats: ``rays`` (visibility rays cast), ``samples`` (regular + dense),
+            ``dense_samples``, ``free_samples`` (state cache), ``cache_hits`` /
+            ``cache_misses`` (reprojection), ``time_rt``, ``time_estimate``,
+            ``time_shade`` (s).
+    """
+
+    fit: SHLightFit
+    regular: Transfer | None = None
+    observations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    mixed: np.ndarray | None = None
+    delta: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+def _regular_mask(h: int, w: int, s: int) -> np.ndarray:
+    m = np.zeros((h, w), bool)
+    m[::s, ::s] = True
+    return m
+
+
+def _dilate(mask: np.ndarray, r: int) -> np.ndarray:
+    out = mask.copy()
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            out |= np.roll(np.roll(mask, dy, axis=0), dx, axis=1)
+    return out
+
+
+def virtual_edges(hits: Hits, depth_jump: float, normal_cos: float) -> np.ndarray:
+    """Visible virtual pixels at a depth or normal discontinuity or at the silhouette
+    (a neighbour of another role), dilated by one pixel (Gruber §3.1: edge detection on the
+    depth and normal buffers; operator not given, ours is a 4-neighbour test)."""
+    virt = hits.role == ROLE_VIRTUAL
+    z = np.where(np.isfinite(hits.z), hits.z, 1e30)
+    edge = np.zeros_like(virt)
+    for axis in (0, 1):
+        for step in (1, -1):
+            zn = np.roll(z, step, axis=axis)
+            rn = np.roll(hits.role, step, axis=axis)
+            nn = np.roll(hits.normal, step, axis=axis)
+            edge |= rn != hits.role
+            edge |= np.abs(zn - z) > depth_jump * z
+            edge |= np.einsum("hwc,hwc->hw", nn, hits.normal) < normal_cos
+    return _dilate(edge & virt, 1) & virt
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+
+class Pipeline:
+    """The per-frame probeless pipeline over one world (see the module docstring).
+
+    Args:
+        views: Mitsuba views of the world (``views.real``: the reconstruction / proxy).
+        variant: a :class:`Variant` or a name of :data:`VARIANTS`.
+        settings: :class:`Settings`.
+        shapes: the world's shapes (index as in the views), for Phong parameters.
+        directions: the direction set (default 81 directions, ``k`` of the variant).
+    """
+
+    def __init__(self, views: SceneViews, variant: Variant | str = "ART4",
+                 settings: Settings | None = None, shapes: list[Shape] | None = None,
+                 directions: DirectionSet | None = None) -> None:
+        self.variant = VARIANTS[variant] if isinstance(variant, str) else variant
+        self.settings = settings or Settings()
+        self.views = views
+        self.shapes = shapes or []
+        self.directions = directions or DirectionSet(k=self.variant.interleave)
+        if self.directions.k != self.variant.interleave:
+            raise ValueError(f"direction set interleave {self.directions.k} != variant's "
+                             f"{self.variant.interleave}")
+        self.frame_index = 0
+        self.caches: list[PhaseCache | None] = [None] * self.variant.interleave
+        self.free_keys = np.zeros(0, np.int64)
+        self.cvcs: list[ValidationCamera] = []
+        self._dynamic: ValidationCamera | None = None
+
+    # ------------------------------------------------------------------ state cache
+
+    def set_views(self, views: SceneViews) -> None:
+        """The world changed (a reconstruction update, a moved virtual object): later
+        frames trace ``views``; the CVCs notice what changed and clear the state cache."""
+        self.views = views
+
+    def _validate_state(self, camera: Camera) -> None:
+        """Cache validation cameras: compare the depth they see now with what they saw
+        last; clear free voxels within ``max_distance`` of every changed pixel."""
+        st = self.settings
+        if not self.cvcs:
+            self.cvcs.append(ValidationCamera(overhead_camera(self.views, st.cvc_size)))
+        changed: list[np.ndarray] = []
+        dyn_cam = camera.resized(st.cvc_size, max(1, round(st.cvc_size * camera.height
+                                                           / camera.width)))
+        if self._dynamic is not None:  # ping-pong: the old pose again, now
+            self.cvcs.append(self._dynamic)
+        for cvc in self.cvcs:
+            t, o, d = _cvc_depth(self.views, cvc.camera)
+            if cvc.depth is not None:
+                old = cvc.depth
+                diff = np.abs(np.where(np.isfinite(t), t, 1e9) - np.where(np.isfinite(old),
+                                                                            old, 1e9))
+                moved = diff > st.cvc_threshold
+                for tt in (t, old):
+                    sel = moved & np.isfinite(tt)
+                    changed.append(o[sel] + tt[sel, None] * d[sel])
+            cvc.depth = t
+        if self._dynamic is not None:
+            self.cvcs.pop()
+        t, _, _ = _cvc_depth(self.views, dyn_cam)
+        self._dynamic = ValidationCamera(dyn_cam, t)
+        pts = np.concatenate(changed) if changed else np.zeros((0, 3))
+        if len(pts) and len(self.free_keys):
+            from scipy.spatial import cKDTree
+
+            centres = _key_centres(self.free_keys, st.state_voxel)
+            dist, _ = cKDTree(pts).query(centres, k=1)
+            keep = dist > st.max_distance + st.state_voxel * np.sqrt(3) / 2
+            self.free_keys = self.free_keys[keep]
+
+    # ------------------------------------------------------------------ transfer
+
+    def _full(self, p: np.ndarray, n: np.ndarray, need_real: np.ndarray) -> Transfer:
+        st = self.settings
+        return compute_transfer(self.views, p, n, self.directions, None, need_real,
+                                st.max_distance, st.ray_offset)
+
+    def _interleaved(self, p: np.ndarray, n: np.ndarray, need_real: np.ndarray,
+                     camera: Camera, grid_cells: np.ndarray,
+                     stats: dict[str, float]) -> Transfer:
+        """Fused transfer of the regular samples: the current phase cast now (and stored in
+        its cache), the other phases reprojected from their caches or rebuilt on a miss."""
+        st, k = self.settings, self.variant.interleave
+        phase = self.frame_index % k
+        out = Transfer.zeros(len(p))
+        new = PhaseCache.empty(camera, self.variant.spacing)
+        for c in range(k):
+            sub = self.directions.subset(c)
+            todo = np.ones(len(p), bool)
+            if c != phase and self.caches[c] is not None:
+                hit, cell = self.caches[c].lookup(p, n, st.depth_reject, st.normal_reject)
+                cache = self.caches[c]
+                out.real[hit] += cache.real.reshape(-1, N_COEFFS)[cell[hit]]
+                out.mixed[hit] += cache.mixed.reshape(-1, N_COEFFS)[cell[hit]]
+                out.cast[hit] += cache.cast.reshape(-1)[cell[hit]]
+                out.blocked[hit] += cache.blocked.reshape(-1)[cell[hit]]
+                todo = ~hit
+                stats["cache_hits"] += float(hit.sum())
+                stats["cache_misses"] += float(todo.sum())
+            elif c != phase:
+                stats["cache_misses"] += float(len(p))
+            if not np.any(todo):
+                continue
+            part = compute_transfer(self.views, p[todo], n[todo], self.directions, sub,
+                                    need_real[todo], st.max_distance, st.ray_offset)
+            out.real[todo] += part.real
+            out.mixed[todo] += part.mixed
+            out.cast[todo] += part.cast
+            out.blocked[todo] += part.blocked
+            out.rays += part.rays
+            if c == phase:
+                cells = grid_cells
+                new.real.reshape(-1, N_COEFFS)[cells] = part.real
+                new.mixed.reshape(-1, N_COEFFS)[cells] = part.mixed
+                new.cast.reshape(-1)[cells] = part.cast
+                new.blocked.reshape(-1)[cells] = part.blocked
+                new.valid.reshape(-1)[cells] = True
+        new.z.reshape(-1)[grid_cells] = camera.project(p)[1]
+        new.normal.reshape(-1, 3)[grid_cells] = n
+        self.caches[phase] = new
+        return out
+
+    def _sample_transfer(self, p: np.ndarray, n: np.ndarray, need_real: np.ndarray,
+                         regular: bool, camera: Camera, grid_cells: np.ndarray,
+                         stats: dict[str, float]) -> Transfer:
+        """Transfer of samples, through the state cache (free points: E6, no rays) and, for
+        regular samples of interleaved variants, the reprojection caches."""
+        v = self.variant
+        out = Transfer.zeros(len(p))
+        free = np.zeros(len(p), bool)
+        keys = None
+        if v.state_cache:
+            keys = _voxel_keys(p, self.settings.state_voxel)
+            free = np.isin(keys, self.free_keys)
+            if np.any(free):
+                t0 = unoccluded_transfer(n[free])
+                out.real[free] = t0
+                out.mixed[free] = t0
+            stats["free_samples"] += float(free.sum())
+        todo = ~free
+        if np.any(todo):
+            if regular and v.interleave > 1:
+                part = self._interleaved(p[todo], n[todo], need_real[todo], camera,
+                                         grid_cells[todo], stats)
+            else:
+                part = self._full(p[todo], n[todo], need_real[todo])
+            out.real[todo] = part.real
+            out.mixed[todo] = part.mixed
+            out.cast[todo] = part.cast
+            out.blocked[todo] = part.blocked
+            out.rays += part.rays
+            if v.state_cache and keys is not None:
+                frac = part.blocked / np.maximum(part.cast, 1)
+                is_free = (frac <= self.settings.free_fraction) & (part.cast > 0)
+                k_todo = keys[todo]
+                new_free = np.setdiff1d(np.unique(k_todo[is_free]),
+                                        np.unique(k_todo[~is_free]))
+                self.free_keys = np.union1d(self.free_keys, new_free)
+        return out
+
+    # ------------------------------------------------------------------ frame
+
+    def process(self, camera: Camera, frame: np.ndarray | None, depth: np.ndarray | None = None,
+                shade: bool = True) -> FrameResult:
+        """Run one frame: transfer of the samples, light estimate, and (``shade``) the
+        mixed / delta / mask layers. ``frame``: linear RGB ``(H, W, 3)`` (the observed
+        ``b`` of E5); ``depth``: optional sensor depth (m, 0/NaN unknown) that gates which
+        samples may observe the light."""
+        v, st = self.variant, self.settings
+        h, w = camera.height, camera.width
+        stats: dict[str, float] = {"rays": 0.0, "samples": 0.0, "dense_samples": 0.0,
+                                   "free_samples": 0.0, "cache_hits": 0.0,
+                                   "cache_misses": 0.0}
+        t0 = time.perf_counter()
+        if v.state_cache:
+            self._validate_state(camera)
+        hits = primary_hits(self.views, camera)
+        reg = _regular_mask(h, w, v.spacing) & hits.valid
+        virt = hits.role == ROLE_VIRTUAL
+        dense = np.zeros((h, w), bool)
+        if v.adaptive and np.any(virt):
+            dense |= virtual_edges(hits, st.edge_depth, st.edge_normal) & ~reg
+        # regular samples (cached path)
+        rr, cc = np.nonzero(reg)
+        pr, nr = hits.position[rr, cc], hits.normal[rr, cc]
+        need_r = hits.role[rr, cc] == ROLE_REAL
+        ws = -(-w // v.spacing)
+        cells = (rr // v.spacing) * ws + cc // v.spacing
+        t_reg = self._sample_transfer(pr, nr, need_r, True, camera, cells, stats)
+        stats["rays"] += t_reg.rays
+        # adaptive: real surfaces hit by visibility rays from virtual points
+        if v.adaptive and np.any(virt):
+            vsel = virt & (reg | dense)
+            vr, vc = np.nonzero(vsel)
+            sub = self.directions.subset(self.frame_index % v.interleave)
+            pts, n_rays = real_hits_from(self.views, hits.position[vr, vc],
+                                         hits.normal[vr, vc], self.directions, sub,
+                                         st.max_distance, st.ray_offset)
+            stats["rays"] += n_rays
+            if len(pts):
+                uv, z = camera.project(pts)
+                ok = (z > 0) & np.all(np.isfinite(uv), axis=1)
+                u = np.floor(uv[ok, 0]).astype(np.int64)
+                vv = np.floor(uv[ok, 1]).astype(np.int64)
+                inside = (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
+                mark = np.zeros((h, w), bool)
+                mark[vv[inside], u[inside]] = True
+                r = max(1, v.spacing // 2)
+                dense |= _dilate(mark, r) & (hits.role == ROLE_REAL) & ~reg
+        dr_, dc_ = np.nonzero(dense)
+        t_dense = self._sample_transfer(hits.position[dr_, dc_], hits.normal[dr_, dc_],
+                                        hits.role[dr_, dc_] == ROLE_REAL, False, camera,
+                                        np.zeros(len(dr_), np.int64), stats)
+        stats["rays"] += t_dense.rays
+        stats["samples"] = float(len(rr) + len(dr_))
+        stats["dense_samples"] = float(len(dr_))
+        t1 = time.perf_counter()
+        # light estimate (E5) over the regular real samples
+        use = need_r.copy()
+        if depth is not None:
+            ds = np.asarray(depth, np.float64)[rr, cc]
+            zs = hits.z[rr, cc]
+            with np.errstate(invalid="ignore"):
+                use &= np.isfinite(ds) & (ds > 0) & (np.abs(ds - zs) <= 0.05 * zs)
+        if frame is None:
+            raise ValueError("process needs the frame: its pixels are the observations of E5")
+        obs = (t_reg.real[use], np.asarray(frame, np.float64)[rr[use], cc[use]],
+               hits.albedo[rr[use], cc[use]])
+        fit = estimate_light(*obs, ridge=st.ridge)
+        t2 = time.perf_counter()
+        stats["time_rt"] = t1 - t0
+        stats["time_estimate"] = t2 - t1
+        result = FrameResult(fit=fit, regular=t_reg, observations=obs, stats=stats)
+        if shade:
+            self._shade(result, hits, frame, camera, (rr, cc, t_reg), (dr_, dc_, t_dense))
+            stats["time_shade"] = time.perf_counter() - t2
+        self.frame_index += 1
+        return result
+
+    # ------------------------------------------------------------------ shading (E7)
+
+    def _phong(self, hits: Hits, camera: Camera, sh: np.ndarray) -> np.ndarray:
+        """Phong lobe ``k_s (n+2)/(2π) cos^n α · E_d · max(0, n·d)`` along the dominant
+        direction ``d`` for virtual Phong pixels; ``E_d = 4π/3 (a_c·d)``: the irradiance of
+        the directional light with the same linear band ``a_c`` (per channel)."""
+        out = np.zeros(hits.position.shape)
+        shape_ids = {i for i, s in enumerate(self.shapes)
+                     if s.is_virtual and s.material.type == "phong"}
+        if not shape_ids:
+            return out
+        d = SH.dominant_direction(sh)
+        e_d = np.clip(4 * np.pi / 3 * (SH.linear_band_vector(sh).T @ d), 0, None)  # (3,)
+        view_dir = camera.position[None, None, :] - hits.position
+        view_dir /= np.maximum(np.linalg.norm(view_dir, axis=-1, keepdims=True), 1e-12)
+        n = hits.normal
+        refl = 2 * (n @ d)[..., None] * n - d
+        cos_a = np.clip(np.einsum("hwc,hwc->hw", refl, view_dir), 0, None)
+        cos_i = np.clip(n @ d, 0, None)
+        for i in shape_ids:
+            sel = hits.shape == i
+            p = self.shapes[i].material.params
+            ks, ex = np.asarray(p.get("ks", [0, 0, 0]), np.float64), float(p.get("exponent",
+                                                                              20.0))
+            lobe = (ex + 2) / (2 * np.pi) * cos_a[sel] ** ex * cos_i[sel]
+            out[sel] = lobe[:, None] * ks[None] * e_d[None]
+        return out
+
+    def _shade(self, res: FrameResult, hits: Hits, frame: np.ndarray, camera: Camera,
+               reg, dense) -> None:
+        """Per-sample E7 values, upsampled to every pixel."""
+        h, w = hits.role.shape
+        sh = res.fit.sh
+        val = np.zeros((h, w, 3))
+        own = np.zeros((h, w), bool)
+        for rr, cc, t in (reg, dense):
+            val[rr, cc] = self._e7(hits, frame, rr, cc, t, sh)
+            own[rr, cc] = True
+        full = self._upsample(val, own, hits, frame, sh)
+        virt = hits.role == ROLE_VIRTUAL
+        mixed = np.where(virt[..., None], full + self._phong(hits, camera, sh), 0.0)
+        delta = np.where((hits.role == ROLE_REAL)[..., None], full, 0.0)
+        bg = np.asarray(frame, np.float64)
+        mixed = np.where(virt[..., None], mixed, bg + delta)
+        res.mixed, res.delta = mixed.astype(np.float32), delta.astype(np.float32)
+        res.mask = virt.astype(np.float32)
+
+    def _e7(self, hits: Hits, frame: np.ndarray, rr: np.ndarray, cc: np.ndarray,
+            t: Transfer, sh: np.ndarray) -> np.ndarray:
+        """E7 at samples: virtual ``a_v/π T_mix·l``; real additive ``a/π (T_mix−T_real)·l``
+        or ratio ``I_c (T_mix·l / T_real·l − 1)``."""
+        a = hits.albedo[rr, cc]
+        virt = (hits.role[rr, cc] == ROLE_VIRTUAL)[:, None]
+        lm = t.mixed @ sh
+        lr = t.real @ sh
+        if self.settings.ratio:
+            ic = np.asarray(frame, np.float64)[rr, cc]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.where(lr > 1e-12, lm / lr, 1.0)
+            same = np.all(t.mixed == t.real, axis=1)[:, None]  # no change: exactly 0
+            real = np.where(same, 0.0, ic * (ratio - 1.0))
+        else:
+            real = a / np.pi * (t.mixed - t.real) @ sh
+        return np.where(virt, a / np.pi * lm, real)
+
+    def _upsample(self, val: np.ndarray, own: np.ndarray, hits: Hits, frame: np.ndarray,
+                  sh: np.ndarray) -> np.ndarray:
+        """Bilinear interpolation of the regular grid for pixels without their own sample.
+        Naive (non-adaptive variants): nodes of the same role. Adaptive: also depth within
+        ``depth_reject`` and normals agreeing; a pixel left without a valid node gets its
+        own sample (all directions), so no shading crosses a depth edge."""
+        s = self.variant.spacing
+        if s == 1:
+            return val
+        h, w = own.shape
+        py, px = np.mgrid[0:h, 0:w]
+        i0, j0 = py // s, px // s
+        fy, fx = (py - i0 * s) / s, (px - j0 * s) / s
+        acc = np.zeros((h, w, 3))
+        wsum = np.zeros((h, w))
+        st = self.settings
+        for di, dj, wt in ((0, 0, (1 - fy) * (1 - fx)), (0, 1, (1 - fy) * fx),
+                           (1, 0, fy * (1 - fx)), (1, 1, fy * fx)):
+            ny, nx = (i0 + di) * s, (j0 + dj) * s
+            ok = (ny < h) & (nx < w)
+            ny_, nx_ = np.minimum(ny, h - 1), np.minimum(nx, w - 1)
+            ok &= own[ny_, nx_] & (hits.role[ny_, nx_] == hits.role)
+            if self.variant.adaptive:
+                zn, z = hits.z[ny_, nx_], hits.z
+                with np.errstate(invalid="ignore"):
+                    ok &= np.abs(zn - z) <= st.depth_reject * z
+                ok &= np.einsum("hwc,hwc->hw", hits.normal[ny_, nx_], hits.normal) \
+                    >= st.normal_reject
+            wt = np.where(ok, wt + 1e-9, 0.0)
+            acc += wt[..., None] * val[ny_, nx_]
+            wsum += wt
+        out = np.where(own[..., None], val, acc / np.maximum(wsum, 1e-300)[..., None])
+        hole = ~own & (wsum == 0) & hits.valid
+        if np.any(hole) and self.variant.adaptive:
+            hr, hc = np.nonzero(hole)
+            t = self._full(hits.position[hr, hc], hits.normal[hr, hc],
+                           hits.role[hr, hc] == ROLE_REAL)
+            out[hr, hc] = self._e7(hits, frame, hr, hc, t, sh)
+        return out
+
+
+def run_variant(views: SceneViews, frames: list[tuple[Camera, np.ndarray, np.ndarray | None]],
+                variant: Variant | str, settings: Settings | None = None,
+                shade: bool = False) -> list[FrameResult]:
+    """Run a whole sequence ``[(camera, frame, depth), ...]`` with one variant."""
+    pipe = Pipeline(views, variant, settings)
+    return [pipe.process(c, f, d, shade=shade) for c, f, d in frames]
+
+
+__all__ = ["VARIANTS", "FrameResult", "Hits", "PhaseCache", "Pipeline", "Settings", "Variant",
+           "primary_hits", "run_variant", "virtual_edges"]

@@ -1,0 +1,168 @@
+"""Synthetic RGB-D sequences with known light, for measuring the probeless estimate.
+
+A modelled "room corner" of real shapes — a floor, boxes of several sizes and orientations,
+a sphere — with one uniform diffuse albedo, lit by an environment given either as 16 SH
+coefficients (a smooth cap around an animated direction over an ambient term: Gruber's
+"animated circular area light falling off from centre to border", projected to SH) or as a
+real HDR map (bundled, rotated per frame). Frames are rendered by Mitsuba's own path tracer
+through :func:`arlight.synthetic.synthesize` (direct light only by default, ``max_depth = 2``,
+as the Lambertian transfer model of E1 assumes); depth is the camera-space ``z`` of the first
+hit; poses are the cameras'. The *true* light of a frame is known: its SH (the cap) or the SH
+projection of the rotated map, hence the true dominant direction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from arlight.backend.mitsuba_scene import build_views
+from arlight.probeless.directions import SH_ORDER
+from arlight.probeless.pipeline import primary_hits
+from arlight.probeless.reconstruct import RGBDFrame
+from arlight.scene.camera import Camera, look_at
+from arlight.scene.model import ARScene, Light, Material, Shape
+from arlight.sphere import sh as SH
+
+ALBEDO = 0.6
+
+
+def _box(name: str, size, centre, yaw_deg: float = 0.0, mat: Material | None = None,
+         role: str = "real") -> Shape:
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    m = np.eye(4)
+    m[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    m[:3, 3] = centre
+    return Shape(name, role, "box", {"size": list(map(float, size))}, m,
+                 mat or _material(ALBEDO))
+
+
+def _material(a: float) -> Material:
+    return Material(f"grey{a}", "diffuse", {"albedo": [a] * 3, "texture": None,
+                                             "two_sided": True})
+
+
+def room_shapes(albedo: float = ALBEDO) -> list[Shape]:
+    """Floor (top at y = 0), five boxes and a sphere: many normals and contact shadows."""
+    mat = _material(albedo)
+    shapes = [_box("floor", (1.6, 0.02, 1.6), (0, -0.01, 0), mat=mat)]
+    for i, (size, centre, yaw) in enumerate([
+            ((0.20, 0.12, 0.16), (-0.25, 0.06, -0.10), 20.0),
+            ((0.10, 0.22, 0.10), (0.18, 0.11, -0.22), -35.0),
+            ((0.30, 0.05, 0.12), (0.05, 0.025, 0.20), 60.0),
+            ((0.12, 0.12, 0.12), (0.32, 0.06, 0.12), 10.0),
+            ((0.16, 0.08, 0.24), (-0.30, 0.04, 0.28), -15.0)]):
+        shapes.append(_box(f"box{i}", size, centre, yaw, mat=mat))
+    m = np.eye(4)
+    m[:3, 3] = (0.0, 0.09, -0.02)
+    shapes.append(Shape("sphere", "real", "sphere", {"radius": 0.09}, m, mat))
+    return shapes
+
+
+def cap_light(direction: np.ndarray, power: float = 4.0, ambient: float = 0.25,
+              width_deg: float = 40.0) -> np.ndarray:
+    """16×3 SH of ``ambient + power · smooth cap around direction`` (cos² fall-off to the
+    border at ``width_deg``), warm-tinted, shifted so it is nonnegative everywhere."""
+    d0 = np.asarray(direction, np.float64)
+    d0 = d0 / np.linalg.norm(d0)
+    cw = np.cos(np.radians(width_deg))
+
+    def f(d: np.ndarray) -> np.ndarray:
+        c = d @ d0
+        x = np.clip((c - cw) / (1 - cw), 0, 1)
+        val = ambient + power * x * x
+        return np.stack([val * 1.0, val * 0.9, val * 0.8], axis=1)
+
+    sh = SH.project_function(f, SH_ORDER)
+    low = float(SH.sh_to_equirect(sh, 64).min())
+    if low < 0:
+        sh[0] += (-low + 1e-3) / SH.Y00
+    return sh
+
+
+@dataclass
+class SyntheticFrame:
+    """A rendered frame and its truth: RGB-D + pose and the light's SH / direction."""
+
+    rgbd: RGBDFrame
+    true_sh: np.ndarray
+    true_direction: np.ndarray
+
+
+def camera_path(n: int, moving: bool, width: int, height: int, radius: float = 1.05,
+                height_m: float = 0.75, fov_deg: float = 50.0) -> list[Camera]:
+    """``n`` cameras looking at the scene centre: fixed, or moving along a 60° arc."""
+    out = []
+    for i in range(n):
+        a = np.radians(-30 + 60 * i / max(n - 1, 1)) if moving else 0.0
+        eye = np.array([radius * np.sin(a), height_m, radius * np.cos(a)])
+        out.append(Camera.from_fov(width, height, fov_deg,
+                                   world_from_camera=look_at(eye, (0, 0.05, 0))))
+    return out
+
+
+def light_directions(n: int) -> np.ndarray:
+    """The animated light: elevation 50°, azimuth sweeping 120° over the sequence."""
+    az = np.radians(20 + 120 * np.arange(n) / max(n - 1, 1))
+    el = np.radians(50.0)
+    return np.stack([np.cos(el) * np.sin(az), np.full(n, np.sin(el)),
+                     np.cos(el) * np.cos(az)], axis=1)
+
+
+def bundled_hdr() -> Path:
+    """The bundled lat-long HDR map used for the "real map" sequences."""
+    return Path(str(resources.files("arlight") / "data" / "demo" / "lebombo_512x256.hdr"))
+
+
+def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: int = 160,
+                    height: int = 120, spp: int = 32, seed: int = 1,
+                    hdr: Path | None = None, max_depth: int = 2,
+                    cache_dir: Path | str | None = None) -> list[SyntheticFrame]:
+    """Render ``n`` frames of the room under an animated light.
+
+    Args:
+        kind: ``"sh"`` (cap light as 16 SH coefficients, an ``sh`` light) or ``"hdr"`` (a real
+            HDR map rotated by 45° per frame about +Y, an ``envmap`` light).
+        moving: camera on an arc (else static).
+        max_depth: Mitsuba path depth (2: direct light only, the model of E1).
+    """
+    from arlight.io.images import read_hdr
+    from arlight.synthetic import synthesize
+
+    shapes = room_shapes()
+    cams = camera_path(n, moving, width, height)
+    frames = []
+    env = read_hdr(hdr or bundled_hdr()) if kind == "hdr" else None
+    env_sh = SH.project_equirect(env, SH_ORDER) if env is not None else None
+    dirs = light_directions(n)
+    for i, cam in enumerate(cams):
+        if kind == "sh":
+            sh = cap_light(dirs[i])
+            light = Light("sky", "sh", {"coefficients": sh.tolist(), "scale": 1.0,
+                                        "rotation_deg": 0.0, "resolution": 64},
+                          radiance_map=np.maximum(SH.sh_to_equirect(sh, 64), 0))
+        elif kind == "hdr":
+            ang = 45.0 * i
+            a = np.radians(ang)
+            R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+            sh = SH.rotate(env_sh, R)
+            light = Light("sky", "envmap", {"file": str(hdr or bundled_hdr()),
+                                            "mapping": "equirect", "scale": 1.0,
+                                            "rotation_deg": ang}, radiance_map=env)
+        else:
+            raise ValueError(f"kind must be 'sh' or 'hdr', got {kind!r}")
+        scene = ARScene(camera=cam, shapes=shapes, lights=[light])
+        photo = synthesize(scene, spp=spp, seed=seed + i, max_depth=max_depth,
+                           cache_dir=cache_dir, batches=min(8, spp))
+        hits = primary_hits(build_views(scene), cam, mixed=False)
+        depth = np.where(np.isfinite(hits.z), hits.z, 0).astype(np.float32)
+        frames.append(SyntheticFrame(RGBDFrame(photo.frame, depth, cam, f"frame{i}", float(i)),
+                                     sh, SH.dominant_direction(sh)))
+    return frames
+
+
+__all__ = ["ALBEDO", "SyntheticFrame", "bundled_hdr", "camera_path", "cap_light",
+           "light_directions", "render_sequence", "room_shapes"]

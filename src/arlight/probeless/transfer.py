@@ -1,0 +1,166 @@
+"""Radiance transfer with short-range visibility (Gruber et al. 2014, digest E3), batched.
+
+For a Lambertian point ``x`` with normal ``n`` the transfer vector of the 16 SH coefficients
+(4 bands) is
+
+    T_k(x) = Σ_j  w · V(x, ω_j) · max(0, n·ω_j) · Y_k(ω_j)          (E3, w = 4π/N sr)
+
+over the world-fixed directions ``ω_j`` of :class:`~arlight.probeless.directions.DirectionSet`;
+``V`` tests occlusion only up to ``max_distance`` (10 cm in the paper). It is evaluated twice:
+against the reconstruction only (``T_real``) and against reconstruction + virtual objects
+(``T_mix``). All rays of a call go to Mitsuba in one batch (``Scene.ray_test``; chunked only to
+bound memory); the per-point sums are one matrix product. The mixed scene contains the real
+one, so a ray unblocked in the mixed scene is unblocked in the real one: real-scene rays are
+cast only where the mixed ray was blocked (and none when there is no virtual object).
+
+Any subset of the directions can be evaluated (interleaved sampling): SH projection is linear,
+so the partial transfers of disjoint subsets add up to the full transfer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_REAL, SceneView, SceneViews
+from arlight.probeless.directions import N_COEFFS, DirectionSet
+
+MAX_DISTANCE = 0.10
+"""Visibility rays end after this distance (m), Gruber §3."""
+RAY_OFFSET = 2e-3
+"""Ray origins are moved this far (m) along the normal, off the surface they start on."""
+_CHUNK = 1 << 21  # rays per Mitsuba batch (memory bound, not a per-ray loop)
+
+
+@dataclass
+class Transfer:
+    """Transfer vectors of ``M`` points.
+
+    Attributes:
+        real: ``T_real`` ``(M, 16)``, visibility against the reconstruction only (sr).
+        mixed: ``T_mix`` ``(M, 16)``, visibility against reconstruction + virtual objects.
+        cast: rays cast per point in the mixed scene (directions above the horizon).
+        blocked: of those, how many were blocked in the mixed scene.
+        rays: total rays cast (mixed + real), for the ray counts of the variants.
+    """
+
+    real: np.ndarray
+    mixed: np.ndarray
+    cast: np.ndarray
+    blocked: np.ndarray
+    rays: int
+
+    @staticmethod
+    def zeros(m: int) -> Transfer:
+        z = np.zeros((m, N_COEFFS))
+        return Transfer(z, z.copy(), np.zeros(m, np.int64), np.zeros(m, np.int64), 0)
+
+    @property
+    def blocked_fraction(self) -> np.ndarray:
+        """Blocked share of the cast rays per point (0 where none was cast)."""
+        return self.blocked / np.maximum(self.cast, 1)
+
+
+def _ray_test(view: SceneView, origins: np.ndarray, dirs: np.ndarray,
+              max_distance: float) -> np.ndarray:
+    """Occlusion of the rays ``origins + t dirs``, ``0 < t < max_distance``; bool ``(L,)``."""
+    out = np.empty(len(origins), dtype=bool)
+    for a in range(0, len(origins), _CHUNK):
+        o = np.ascontiguousarray(origins[a:a + _CHUNK].T, dtype=np.float32)
+        d = np.ascontiguousarray(dirs[a:a + _CHUNK].T, dtype=np.float32)
+        ray = mi.Ray3f(mi.Point3f(o[0], o[1], o[2]), mi.Vector3f(d[0], d[1], d[2]))
+        ray.maxt = mi.Float(float(max_distance))
+        occ = view.scene.ray_test(ray)
+        dr.eval(occ)
+        out[a:a + _CHUNK] = np.array(occ, dtype=bool)
+    return out
+
+
+def _lanes(normals: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Point index, direction index and cosine of every (point, direction) pair above the
+    point's horizon (the only rays worth casting: the others have zero weight)."""
+    cos = normals @ dirs.T
+    ii, jj = np.nonzero(cos > 0.0)
+    return ii, jj, cos[ii, jj]
+
+
+def compute_transfer(views: SceneViews, points: np.ndarray, normals: np.ndarray,
+                     directions: DirectionSet, subset: np.ndarray | None = None,
+                     need_real: np.ndarray | None = None,
+                     max_distance: float = MAX_DISTANCE,
+                     ray_offset: float = RAY_OFFSET) -> Transfer:
+    """Partial transfer (E3) of ``points (M, 3)`` with unit ``normals (M, 3)`` over the
+    directions ``subset`` (indices into ``directions``; default all).
+
+    ``need_real (M,)``: points that need ``T_real`` (real pixels; default all). Elsewhere no
+    real-scene ray is cast and ``T_real`` is the unoccluded sum: not meaningful, unused.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    normals = np.asarray(normals, np.float64).reshape(-1, 3)
+    m = len(points)
+    idx = np.arange(directions.n) if subset is None else np.asarray(subset)
+    if m == 0 or len(idx) == 0:
+        return Transfer.zeros(m)
+    d = directions.directions[idx]
+    Y = directions.basis[idx]
+    ii, jj, cos = _lanes(normals, d)
+    origins = points[ii] + ray_offset * normals[ii]
+    dirs = d[jj]
+    occ_m = _ray_test(views.mixed, origins, dirs, max_distance)
+    rays = len(ii)
+    if views.real is views.mixed:
+        occ_r = occ_m
+    else:
+        occ_r = np.zeros_like(occ_m)
+        ask = occ_m if need_real is None else occ_m & np.asarray(need_real, bool)[ii]
+        if np.any(ask):
+            occ_r[ask] = _ray_test(views.real, origins[ask], dirs[ask], max_distance)
+            rays += int(ask.sum())
+    w = directions.weight
+    Cm = np.zeros((m, len(idx)))
+    Cm[ii, jj] = w * cos * ~occ_m
+    mixed = Cm @ Y
+    if occ_r is occ_m:
+        real = mixed.copy()
+    else:
+        Cr = np.zeros((m, len(idx)))
+        Cr[ii, jj] = w * cos * ~occ_r
+        real = Cr @ Y
+    cast = np.bincount(ii, minlength=m)
+    blocked = np.bincount(ii, weights=occ_m.astype(np.float64), minlength=m).astype(np.int64)
+    return Transfer(real=real, mixed=mixed, cast=cast, blocked=blocked, rays=rays)
+
+
+def real_hits_from(views: SceneViews, points: np.ndarray, normals: np.ndarray,
+                   directions: DirectionSet, subset: np.ndarray | None = None,
+                   max_distance: float = MAX_DISTANCE,
+                   ray_offset: float = RAY_OFFSET) -> tuple[np.ndarray, int]:
+    """World points ``(H, 3)`` where visibility rays from ``points`` (virtual surface points)
+    hit *real* geometry within ``max_distance`` in the mixed scene, and the rays cast: the
+    real surfaces a virtual object can shadow (Gruber §3.1, dense real samples)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros((0, 3)), 0
+    idx = np.arange(directions.n) if subset is None else np.asarray(subset)
+    d = directions.directions[idx]
+    ii, jj, _ = _lanes(np.asarray(normals, np.float64).reshape(-1, 3), d)
+    o = points[ii] + ray_offset * normals[ii]
+    dd = d[jj]
+    found = []
+    for a in range(0, len(ii), _CHUNK):
+        oo = np.ascontiguousarray(o[a:a + _CHUNK].T, dtype=np.float32)
+        dv = np.ascontiguousarray(dd[a:a + _CHUNK].T, dtype=np.float32)
+        ray = mi.Ray3f(mi.Point3f(oo[0], oo[1], oo[2]), mi.Vector3f(dv[0], dv[1], dv[2]))
+        ray.maxt = mi.Float(float(max_distance))
+        si = views.mixed.scene.ray_intersect(ray)
+        role = views.mixed.hit_role(si)
+        dr.eval(si.p, role)
+        hit = np.array(role, dtype=np.int32) == ROLE_REAL
+        found.append(np.array(si.p, dtype=np.float64).T[hit])
+    return (np.concatenate(found) if found else np.zeros((0, 3))), len(ii)
+
+
+__all__ = ["MAX_DISTANCE", "RAY_OFFSET", "Transfer", "compute_transfer", "real_hits_from"]
