@@ -16,7 +16,8 @@ pixel is (0.5, 0.5)):
   normalised offset ``(a, b)`` from the centre sees the ball normal
   ``n = (a, b, -sqrt(1-a^2-b^2))`` and the reflected ray ``r = v - 2 (v.n) n``.
 * ``"fisheye"``: :class:`arlight.sphere.fisheye.FisheyeCamera` (equidistant or OpenCV
-  fisheye), optionally mirroring the upper hemisphere into the lower one (Kan 2014 Sec. 5.3).
+  fisheye) or :class:`~arlight.sphere.fisheye.OcamCamera` (OCamCalib), optionally
+  mirroring the upper hemisphere into the lower one (Kan 2014 Sec. 5.3).
 
 :func:`to_equirect` resamples any of them onto our equirect grid (bilinear with
 supersampling); :func:`from_equirect` renders an equirect map into any of them.
@@ -28,7 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from arlight.sphere.fisheye import FisheyeCamera
+from arlight.sphere.fisheye import FisheyeCamera, OcamCamera
 
 MAPPINGS = ("equirect", "angular", "ball", "fisheye")
 
@@ -208,8 +209,9 @@ def _projector(mapping: str, shape: tuple[int, int], kw: dict
                 lambda p: ball_unproject(p, center, radius, rot))
     if mapping == "fisheye":
         cam = kw.get("camera")
-        if not isinstance(cam, FisheyeCamera):
-            raise ValueError("mapping 'fisheye' needs camera=FisheyeCamera(...)")
+        if not isinstance(cam, FisheyeCamera | OcamCamera):
+            raise ValueError("mapping 'fisheye' needs camera=FisheyeCamera(...) or "
+                             "OcamCamera(...)")
         if (W, H) != cam.size:
             raise ValueError(f"fisheye image is {W}x{H} but the calibration is for "
                              f"{cam.size[0]}x{cam.size[1]}")
@@ -238,7 +240,8 @@ def to_equirect(image: np.ndarray, mapping: str, height: int | None = None,
     or half of it for the square angular/ball/fisheye images). Directions the source does
     not see are 0, unless ``mirror_lower`` fills the lower hemisphere from the upper one
     (Kan). Extra keyword arguments: ``center``/``radius``/``world_from_camera`` for
-    ``"ball"``, ``camera`` (a :class:`FisheyeCamera`) for ``"fisheye"``.
+    ``"ball"``, ``camera`` (a :class:`FisheyeCamera` or :class:`OcamCamera`) for
+    ``"fisheye"``.
     """
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
