@@ -35,7 +35,11 @@ def composite(background: np.ndarray, mixed: np.ndarray, delta: np.ndarray,
                          f" delta {delta.shape}")
     if m.shape[:2] != background.shape[:2]:
         raise ValueError(f"mask shape {m.shape[:2]} does not match image {background.shape[:2]}")
-    relit = background + delta
-    covered = m > 0
-    mixed = np.where(covered, mixed, 0.0)  # uncovered pixels never read mixed (may be inf)
-    return np.where(covered, m * mixed + (1.0 - m) * relit, relit)
+    out_type = np.result_type(background, mixed, delta, m)
+    relit = np.add(background, delta, dtype=out_type)
+    covered = np.flatnonzero(m[..., 0] > 0)
+    if covered.size:  # blend the covered pixels only (uncovered ones never read mixed)
+        flat = relit.reshape(-1, relit.shape[-1])
+        mc = m.reshape(-1, 1)[covered].astype(out_type, copy=False)
+        flat[covered] = mc * mixed.reshape(flat.shape)[covered] + (1.0 - mc) * flat[covered]
+    return relit
