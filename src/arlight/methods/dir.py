@@ -39,7 +39,7 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
-from arlight.realtime.rsm import RSM, concat_rays, light_rays, render_rsm, shared_texels
+from arlight.realtime.rsm import RSM, concat_rays, light_rays, render_rsm_pair, shared_texels
 from arlight.realtime.shading import (
     SHADOW_EPS,
     ambient_irradiance_dr,
@@ -120,7 +120,8 @@ def make_vpls(data: DIRData, total: int) -> VPLs:
     sides = vpl_counts(data.lights, total, data.bounds)
     rays = concat_rays([light_rays(lt, s, data.bounds)
                         for lt, s in zip(data.lights.lights, sides, strict=True)])
-    rho, mu = render_rsm(data.views.mixed, rays), render_rsm(data.views.real, rays)
+    pair = render_rsm_pair(data.views, rays)
+    rho, mu = pair.rho, pair.mu()
     shared = shared_texels(rho, mu)
     dr.eval(shared)
     return VPLs(rho, mu, shared, int(sum(s * s for s in sides)))

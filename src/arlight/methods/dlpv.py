@@ -45,7 +45,7 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
-from arlight.realtime.rsm import RSM, check_memory, light_rays, render_rsm, shared_texels
+from arlight.realtime.rsm import RSMPair, check_memory, light_rays, render_rsm_pair
 from arlight.realtime.sh_volume import (
     Grid,
     SHVolume,
@@ -126,43 +126,40 @@ def prepare(world: World, options: Options) -> DLPVData:
     return DLPVData(world, views, lights, grid, scale)
 
 
-def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[tuple[RSM, RSM]]:
+def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[RSMPair]:
     """``(R_ρ, R_µ)`` per reduced light (directional maps cover the volume)."""
     bounds = (grid.centre, grid.size * np.sqrt(3.0) / 2.0)
-    out = []
-    for lt in data.lights.lights:
-        rays = light_rays(lt, res, bounds)
-        out.append((render_rsm(data.views.mixed, rays), render_rsm(data.views.real, rays)))
-    return out
+    return [render_rsm_pair(data.views, light_rays(lt, res, bounds))
+            for lt in data.lights.lights]
 
 
-def inject_delta(vol: SHVolume, pairs: list[tuple[RSM, RSM]], direct: bool,
+def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
                  indirect: bool = True) -> int:
-    """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``; shared texels
-    skipped. Returns the texels injected (VPL pairs, per kind)."""
+    """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``. Texels that see
+    the same surface in both maps cancel and are skipped (§4.3.1: "VPLs visible in both RSMs
+    are eliminated"): only the texels whose mixed-scene hit is virtual are injected. Returns
+    the texels injected (VPL pairs, per kind)."""
     half = 0.5 * vol.grid.cell
     count = 0
-    for r_rho, r_mu in pairs:
-        keep = ~shared_texels(r_rho, r_mu)
-        for r, sign in ((r_rho, 1.0), (r_mu, -1.0)):
-            act = r.valid & keep
+    for pair in pairs:
+        for r, sign in ((pair.rho_changed(), 1.0), (pair.mu_changed, -1.0)):
             if indirect:
-                count += inject(vol, r.position, r.normal, r.flux_out * sign, act,
+                count += inject(vol, r.position, r.normal, r.flux_out * sign, r.valid,
                                 offset=r.normal * half)
             if direct:
-                inject(vol, r.position, r.direction, r.flux_in * sign, act,
+                inject(vol, r.position, r.direction, r.flux_in * sign, r.valid,
                        offset=r.direction * (-half))
     return count
 
 
-def inject_regular(vol: SHVolume, pairs: list[tuple[RSM, RSM]], which: int = 0,
+def inject_regular(vol: SHVolume, pairs: list[RSMPair], which: int = 0,
                    direct: bool = False) -> int:
     """A regular LPV: every VPL of ``R_ρ`` (``which=0``) or ``R_µ`` (``which=1``), and with
     ``direct`` also the direct lobes (the two-volume baseline of the linearity test)."""
     half = 0.5 * vol.grid.cell
     count = 0
     for pair in pairs:
-        r = pair[which]
+        r = pair.rho if which == 0 else pair.mu()
         count += inject(vol, r.position, r.normal, r.flux_out, r.valid, offset=r.normal * half)
         if direct:
             inject(vol, r.position, r.direction, r.flux_in, r.valid,

@@ -14,8 +14,10 @@ carries the same share of its emission:
   bounding sphere), ``Φ_r = E · (2r/N)²``.
 
 The same rays are cast into the mixed view (``R_ρ``) and the real-only view (``R_µ``)
-(Franke §4.3: "the same process is repeated for a second RSM R^µ"), so a texel whose ray
-hits the same real surface in both carries bit-identical values.
+(Franke §4.3: "the same process is repeated for a second RSM R^µ"). A ray whose first hit in
+the mixed scene is real (or a miss) sees the same in the real-only scene, so
+:func:`render_rsm_pair` casts only the texels that hit a virtual object again and copies the
+rest: those texels carry bit-identical values in both maps.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import ROLE_MISS, SceneView
+from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.errors import InputError
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.realtime.light_reduction import ReducedLight
@@ -166,6 +168,66 @@ def render_rsm(view: SceneView, rays: LightRays) -> RSM:
     return RSM(pos, n, albedo, role, shape, t, mi.Vector3f(ray.d), flux_in, flux_out, rays.res)
 
 
+_RSM_ARRAYS = ("position", "normal", "albedo", "role", "shape", "t", "direction", "flux_in",
+               "flux_out")
+
+
+def rsm_subset(r: RSM, idx: mi.UInt32) -> RSM:
+    """The texels ``idx`` of ``r`` as an RSM of ``width(idx)`` lanes (``res`` 0)."""
+    return RSM(**{name: dr.gather(type(getattr(r, name)), getattr(r, name), idx)
+                  for name in _RSM_ARRAYS}, res=0)
+
+
+@dataclass
+class RSMPair:
+    """``R_ρ`` and ``R_µ`` of one light's rays, ``R_µ`` stored only where it differs.
+
+    Attributes:
+        rho: ``R_ρ``, every texel (the mixed scene).
+        changed: indices of the texels whose mixed-scene hit is virtual; everywhere else
+            ``R_µ`` equals ``R_ρ`` bit for bit (a real hit or a miss is the same in both).
+        mu_changed: ``R_µ`` on the ``changed`` texels, in that order (``res`` 0).
+    """
+
+    rho: RSM
+    changed: mi.UInt32
+    mu_changed: RSM
+
+    def rho_changed(self) -> RSM:
+        """``R_ρ`` on the ``changed`` texels (the VPLs that ``R_µ`` does not cancel)."""
+        return rsm_subset(self.rho, self.changed)
+
+    def mu(self) -> RSM:
+        """``R_µ`` on every texel (``R_ρ`` with the changed texels replaced)."""
+        if dr.width(self.changed) == 0:
+            return self.rho
+        n = dr.width(self.rho.role)
+        slot = dr.zeros(mi.UInt32, n)
+        dr.scatter(slot, dr.arange(mi.UInt32, dr.width(self.changed)), self.changed)
+        hit = dr.zeros(mi.Bool, n)
+        dr.scatter(hit, True, self.changed)
+        fields = {name: dr.select(hit, dr.gather(type(getattr(self.rho, name)),
+                                                 getattr(self.mu_changed, name), slot, hit),
+                                  getattr(self.rho, name))
+                  for name in _RSM_ARRAYS}
+        dr.eval(*fields.values())
+        return RSM(**fields, res=self.rho.res)
+
+
+def render_rsm_pair(views: SceneViews, rays: LightRays) -> RSMPair:
+    """``R_ρ`` cast into the mixed view, and ``R_µ`` cast into the real-only view for the
+    texels that hit a virtual object only: equal to two :func:`render_rsm` calls (see
+    :meth:`RSMPair.mu`) for the cost of one plus the virtual object's texels."""
+    rho = render_rsm(views.mixed, rays)
+    changed = dr.compress(rho.role == ROLE_VIRTUAL)
+    sub = LightRays(dr.gather(mi.Point3f, rays.origin, changed),
+                    dr.gather(mi.Vector3f, rays.direction, changed),
+                    dr.gather(mi.Color3f, rays.flux, changed), 0)
+    if dr.width(changed) == 0:  # no virtual object in the light's view: R_µ = R_ρ
+        return RSMPair(rho, changed, rsm_subset(rho, changed))
+    return RSMPair(rho, changed, render_rsm(views.real, sub))
+
+
 def shared_texels(a: RSM, b: RSM) -> mi.Bool:
     """Texels that see the same surface point in both maps (same shape and distance): their
     VPLs cancel in a delta (Franke §4.3.1: "VPLs visible in both RSMs are eliminated")."""
@@ -173,4 +235,4 @@ def shared_texels(a: RSM, b: RSM) -> mi.Bool:
 
 
 __all__ = ["RSM", "LightRays", "check_memory", "concat_rays", "light_rays", "render_rsm",
-           "shared_texels"]
+           "RSMPair", "render_rsm_pair", "rsm_subset", "shared_texels"]
