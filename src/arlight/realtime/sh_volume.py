@@ -27,6 +27,7 @@ Units: positions in metres (world), flux in W, intensities in W/sr, irradiance i
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -205,6 +206,7 @@ def inject(vol: SHVolume, position: mi.Point3f, direction: mi.Vector3f, flux: mi
     return int(dr.count(act)[0]) if dr.width(act) else 0
 
 
+@functools.lru_cache(maxsize=8)
 def _neighbour_tables(n: int) -> list[tuple[mi.UInt32, mi.Bool]]:
     """Per axis direction d: for each destination cell, the index of the source cell
     ``dest − d`` and whether it exists."""
@@ -274,8 +276,10 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     regions pass unchanged. The factor depends on ratios only, so the result still scales
     linearly with the light; without dampening every step is exactly linear.
 
-    One Dr.Jit kernel per step (72 gathers and ~300 multiply-adds per cell; ``dr.freeze``
-    was tried and gains nothing at 32³, where the kernels, not the tracing, dominate).
+    One Dr.Jit kernel per step (72 gathers and ~300 multiply-adds per cell). Without
+    ``stats`` the steps run as a frozen function (``dr.freeze``, one recording per volume
+    size, step count and dampening): replaying the 32 kernels skips Python tracing, which
+    otherwise costs as much as the kernels themselves on 2 CPU cores.
     ``stats`` (optional dict) receives ``flux_per_step``, the total flux of each wavefront.
     """
     grid = vol.grid
@@ -283,17 +287,33 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     idxs = [t[0] for t in tables]
     oks = [t[1] for t in tables]
     cur = [mi.Color3f(c) for c in vol.coeffs]
+    if stats is None:
+        return SHVolume(grid, _propagate_frozen(cur, idxs, oks, int(steps), bool(dampening),
+                                                grid.n))
     acc = [mi.Color3f(c) for c in cur]
     fluxes = []
     for _ in range(int(steps)):
         cur = _step(cur, idxs, oks, bool(dampening))
         acc = [acc[k] + cur[k] for k in range(4)]
         dr.eval(cur, acc)
-        if stats is not None:
-            fluxes.append(_channel_sums(cur[0]) * math.sqrt(4 * math.pi))
-    if stats is not None:
-        stats["flux_per_step"] = fluxes
+        fluxes.append(_channel_sums(cur[0]) * math.sqrt(4 * math.pi))
+    stats["flux_per_step"] = fluxes
     return SHVolume(grid, acc)
+
+
+@dr.freeze(limit=16, warn_after=64)
+def _propagate_frozen(cur: list, idxs: list, oks: list, steps: int, dampening: bool,
+                      n: int) -> list:
+    """The step loop of :func:`propagate` without statistics, frozen. ``n`` (cells per edge)
+    is only part of the recording's key: :func:`_step` bakes the volume's width into its
+    kernels, so every size needs its own recording."""
+    del n
+    acc = [mi.Color3f(c) for c in cur]
+    for _ in range(steps):
+        cur = _step(cur, idxs, oks, dampening)
+        acc = [acc[k] + cur[k] for k in range(4)]
+        dr.eval(cur, acc)
+    return acc
 
 
 def propagate_numpy(arr: np.ndarray, steps: int) -> np.ndarray:
