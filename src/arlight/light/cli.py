@@ -13,6 +13,7 @@ Outputs are written to a temporary file and renamed, so a failed run leaves noth
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
 
@@ -21,11 +22,11 @@ import typer
 
 from arlight.bounds import MAX_LIGHTS, MAX_SH_HEIGHT, MAX_SH_ORDER
 from arlight.io.images import atomic_write, read_linear
-from arlight.light.estimate import LAYOUTS, LightEstimate
+from arlight.light.estimate import LAYOUTS, METHODS, SH_CONVENTIONS, LightEstimate
 from arlight.light.extract import ExtractedLight
 from arlight.sphere import envmap as E
 from arlight.sphere import sh as SH
-from arlight.sphere.fisheye import FisheyeCamera
+from arlight.sphere.fisheye import FisheyeCamera, load_camera
 
 KINDS = ("equirect", "probe", "ball", "fisheye")
 
@@ -75,75 +76,155 @@ def _check_output(output: Path, inputs: list[Path], option: str = "--output") ->
         raise CliError(f"{option} {output}: folder {parent} is not writable")
 
 
-def _parse_center(text: str | None) -> tuple[float, float] | None:
+def _parse_vec(text: str | None, option: str, n: int) -> tuple[float, ...] | None:
+    """``'a,b[,c]'`` -> ``n`` finite floats (None when the option was not given)."""
     if text is None:
         return None
     try:
-        cx, cy = (float(v) for v in text.split(","))
-    except ValueError as exc:
-        raise CliError(f"--ball-center: expected 'cx,cy' in pixels, got {text!r}") from exc
-    return cx, cy
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != n or not all(np.isfinite(v)):
+        what = "cx,cy in pixels" if n == 2 else "x,y,z (world, +Y up)"
+        raise CliError(f"{option}: expected {what}, got {text!r}")
+    return v
+
+
+def ball_pose(look: str | None, up: str | None) -> np.ndarray | None:
+    """``world_from_camera`` (OpenCV axes) of the camera photographing a mirror ball, from
+    the world direction it looks along and its up direction; None: the default pose
+    (looking along world -Z, +Y up)."""
+    if look is None and up is None:
+        return None
+    z = np.array(_parse_vec(look, "--ball-look", 3) or (0.0, 0.0, -1.0))
+    u = np.array(_parse_vec(up, "--ball-up", 3) or (0.0, 1.0, 0.0))
+    if np.linalg.norm(z) == 0 or np.linalg.norm(u) == 0:
+        raise CliError("--ball-look/--ball-up: directions must not be zero")
+    z = z / np.linalg.norm(z)
+    x = np.cross(z, u)
+    if np.linalg.norm(x) < 1e-6:
+        raise CliError("--ball-look/--ball-up: the up direction is parallel to the view")
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)  # columns: right, down, forward
+
+
+# A mirror ball compresses its rim: a direction at angle a from the one reflected back to
+# the camera shows at radius sin(a/2), so one pixel spans 1/cos(a/2) times the angle it
+# spans at the centre. Beyond this stretch the reflection is treated as unseen (the blind
+# cone behind the ball; it also holds the ball's silhouette edge, mixed with background).
+BALL_MAX_STRETCH = 4.0
+
+
+def ball_seen_half_angle(max_stretch: float = BALL_MAX_STRETCH) -> float:
+    """Largest angle (rad) from the direction back to the camera that a mirror ball shows
+    with a pixel footprint at most ``max_stretch`` x the centre's: ``2 acos(1/stretch)``."""
+    return 2.0 * float(np.arccos(1.0 / max_stretch))
+
+
+def _observed_fraction(seen: np.ndarray) -> float:
+    """Fraction of the sphere covered by an equirect validity mask (solid-angle weighted)."""
+    om = E.equirect_solid_angle(seen.shape[0], seen.shape[1])
+    return float((om * seen).sum() / (4 * np.pi))
+
+
+def _fisheye_seen(cam, height: int = 256) -> np.ndarray:
+    """Equirect mask of the directions a fisheye camera sees inside its image."""
+    xy, valid = cam.project(E.equirect_directions(height))
+    w, h = cam.size
+    return valid & (xy[..., 0] >= 0) & (xy[..., 0] <= w) & (xy[..., 1] >= 0) & (xy[..., 1] <= h)
+
+
+# LDR input: a pixel with a channel at the top code value is clipped; this fraction of the
+# observed pixels being clipped makes the estimate warn that the light is underestimated.
+CLIPPED_WARN_FRACTION = 0.01
+
+
+@dataclass
+class Environment:
+    """An input turned into equirect maps: ``map`` (what was observed, unseen = 0),
+    ``confidence`` (observed fraction of the sphere), ``sh_map`` (the map for the SH
+    remainder when it differs: the mirrored fisheye capture) and ``warnings``."""
+
+    map: np.ndarray
+    confidence: float
+    sh_map: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def load_environment(image: Path, kind: str, height: int | None = None,
                      ball_center: str | None = None, ball_radius: float | None = None,
-                     fisheye_calib: Path | None = None, fov: float = 180.0,
-                     mirror_lower: bool = True
-                     ) -> tuple[np.ndarray, float, np.ndarray | None]:
-    """Read ``image`` of ``kind``: (equirect map of what was observed, observed sphere
-    fraction, map for the SH remainder when it differs -- the mirrored fisheye capture)."""
+                     fisheye_calib: Path | None = None, fov: float | None = None,
+                     mirror_lower: bool = True, ball_look: str | None = None,
+                     ball_up: str | None = None) -> Environment:
+    """Read ``image`` of ``kind`` into an :class:`Environment`.
+
+    ``fov`` (degrees): the fisheye field of view when given explicitly; None keeps the
+    calibration file's (180 for an uncalibrated equidistant lens)."""
     if kind not in KINDS:
         raise CliError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
     from arlight.io.images import is_hdr_path
 
+    if image.is_dir():
+        raise CliError(f"{image}: is a folder, expected an image file")
     if kind in ("equirect", "probe") and not is_hdr_path(image):
         raise CliError(f"{image}: an {kind} environment map must be HDR (.exr/.hdr/.pfm); "
                        "an 8/16-bit picture holds display values clipped at white, not "
                        "radiance")
     _check_number(fov, "--fov", 0.0, 360.0)
     _check_number(ball_radius, "--ball-radius", 0.0, 1e6)
+    pose = ball_pose(ball_look, ball_up) if kind == "ball" else None
     img = read_linear(image)
     H, W = img.shape[:2]
     if np.any(img < 0):
         raise CliError(f"{image}: {int(np.count_nonzero(img < 0))} negative values; radiance "
                        "must be >= 0")
+    warnings = []
+    if not is_hdr_path(image):
+        clipped = float(np.mean(img.max(axis=-1) >= 1.0 - 1e-6))
+        if clipped > CLIPPED_WARN_FRACTION:
+            warnings.append(f"{image}: {100 * clipped:.1f} % of the pixels are clipped at "
+                            "white (LDR input): the light sources are underestimated; use "
+                            "an HDR capture or an exposure bracket")
     if kind == "equirect":
         if W != 2 * H:
             raise CliError(f"{image}: an equirect map must be 2:1, got {W}x{H}")
-        return E.to_equirect(img, "equirect", height=height), 1.0, None
+        m = img if height in (None, H) else E.resize_equirect(img, height)
+        return Environment(m, 1.0, None, warnings)
     if kind == "probe":
         if W != H:
             raise CliError(f"{image}: an angular light probe must be square, got {W}x{H}")
-        return E.to_equirect(img, "angular", height=height), 1.0, None
+        return Environment(E.to_equirect(img, "angular", height=height), 1.0, None, warnings)
     if kind == "ball":
-        center = _parse_center(ball_center)
+        center = _parse_vec(ball_center, "--ball-center", 2)
         if center is None or ball_radius is None or ball_radius <= 0:
             raise CliError("--kind ball needs --ball-center cx,cy and --ball-radius (pixels)")
         cx, cy = center
-        if not (np.isfinite(cx) and np.isfinite(cy)):
-            raise CliError(f"--ball-center: expected finite pixel coordinates, got {center}")
         tol = 1.0
         if (cx - ball_radius < -tol or cy - ball_radius < -tol
                 or cx + ball_radius > W + tol or cy + ball_radius > H + tol):
             raise CliError(f"--ball-center/--ball-radius: the ball (centre {cx:g},{cy:g}, "
                            f"radius {ball_radius:g} px) is not inside the {W}x{H} image "
                            f"{image}")
-        m = E.to_equirect(img, "ball", height=height, center=center, radius=ball_radius)
-        return m, 1.0, None
+        m = E.to_equirect(img, "ball", height=height, center=center, radius=ball_radius,
+                          world_from_camera=pose)
+        rot = np.diag([1.0, -1.0, -1.0]) if pose is None else pose
+        back = -rot[:, 2]  # the direction reflected straight back to the camera
+        seen = E.equirect_directions(m.shape[0]) @ back >= np.cos(ball_seen_half_angle())
+        m[~seen] = 0.0
+        return Environment(m, _observed_fraction(seen), None, warnings)
     if fisheye_calib is not None:
         try:
-            cam = FisheyeCamera.load(fisheye_calib, fov_deg=fov)
+            cam = load_camera(fisheye_calib, fov_deg=fov)
         except ValueError as exc:
             raise CliError(f"--fisheye-calib: {exc}") from exc
         if cam.size != (W, H):
             raise CliError(f"{image}: image is {W}x{H} but {fisheye_calib} is for "
                            f"{cam.size[0]}x{cam.size[1]}")
     else:
-        cam = FisheyeCamera.equidistant((W, H), fov_deg=fov)
+        cam = FisheyeCamera.equidistant((W, H), fov_deg=180.0 if fov is None else fov)
     m = E.to_equirect(img, "fisheye", height=height, camera=cam)
     mirrored = E.mirror_lower_hemisphere(m) if mirror_lower else None
-    observed = min(1.0, (1 - np.cos(np.radians(min(fov, 360.0) / 2))) / 2)
-    return m, float(observed), mirrored
+    return Environment(m, _observed_fraction(_fisheye_seen(cam)), mirrored, warnings)
 
 
 @app.command()
@@ -153,28 +234,46 @@ def estimate(
         "light.json"),
     kind: Annotated[str, typer.Option(help="equirect | probe (Debevec angular) | ball | "
                                            "fisheye")] = "equirect",
-    lights: Annotated[int, typer.Option(help="number of extracted lights (0: SH only)")] = 16,
+    lights: Annotated[int, typer.Option(
+        help="most lights to extract (0: SH only); 'regions' returns one per source found, "
+             "up to this cap")] = 16,
     sh_order: Annotated[int, typer.Option(help="SH order L ((L+1)^2 coefficients)")] = 2,
-    method: Annotated[str, typer.Option(help="median_cut | variance")] = "median_cut",
+    method: Annotated[str, typer.Option(
+        help="regions (one light per connected highlight) | median_cut | variance")
+    ] = "regions",
     threshold: Annotated[float | None, typer.Option(
         help="highlight luminance threshold (default 4x the mean)")] = None,
     height: Annotated[int | None, typer.Option(help="equirect height to work at")] = None,
     ball_center: Annotated[str | None, typer.Option(help="mirror ball centre 'cx,cy' (px)")
                            ] = None,
     ball_radius: Annotated[float | None, typer.Option(help="mirror ball radius (px)")] = None,
+    ball_look: Annotated[str | None, typer.Option(
+        help="mirror ball: world direction 'x,y,z' the camera looks along (default 0,0,-1)")
+    ] = None,
+    ball_up: Annotated[str | None, typer.Option(
+        help="mirror ball: the camera's up direction 'x,y,z' in the world (default 0,1,0)")
+    ] = None,
     fisheye_calib: Annotated[Path | None, typer.Option(
-        help="OpenCV fisheye calibration (.yml/.xml) or JSON (K, D, size)")] = None,
-    fov: Annotated[float, typer.Option(help="fisheye field of view (deg)")] = 180.0,
+        help="fisheye calibration: OCamCalib calib_results.txt, OpenCV .yml/.xml or JSON")
+    ] = None,
+    fov: Annotated[float | None, typer.Option(
+        help="fisheye field of view (deg); default: the calibration's, else 180")] = None,
     mirror_lower: Annotated[bool, typer.Option(
         help="fisheye: mirror the upper hemisphere into the lower (Kan)")] = True,
     layout: Annotated[str, typer.Option(help="arlight | arcore | arkit | webxr")] = "arlight",
+    sh_convention: Annotated[str, typer.Option(
+        help="webxr layout: SH signs for three.js (threejs) or as Chrome passes ARCore's "
+             "through (arcore)")] = "threejs",
 ) -> None:
     """Estimate a LightEstimate (main light, extra lights, SH remainder) from an image."""
     try:
         if layout not in LAYOUTS:
             raise CliError(f"--layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
-        if method not in ("median_cut", "variance"):
-            raise CliError(f"--method: expected median_cut or variance, got {method!r}")
+        if sh_convention not in SH_CONVENTIONS:
+            raise CliError(f"--sh-convention: expected one of {', '.join(SH_CONVENTIONS)}, "
+                           f"got {sh_convention!r}")
+        if method not in METHODS:
+            raise CliError(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
         if not 0 <= lights <= MAX_LIGHTS:
             raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
         if not 0 <= sh_order <= MAX_SH_ORDER:
@@ -184,16 +283,21 @@ def estimate(
         _check_number(threshold, "--threshold", 0.0, 1e30)
         inputs = [image] + ([fisheye_calib] if fisheye_calib is not None else [])
         _check_output(output, inputs)
-        env, observed, sh_map = load_environment(image, kind, height, ball_center,
-                                                 ball_radius, fisheye_calib, fov, mirror_lower)
-        est = LightEstimate.from_envmap(env, n_lights=lights, sh_order=sh_order,
+        env = load_environment(image, kind, height, ball_center, ball_radius, fisheye_calib,
+                               fov, mirror_lower, ball_look, ball_up)
+        for w in env.warnings:
+            typer.echo(f"warning: {w}", err=True)
+        est = LightEstimate.from_envmap(env.map, n_lights=lights, sh_order=sh_order,
                                         method=method, threshold=threshold,
-                                        confidence=observed, sh_map=sh_map)
-        est.save(output, layout=layout, protect=tuple(inputs))
+                                        confidence=env.confidence, sh_map=env.sh_map)
+        del env
+        est.save(output, layout=layout, protect=tuple(inputs), sh_convention=sh_convention)
     except (CliError, ValueError) as exc:
         _fail(str(exc))
+    share = est.explicit_fraction or 0.0
     typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}, "
-               f"{len(est.lights)} more lights, SH order {sh_order}")
+               f"{len(est.lights)} more lights holding with it {100 * share:.1f} % of the "
+               f"energy, SH order {sh_order}, confidence {est.confidence:.2f}")
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:
@@ -213,32 +317,71 @@ def _irradiance_sphere(est: LightEstimate, size: int = 160) -> np.ndarray:
     return out
 
 
+# ``show``: a light's circle has an area (points^2) proportional to its power, this many
+# points^2 for the most powerful light (the main light is red, the others yellow).
+CIRCLE_AREA_MAX = 400.0
+
+
+def circle_areas(powers: np.ndarray) -> np.ndarray:
+    """Marker areas (points^2) proportional to ``powers`` (luminance W/m^2): the most
+    powerful light gets :data:`CIRCLE_AREA_MAX`, a light of half its power half the area."""
+    p = np.clip(np.asarray(powers, np.float64), 0.0, None)
+    top = p.max(initial=0.0)
+    return CIRCLE_AREA_MAX * p / top if top > 0 else np.zeros_like(p)
+
+
+def sh_panel(recon: np.ndarray) -> tuple[np.ndarray, bool]:
+    """What ``show`` draws for an SH reconstruction ``(H, W, 3)``: ``(tone-mapped RGB,
+    False)`` when it is non-negative, else ``(signed luminance (H, W), True)`` for a
+    diverging colour map centred on 0, so negative radiance is shown, not clipped."""
+    lum = recon @ SH.LUMINANCE
+    if lum.min() < 0:
+        return lum, True
+    return _tonemap(recon), False
+
+
 def render_picture(est: LightEstimate, path: Path, title: str = "") -> Path:
-    """Three panels: map + lights, SH reconstruction, irradiance sphere (PNG, atomic)."""
+    """Three panels: map + lights, SH reconstruction, irradiance sphere (PNG, atomic).
+
+    The SH reconstruction is shown as colour when it is non-negative everywhere; when the
+    truncated SH rings below zero (negative radiance), its luminance is shown with a
+    diverging colour map centred on 0 (blue < 0 < red) instead of clipping it."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import TwoSlopeNorm
 
     order = SH.order_of(est.sh.shape[0])
     recon = SH.sh_to_equirect(est.total_sh(max(order, 2)), 128)
     env = est.hdr_map if est.hdr_map is not None else recon
+    if env.shape[0] > 512:  # a picture needs no more; keeps show cheap on 4k maps
+        env = E.resize_equirect(env, 512)
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.6),
                              gridspec_kw={"width_ratios": [2, 2, 1]})
     ax = axes[0]
-    ax.imshow(_tonemap(env), extent=(0, 1, 1, 0), aspect="auto")
+    ax.imshow(_tonemap(np.clip(env, 0, None)), extent=(0, 1, 1, 0), aspect="auto")
     all_lights = [ExtractedLight(est.main_direction, est.main_irradiance), *est.lights]
     powers = np.array([lt.irradiance @ SH.LUMINANCE for lt in all_lights])
-    pmax = powers.max() if powers.size and powers.max() > 0 else 1.0
-    for i, (lt, p) in reversed(list(enumerate(zip(all_lights, powers, strict=True)))):
+    areas = circle_areas(powers)
+    for i, (lt, a) in reversed(list(enumerate(zip(all_lights, areas, strict=True)))):
         x, y = E.direction_to_equirect(lt.direction[None], 1, 1)[0]
-        ax.scatter([x % 1], [y], s=30 + 300 * p / pmax, facecolors="none",
+        ax.scatter([x % 1], [y], s=a, facecolors="none",
                    edgecolors="red" if i == 0 else "yellow", linewidths=1.5)
-    ax.set_title(f"map + {len(all_lights)} lights (red: main)")
+    ax.set_title(f"map + {len(all_lights)} lights (red: main; circle area ∝ power)")
     ax.set_xlabel("u")
     ax.set_ylabel("v")
-    axes[1].imshow(_tonemap(recon), extent=(0, 1, 1, 0), aspect="auto")
-    axes[1].set_title(f"SH reconstruction (order {max(order, 2)}, lights folded in)")
+    panel, diverging = sh_panel(recon)
+    if diverging:
+        lim = float(np.abs(panel).max()) or 1.0
+        im = axes[1].imshow(panel, extent=(0, 1, 1, 0), aspect="auto", cmap="RdBu_r",
+                            norm=TwoSlopeNorm(0.0, -lim, lim))
+        fig.colorbar(im, ax=axes[1], fraction=0.04, label="luminance (< 0: SH ringing)")
+        axes[1].set_title(f"SH reconstruction, luminance (order {max(order, 2)}; "
+                          f"min {panel.min():.3g} < 0)")
+    else:
+        axes[1].imshow(panel, extent=(0, 1, 1, 0), aspect="auto")
+        axes[1].set_title(f"SH reconstruction (order {max(order, 2)}, lights folded in)")
     axes[2].imshow(_tonemap(_irradiance_sphere(est)))
     axes[2].set_title("irradiance E/pi (from +Z)")
     axes[2].axis("off")
@@ -260,24 +403,33 @@ def show(
         "light.png"),
     kind: Annotated[str, typer.Option(help="kind of an image source (see estimate)")
                     ] = "equirect",
-    lights: Annotated[int, typer.Option(help="lights to extract from an image source")] = 16,
+    lights: Annotated[int, typer.Option(help="most lights to extract from an image source")
+                      ] = 16,
     ball_center: Annotated[str | None, typer.Option(help="mirror ball centre 'cx,cy'")] = None,
     ball_radius: Annotated[float | None, typer.Option(help="mirror ball radius (px)")] = None,
+    ball_look: Annotated[str | None, typer.Option(help="mirror ball camera view 'x,y,z'")
+                         ] = None,
+    ball_up: Annotated[str | None, typer.Option(help="mirror ball camera up 'x,y,z'")] = None,
     fisheye_calib: Annotated[Path | None, typer.Option(help="fisheye calibration")] = None,
-    fov: Annotated[float, typer.Option(help="fisheye field of view (deg)")] = 180.0,
+    fov: Annotated[float | None, typer.Option(
+        help="fisheye field of view (deg); default: the calibration's, else 180")] = None,
 ) -> None:
     """Picture a light estimate: map with the lights, SH reconstruction, irradiance."""
     try:
         if not 0 <= lights <= MAX_LIGHTS:
             raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
+        if source.is_dir():
+            raise CliError(f"{source}: is a folder, expected a light JSON or an image")
         _check_output(output, [source] + ([fisheye_calib] if fisheye_calib else []))
         if source.suffix.lower() == ".json":
             est = LightEstimate.load(source)
         else:
-            env, observed, sh_map = load_environment(source, kind, None, ball_center,
-                                                     ball_radius, fisheye_calib, fov)
-            est = LightEstimate.from_envmap(env, n_lights=lights, confidence=observed,
-                                            sh_map=sh_map)
+            env = load_environment(source, kind, None, ball_center, ball_radius,
+                                   fisheye_calib, fov, ball_look=ball_look, ball_up=ball_up)
+            for w in env.warnings:
+                typer.echo(f"warning: {w}", err=True)
+            est = LightEstimate.from_envmap(env.map, n_lights=lights,
+                                            confidence=env.confidence, sh_map=env.sh_map)
         render_picture(est, output, title=source.name)
     except (CliError, ValueError) as exc:
         _fail(str(exc))

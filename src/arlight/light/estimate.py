@@ -25,17 +25,30 @@ JSON layouts (:meth:`LightEstimate.to_json` / :meth:`LightEstimate.from_json`):
     ARCore's SH are *ambient*: the main light is not in them.
 ``"arkit"`` (``ARDirectionalLightEstimate``)
     ``sphericalHarmonicsCoefficients``: 27 floats in three *planes* (9 red, 9 green,
-    9 blue); ``primaryLightDirection`` and ``primaryLightIntensity`` (a scalar, in lumens
-    per Apple). Apple documents neither the SH basis signs nor which way the direction
-    points; we assume the basis without the Condon-Shortley phase, the direction the
-    light *travels* (SceneKit's light orientation) and pass the intensity through as
-    luminance-weighted irradiance (no photometric calibration). ``timestamp`` in seconds.
+    9 blue); ``primaryLightDirection`` and ``primaryLightIntensity``. Apple documents
+    neither the SH basis signs nor which way the direction points; we assume the basis
+    without the Condon-Shortley phase and the direction the light *travels* (SceneKit's
+    light orientation). ``primaryLightIntensity`` is "the estimated intensity, in lumens,
+    of the strongest directional light source", scaled for SceneKit where 1000 lumens is
+    "neutral" (Apple: ``ARDirectionalLightEstimate.primaryLightIntensity``,
+    ``ARLightEstimate.ambientIntensity``, ``SCNLight.intensity``, default 1000 lm). We
+    write ``1000 Y(E) / pi`` with ``E`` the main light's irradiance: *assumption*: a map
+    value of 1.0 is the camera's neutral white, and a light of 1000 lm (colour factor 1 in
+    SceneKit) makes a white diffuse surface facing it show 1.0, which a physical
+    Lambertian surface shows under ``E = pi``. Reading it back gives grey
+    ``E = pi I / 1000`` (the colour is lost). ``timestamp`` in seconds.
 ``"webxr"`` (``XRLightEstimate``, WebXR Lighting Estimation)
     ``sphericalHarmonicsCoefficients``: 27 floats interleaved RGB, order
     ``C_0^0, C_1^-1, C_1^0, C_1^1, C_2^-2, ... C_2^2`` (spec); ``primaryLightDirection``
     *toward* the light and ``primaryLightIntensity`` RGB, both as ``{x, y, z, w}`` with
-    w = 0 and 1. The spec does not fix the SH sign convention; we follow three.js
-    (``XREstimatedLight`` feeds them to ``SphericalHarmonics3``: no Condon-Shortley phase).
+    w = 0 and 1. The spec does not fix the SH sign convention, so it is selectable
+    (``shConvention`` in the file): ``"threejs"`` (default): the basis without the
+    Condon-Shortley phase that three.js's ``XREstimatedLight`` feeds to
+    ``SphericalHarmonics3`` and shades with ``shGetIrradianceAt``; ``"arcore"``: ARCore's
+    CS-phase basis, which is what Chrome delivers, since its ARCore device copies
+    ``ArLightEstimate_getEnvironmentalHdrAmbientSphericalHarmonics`` into the
+    ``XRLightProbe`` unchanged (Chromium ``device/vr/android/arcore/arcore_impl.cc``,
+    ``GetLightProbe``). The two differ in the sign of ``C_1^-1, C_1^1, C_2^-1, C_2^1``.
 """
 
 from __future__ import annotations
@@ -63,6 +76,8 @@ from arlight.sphere import sh as SH
 
 LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
 METHODS = ("regions", "median_cut", "variance")
+SH_CONVENTIONS = ("threejs", "arcore")  # webxr: whose SH signs (see the module docstring)
+ARKIT_NEUTRAL_LUMENS = 1000.0  # SceneKit/ARKit: 1000 lm = "neutral" (light factor 1)
 AUTO_THRESHOLD_FACTOR = 4.0  # default highlight threshold, x the mean luminance
 FORMAT_TAG = "arlight.light_estimate"
 
@@ -353,8 +368,13 @@ class LightEstimate:
 
     # ------------------------------------------------------------------ JSON
 
-    def to_json(self, layout: str = "arlight", hdr_file: str | None = None) -> dict:
-        """A JSON-ready dict in ``layout`` (see the module docstring)."""
+    def to_json(self, layout: str = "arlight", hdr_file: str | None = None,
+                sh_convention: str = "threejs") -> dict:
+        """A JSON-ready dict in ``layout`` (see the module docstring); ``sh_convention``
+        (``"threejs"`` or ``"arcore"``) picks the SH signs of the ``webxr`` layout."""
+        if sh_convention not in SH_CONVENTIONS:
+            raise ValueError(f"unknown SH convention {sh_convention!r}; expected one of "
+                             f"{SH_CONVENTIONS}")
         if layout == "arlight":
             d = {
                 "format": FORMAT_TAG, "version": 1,
@@ -387,13 +407,14 @@ class LightEstimate:
             return {"layout": "arkit",
                     "sphericalHarmonicsCoefficients": c.T.reshape(-1).tolist(),
                     "primaryLightDirection": (-self.main_direction).tolist(),
-                    "primaryLightIntensity": float(self.main_irradiance @ SH.LUMINANCE),
+                    "primaryLightIntensity": ARKIT_NEUTRAL_LUMENS * float(
+                        self.main_irradiance @ SH.LUMINANCE) / np.pi,
                     "timestamp": self.timestamp, "confidence": self.confidence}
         if layout == "webxr":
-            c = sh_to_foreign(amb, condon_shortley=False)
+            c = sh_to_foreign(amb, condon_shortley=sh_convention == "arcore")
             x, y, z = self.main_direction
             r, g, b = self.main_irradiance
-            return {"layout": "webxr",
+            return {"layout": "webxr", "shConvention": sh_convention,
                     "sphericalHarmonicsCoefficients": c.reshape(-1).tolist(),
                     "primaryLightDirection": {"x": x, "y": y, "z": z, "w": 0.0},
                     "primaryLightIntensity": {"x": r, "y": g, "z": b, "w": 1.0},
@@ -457,24 +478,28 @@ class LightEstimate:
                 inten = float(d.get("primaryLightIntensity", 0.0))
                 return cls(main_direction=-_vec3(d["primaryLightDirection"],
                                                  "primaryLightDirection"),
-                           main_irradiance=np.full(3, inten),
+                           main_irradiance=np.full(3, np.pi * inten / ARKIT_NEUTRAL_LUMENS),
                            sh=sh_from_foreign(c, condon_shortley=False),
                            timestamp=d.get("timestamp", 0.0), confidence=d.get("confidence", 1.0))
             if layout == "webxr":
                 c = _floats(d["sphericalHarmonicsCoefficients"], 27).reshape(9, 3)
+                conv = d.get("shConvention", "threejs")
+                if conv not in SH_CONVENTIONS:
+                    raise ValueError(f"shConvention: expected one of {SH_CONVENTIONS}, got "
+                                     f"{conv!r}")
                 return cls(main_direction=_point(d["primaryLightDirection"]),
                            main_irradiance=_point(d["primaryLightIntensity"]),
-                           sh=sh_from_foreign(c, condon_shortley=False),
+                           sh=sh_from_foreign(c, condon_shortley=conv == "arcore"),
                            timestamp=d.get("timestamp", 0.0), confidence=d.get("confidence", 1.0))
         except KeyError as exc:
             raise ValueError(f"{layout} light estimate: missing key {exc}") from exc
         raise ValueError(f"unknown layout {layout!r}; expected one of {LAYOUTS}")
 
     def save(self, path: str | Path, layout: str = "arlight",
-             protect: tuple[str | Path, ...] = ()) -> Path:
+             protect: tuple[str | Path, ...] = (), sh_convention: str = "threejs") -> Path:
         """Write JSON atomically; with ``layout="arlight"`` and an HDR map, the map goes to
         ``<stem>.<hash>.hdr.exr`` next to it (referenced relatively; ``<hash>``: 8 hex digits
-        of the map's content).
+        of the map's content, hashed in place). ``sh_convention``: see :meth:`to_json`.
 
         The pair is replaced as one set: the map is written first under its content-named
         file, the JSON (which names it) replaces the old one in one rename, and only then is
@@ -489,11 +514,12 @@ class LightEstimate:
         previous = _referenced_map(path)
         hdr_file = None
         if layout == "arlight" and self.hdr_map is not None:
-            digest = hashlib.sha256(np.ascontiguousarray(self.hdr_map).tobytes())
+            digest = hashlib.sha256(memoryview(np.ascontiguousarray(self.hdr_map)).cast("B"))
             hdr_file = f"{path.stem}.{digest.hexdigest()[:8]}.hdr.exr"
             _refuse_clash(path.parent / hdr_file, guarded)
             self.write_hdr_map(path.parent / hdr_file)
-        text = json.dumps(self.to_json(layout, hdr_file=hdr_file), indent=1)
+        text = json.dumps(self.to_json(layout, hdr_file=hdr_file,
+                                       sh_convention=sh_convention), indent=1)
         with atomic_write(path, ".json") as tmp:
             tmp.write_text(text)
         for old in _side_maps(path):  # the previous pair's map and leftovers of killed saves
@@ -529,8 +555,8 @@ _KEYS = {
                "timestamp", "state", "confidence"},
     "arkit": {"layout", "sphericalHarmonicsCoefficients", "primaryLightDirection",
               "primaryLightIntensity", "timestamp", "confidence"},
-    "webxr": {"layout", "sphericalHarmonicsCoefficients", "primaryLightDirection",
-              "primaryLightIntensity", "timestamp", "confidence"},
+    "webxr": {"layout", "shConvention", "sphericalHarmonicsCoefficients",
+              "primaryLightDirection", "primaryLightIntensity", "timestamp", "confidence"},
 }
 _SUB_KEYS = {"main_light": {"direction_to_light", "irradiance", "solid_angle", "spread"},
              "sh": {"order", "quantity", "basis", "coefficients"},
@@ -612,5 +638,5 @@ def _point(p) -> np.ndarray:
     return _vec3(list(p)[:3], "point")
 
 
-__all__ = ["LAYOUTS", "LightEstimate", "arcore_shader_factors", "sh_from_foreign",
-           "sh_to_foreign"]
+__all__ = ["ARKIT_NEUTRAL_LUMENS", "LAYOUTS", "METHODS", "SH_CONVENTIONS", "LightEstimate",
+           "arcore_shader_factors", "sh_from_foreign", "sh_to_foreign"]
