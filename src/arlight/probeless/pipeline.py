@@ -174,6 +174,7 @@ class PhaseCache:
     blocked: np.ndarray   # (Hs, Ws)
     z: np.ndarray         # (Hs, Ws) camera depth of the cell's point
     normal: np.ndarray    # (Hs, Ws, 3)
+    position: np.ndarray  # (Hs, Ws, 3) world point of the cell's sample
     valid: np.ndarray     # (Hs, Ws) bool
 
     @staticmethod
@@ -183,30 +184,43 @@ class PhaseCache:
         return PhaseCache(camera, spacing, np.zeros((hs, ws, N_COEFFS)),
                           np.zeros((hs, ws, N_COEFFS)), np.zeros((hs, ws), np.int64),
                           np.zeros((hs, ws), np.int64), np.full((hs, ws), np.inf),
-                          np.zeros((hs, ws, 3)), np.zeros((hs, ws), bool))
+                          np.zeros((hs, ws, 3)), np.zeros((hs, ws, 3)),
+                          np.zeros((hs, ws), bool))
 
     def lookup(self, points: np.ndarray, normals: np.ndarray, depth_reject: float,
                normal_reject: float) -> tuple[np.ndarray, np.ndarray]:
-        """Reproject world ``points`` into this cache's camera, nearest cell; a hit needs a
-        valid cell whose depth is within ``depth_reject`` (relative) of the point's and whose
-        normal agrees. Returns (hit mask ``(M,)``, flat cell index ``(M,)``)."""
+        """Reproject world ``points`` into this cache's camera and take, of the 2×2 cells
+        around the projection, the valid one whose stored point is nearest in 3D (Gruber's
+        nearest-neighbour lookup, made robust at the cache's coarse grid). A hit needs the
+        cell's depth within ``depth_reject`` (relative) of the point's depth in that camera
+        and agreeing normals. Returns (hit mask ``(M,)``, flat cell index ``(M,)``)."""
         uv, z = self.camera.project(points)
         hs, ws = self.valid.shape
         s = self.spacing
         with np.errstate(invalid="ignore"):
-            i = np.round((uv[:, 1] - 0.5) / s)
-            j = np.round((uv[:, 0] - 0.5) / s)
-        inside = (z > 0) & np.isfinite(i) & np.isfinite(j) & (i >= 0) & (i < hs) & (j >= 0) \
-            & (j < ws)
-        ii = np.where(inside, i, 0).astype(np.int64)
-        jj = np.where(inside, j, 0).astype(np.int64)
-        cell = ii * ws + jj
-        zc = self.z.reshape(-1)[cell]
-        ok = inside & self.valid.reshape(-1)[cell]
-        with np.errstate(invalid="ignore"):
-            ok &= np.abs(zc - z) <= depth_reject * np.maximum(z, 1e-6)
-        ok &= np.einsum("ij,ij->i", self.normal.reshape(-1, 3)[cell], normals) >= normal_reject
-        return ok, cell
+            fi = np.floor((uv[:, 1] - 0.5) / s)
+            fj = np.floor((uv[:, 0] - 0.5) / s)
+        finite = (z > 0) & np.isfinite(fi) & np.isfinite(fj)
+        fi = np.where(finite, fi, -10).astype(np.int64)
+        fj = np.where(finite, fj, -10).astype(np.int64)
+        best = np.full(len(points), np.inf)
+        cell = np.zeros(len(points), np.int64)
+        for di in (0, 1):
+            for dj in (0, 1):
+                i, j = fi + di, fj + dj
+                inside = finite & (i >= 0) & (i < hs) & (j >= 0) & (j < ws)
+                c = np.where(inside, i * ws + j, 0)
+                ok = inside & self.valid.reshape(-1)[c]
+                zc = self.z.reshape(-1)[c]
+                with np.errstate(invalid="ignore"):
+                    ok &= np.abs(zc - z) <= depth_reject * np.maximum(z, 1e-6)
+                ok &= np.einsum("ij,ij->i", self.normal.reshape(-1, 3)[c],
+                                normals) >= normal_reject
+                dist = np.linalg.norm(self.position.reshape(-1, 3)[c] - points, axis=1)
+                take = ok & (dist < best)
+                best = np.where(take, dist, best)
+                cell = np.where(take, c, cell)
+        return np.isfinite(best), cell
 
 
 def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -438,6 +452,7 @@ class Pipeline:
                 new.valid.reshape(-1)[cells] = True
         new.z.reshape(-1)[grid_cells] = camera.project(p)[1]
         new.normal.reshape(-1, 3)[grid_cells] = n
+        new.position.reshape(-1, 3)[grid_cells] = p
         self.caches[phase] = new
         return out
 
@@ -620,7 +635,7 @@ class Pipeline:
             same = np.all(t.mixed == t.real, axis=1)[:, None]  # no change: exactly 0
             real = np.where(same, 0.0, ic * (ratio - 1.0))
         else:
-            real = a / np.pi * (t.mixed - t.real) @ sh
+            real = a / np.pi * ((t.mixed - t.real) @ sh)
         return np.where(virt, a / np.pi * lm, real)
 
     def _upsample(self, val: np.ndarray, own: np.ndarray, hits: Hits, frame: np.ndarray,
