@@ -32,7 +32,8 @@ MAX_DISTANCE = 0.10
 """Visibility rays end after this distance (m), Gruber §3."""
 RAY_OFFSET = 2e-3
 """Ray origins are moved this far (m) along the normal, off the surface they start on."""
-_CHUNK = 1 << 21  # rays per Mitsuba batch (memory bound, not a per-ray loop)
+_CHUNK = 1 << 22  # rays per Mitsuba batch (memory bound, not a per-ray loop)
+_POINTS = 1 << 16  # points per batch of compute_transfer
 
 
 @dataclass
@@ -104,6 +105,16 @@ def compute_transfer(views: SceneViews, points: np.ndarray, normals: np.ndarray,
     idx = np.arange(directions.n) if subset is None else np.asarray(subset)
     if m == 0 or len(idx) == 0:
         return Transfer.zeros(m)
+    if m > _POINTS:  # bound the (points × directions) matrices; each chunk is one batch
+        parts = [compute_transfer(views, points[a:a + _POINTS], normals[a:a + _POINTS],
+                                  directions, idx, None if need_real is None else
+                                  np.asarray(need_real)[a:a + _POINTS], max_distance,
+                                  ray_offset) for a in range(0, m, _POINTS)]
+        return Transfer(np.concatenate([p.real for p in parts]),
+                        np.concatenate([p.mixed for p in parts]),
+                        np.concatenate([p.cast for p in parts]),
+                        np.concatenate([p.blocked for p in parts]),
+                        sum(p.rays for p in parts))
     d = directions.directions[idx]
     Y = directions.basis[idx]
     ii, jj, cos = _lanes(normals, d)

@@ -1,0 +1,113 @@
+"""Benchmark: probeless light estimation (Gruber et al. 2014), accuracy and time per frame.
+
+Part 1 — Gruber's Table 1 on synthetic sequences: the modelled room (floor, five boxes, a
+sphere; one albedo) rendered by Mitsuba's path tracer (direct light) under an animated light
+with RGB + depth + poses, reconstructed with the TSDF (2 m, 268³), then every variant runs
+the sequence on the reconstruction. Lights: an SH cap light (16 coefficients, Gruber's
+"circular area light falling off from centre to border"), and real HDR maps rotated 45° per
+frame (``studio_small_03`` and ``rooitou_park`` from ``../shared/assets/hdri`` when present,
+and the bundled ``lebombo``, whose ground reflects 81 % as much as the sky: its dominant
+direction depends on light the floor hides). Static and moving camera; mean ± std of
+``dot(d_est, d_true)`` over frames, the relative SH error, the upper-hemisphere radiance error,
+time of RT + estimation (median, ms) and rays per frame.
+
+Part 2 — Gruber's Fig. 5 timing at 640×480 on this machine's cores: RM and ART4, the same
+sequence, interleaved frame by frame (the load of other processes hits both alike), median
+per-frame time of RT + light estimation over the frames after ART4's 4-frame warm-up, and
+the ratio (Gruber, GTX 780: RM 203.5 ms, ART4 85.3 ms, 2.39×). Usage:
+
+    python benchmarks/bench_probeless.py [--frames 8] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+from pathlib import Path
+
+import numpy as np
+from results import publish
+
+from arlight.backend.mitsuba_scene import build_views
+from arlight.probeless.experiment import table1
+from arlight.probeless.pipeline import VARIANTS, Pipeline
+from arlight.probeless.reconstruct import reconstruct
+from arlight.probeless.synthetic import ALBEDO, render_sequence
+from arlight.scene.model import World
+
+HEADING = "## Probeless light estimation: Gruber Table 1 and RM vs ART4 time (issue 16)"
+GRUBER = {"static": {"RM": 0.9488, "REG4": 0.9399, "REG8": 0.9393, "ART1": 0.9574,
+                     "ART4": 0.9475, "ART8": 0.9521},
+          "moving": {"RM": 0.9616, "REG4": 0.9606, "REG8": 0.9626, "ART1": 0.9621,
+                     "ART4": 0.9559, "ART8": 0.9624}}
+SHARED_HDRI = Path(__file__).resolve().parents[2] / "shared" / "assets" / "hdri"
+
+
+def accuracy(n: int) -> str:
+    lights: dict[str, tuple[str, Path | None]] = {"SH cap light": ("sh", None)}
+    for name in ("studio_small_03_1k.hdr", "rooitou_park_1k.hdr"):
+        if (SHARED_HDRI / name).is_file():
+            lights[f"HDR {name.split('_1k')[0]}"] = ("hdr", SHARED_HDRI / name)
+    lights["HDR lebombo (bundled)"] = ("hdr", None)
+    res = table1(n=n, lights=lights)
+    names = list(VARIANTS)
+    lines = ["| light | camera | measure | " + " | ".join(names) + " |",
+             "|---|---|---|" + "---|" * len(names)]
+    for (label, moving), sc in res.items():
+        cam = "moving" if moving else "static"
+        rows = {
+            "dot mean ± std": [f"{s.dot.mean():.4f} ± {s.dot.std():.4f}" for s in sc.values()],
+            "SH error": [f"{s.sh_error.mean():.2f}" for s in sc.values()],
+            "upper-hemisphere error": [f"{s.upper_error.mean():.2f}" for s in sc.values()],
+            "ms RT + estimation": [f"{1000 * np.median(s.seconds):.0f}" for s in sc.values()],
+            "rays per frame": [f"{s.rays.mean():.0f}" for s in sc.values()],
+        }
+        for k, v in rows.items():
+            lines.append(f"| {label} | {cam} | {k} | " + " | ".join(v) + " |")
+    for cam in ("static", "moving"):
+        lines.append(f"| Gruber Table 1 | {cam} | dot mean | "
+                     + " | ".join(f"{GRUBER[cam][v]:.4f}" for v in names) + " |")
+    return "\n".join(lines)
+
+
+def timing(n: int) -> tuple[str, float]:
+    frames = render_sequence("sh", n=n, moving=True, width=640, height=480, spp=8)
+    mesh = reconstruct([f.rgbd for f in frames], albedo=ALBEDO)
+    views = build_views(World(shapes=[mesh], lights=[]))
+    pipes = {v: Pipeline(views, v, shapes=[mesh]) for v in ("RM", "ART4")}
+    times: dict[str, list[float]] = {v: [] for v in pipes}
+    rays: dict[str, list[float]] = {v: [] for v in pipes}
+    for i, f in enumerate(frames):
+        for v, p in pipes.items():
+            r = p.process(f.rgbd.camera, f.rgbd.colour, f.rgbd.depth, shade=False)
+            if i >= 4:
+                times[v].append(r.stats["time_rt"] + r.stats["time_estimate"])
+                rays[v].append(r.stats["rays"])
+    med = {v: 1000 * statistics.median(t) for v, t in times.items()}
+    ratio = med["RM"] / med["ART4"]
+    text = (f"640×480, {os.cpu_count()} cores, frames 5-{n} of a moving-camera sequence "
+            f"(median): RM **{med['RM']:.0f} ms** ({np.mean(rays['RM']) / 1e6:.1f} M rays), "
+            f"ART4 **{med['ART4']:.0f} ms** ({np.mean(rays['ART4']) / 1e6:.2f} M rays); "
+            f"RM / ART4 = **{ratio:.2f}×** (Gruber, GTX 780: 203.5 / 85.3 ms = 2.39×).")
+    return text, ratio
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
+    args = ap.parse_args()
+    tab = accuracy(args.frames)
+    time_text, _ = timing(max(args.frames, 6))
+    text = "\n".join([
+        HEADING, "",
+        "`python benchmarks/bench_probeless.py` — synthetic sequences of "
+        f"{args.frames} frames at 160×120 (Mitsuba path tracer, direct light, 64 spp), "
+        "reconstructed with the TSDF (2 m, 268³); every variant on the reconstruction.", "",
+        tab, "", time_text, ""])
+    publish(text, args.write)
+
+
+if __name__ == "__main__":
+    main()
