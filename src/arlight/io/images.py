@@ -52,8 +52,12 @@ def read_hdr(path: str | Path) -> np.ndarray:
     mi = _bitmap_module()
     try:
         bmp = mi.Bitmap(str(path))
-        bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, srgb_gamma=False)
-        arr = np.array(bmp, dtype=np.float32, copy=True)
+        if (bmp.pixel_format(), bmp.component_format()) != (mi.Bitmap.PixelFormat.RGB,
+                                                            mi.Struct.Type.Float32):
+            bmp = bmp.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32,
+                              srgb_gamma=False)
+        # the bitmap's own (writable) memory: a copy would double the peak on 4k maps
+        arr = np.asarray(bmp, dtype=np.float32)
     except Exception as exc:  # Mitsuba raises RuntimeError with its own wording
         raise InputError(f"cannot read HDR image ({exc})", file=str(path)) from exc
     if arr.ndim == 2:
