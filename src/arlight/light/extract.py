@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from arlight.sphere.envmap import equirect_solid_angle
+from arlight.sphere.envmap import equirect_row_solid_angle
 from arlight.sphere.sh import LUMINANCE
 
 
@@ -111,7 +111,7 @@ class _Tables:
         self.H, self.W = H, W
         # everything about a pixel's direction and solid angle is separable in row (θ)
         # and column (φ), so region sums never need an (H, W, 3) direction array
-        self.omega_row = equirect_solid_angle(H, W)[:, 0]
+        self.omega_row = equirect_row_solid_angle(H, W)
         theta = (np.arange(H) + 0.5) * np.pi / H
         phi = (np.arange(W) + 0.5) * 2 * np.pi / W
         self.sin_t, self.cos_t = np.sin(theta), np.cos(theta)
@@ -267,7 +267,7 @@ def luminance(image: np.ndarray) -> np.ndarray:
 def mean_luminance(lum: np.ndarray) -> float:
     """Solid-angle-weighted mean of an equirect luminance plane ``(H, W)`` (W/(sr m^2))."""
     H, W = lum.shape
-    return float(equirect_solid_angle(H, W)[:, 0] @ lum.sum(axis=1, dtype=np.float64)
+    return float(equirect_row_solid_angle(H, W) @ lum.sum(axis=1, dtype=np.float64)
                  / (4 * np.pi))
 
 
@@ -288,31 +288,44 @@ def sphere_components(mask: np.ndarray, gap_px: int = 0) -> tuple[np.ndarray, in
     r-1..r+1), and each pole (every pixel of the top row touches every other one at +Y;
     the same for the bottom row at -Y). With ``gap_px > 0`` parts closer than ``gap_px``
     pixels (a disc, wrapped across the seam) are one component: the mask is dilated for
-    the labelling only. Returns ``(labels int32 (H, W), n)``: 0 off the mask, 1..n on it.
+    the labelling only (on the slab of rows that holds the mask). Returns
+    ``(labels (H, W), n)``: 0 off the mask, 1..n on it (uint16 when the labels cannot
+    overflow it, else int32).
     """
     import cv2
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    m = np.ascontiguousarray(mask, dtype=np.uint8)
-    H, W = m.shape
-    if gap_px > 0:
-        g = min(int(gap_px), W // 2)
+    mask = np.asarray(mask, bool)
+    H, W = mask.shape
+    g = min(max(int(gap_px), 0), W // 2)
+    rows = np.flatnonzero(mask.any(axis=1))
+    # 16-bit labels (half the memory of a 4k label plane) whenever they cannot overflow
+    small = rows.size == 0 or int(np.count_nonzero(mask)) * (2 * g + 1) ** 2 < 65535
+    labels = np.zeros((H, W), np.uint16 if small else np.int32)
+    if rows.size == 0:
+        return labels, 0
+    # work on the slab of rows that holds the mask (and its gap): highlights are sparse
+    r0, r1 = max(0, int(rows[0]) - g), min(H, int(rows[-1]) + 1 + g)
+    m = np.ascontiguousarray(mask[r0:r1]).view(np.uint8)
+    if g > 0:
         pad = np.concatenate([m[:, -g:], m, m[:, :g]], axis=1)
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * g + 1, 2 * g + 1))
         m = np.ascontiguousarray(cv2.dilate(pad, kernel)[:, g:g + W])
-    n, labels = cv2.connectedComponents(m, connectivity=8, ltype=cv2.CV_32S)
+        del pad
+    n, slab = cv2.connectedComponents(m, connectivity=8,
+                                      ltype=cv2.CV_16U if small else cv2.CV_32S)
     del m
-    if n <= 1:
-        return np.zeros((H, W), np.int32), 0
-    pairs = []
-    left, right = labels[:, 0], labels[:, -1]
+    pairs = [np.zeros((0, 2), np.int64)]
+    left, right = slab[:, 0].astype(np.int64), slab[:, -1].astype(np.int64)
+    h = r1 - r0
     for shift in (-1, 0, 1):  # (r, 0) touches (r + shift, W - 1)
-        a = left[max(0, -shift):H - max(0, shift)]
-        b = right[max(0, shift):H + min(0, shift)]
+        a = left[max(0, -shift):h - max(0, shift)]
+        b = right[max(0, shift):h + min(0, shift)]
         pairs.append(np.stack([a, b], axis=1))
-    for row in (labels[0], labels[-1]):  # all labels on a pole row meet at the pole
-        ids = np.unique(row[row > 0])
+    poles = ([slab[0]] if r0 == 0 else []) + ([slab[-1]] if r1 == H else [])
+    for row in poles:  # all labels on a pole row meet at the pole
+        ids = np.unique(row[row > 0]).astype(np.int64)
         if ids.size > 1:
             pairs.append(np.stack([ids[:-1], ids[1:]], axis=1))
     p = np.concatenate(pairs)
@@ -322,11 +335,10 @@ def sphere_components(mask: np.ndarray, gap_px: int = 0) -> tuple[np.ndarray, in
     # component 0 is the background's; renumber the others 1..n'
     comp = comp.astype(np.int64)
     bg = comp[0]
-    remap = np.where(comp == bg, 0, np.where(comp < bg, comp + 1, comp))
+    remap = np.where(comp == bg, 0, np.where(comp < bg, comp + 1, comp)).astype(labels.dtype)
     remap[0] = 0
-    out = remap.astype(np.int32)[labels]
-    out[~np.asarray(mask, bool)] = 0
-    return out, int(k - 1)
+    labels[r0:r1] = remap[slab] * mask[r0:r1]  # the gap's pixels are not ours
+    return labels, int(k - 1)
 
 
 @dataclass
@@ -375,10 +387,10 @@ def highlight_regions(image: np.ndarray, threshold: float, lum: np.ndarray | Non
         return Highlights([], None, 0, 0.0)
     flat = labels.reshape(-1)
     idx = np.flatnonzero(flat)
-    lab = flat[idx] - 1
+    lab = flat[idx].astype(np.int64) - 1
     rows, cols = np.divmod(idx, W)
     lp = lum.reshape(-1)[idx].astype(np.float64)
-    omega = equirect_solid_angle(H, W)[:, 0][rows]
+    omega = equirect_row_solid_angle(H, W)[rows]
     w = omega * (1.0 - threshold / lp)  # Omega x the fraction of L above the threshold
     e = lp * w
     theta = (rows + 0.5) * (np.pi / H)

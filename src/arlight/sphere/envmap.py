@@ -46,13 +46,21 @@ def equirect_directions(height: int, width: int | None = None) -> np.ndarray:
     return np.stack([st * sp, np.broadcast_to(ct, (height, W)), -st * cp], axis=-1)
 
 
+def equirect_row_solid_angle(height: int, width: int | None = None) -> np.ndarray:
+    """Exact solid angle (sr) of one pixel of each row ``(H,)``: ``(2pi/W)(cos th0 -
+    cos th1)`` (every pixel of a row has the same; use this instead of the full
+    :func:`equirect_solid_angle` plane for large maps)."""
+    W = 2 * height if width is None else width
+    edges = np.cos(np.linspace(0.0, np.pi, height + 1))
+    return (edges[:-1] - edges[1:]) * (2 * np.pi / W)
+
+
 def equirect_solid_angle(height: int, width: int | None = None) -> np.ndarray:
     """Exact solid angle (sr) of every pixel ``(H, W)``: ``(2pi/W)(cos th0 - cos th1)``.
 
     Equal to the conventions' ``(2pi/W)(pi/H) sin th`` up to O(H^-2); sums to 4 pi."""
     W = 2 * height if width is None else width
-    edges = np.cos(np.linspace(0.0, np.pi, height + 1))
-    row = (edges[:-1] - edges[1:]) * (2 * np.pi / W)
+    row = equirect_row_solid_angle(height, W)
     return np.broadcast_to(row[:, None], (height, W)).copy()
 
 
