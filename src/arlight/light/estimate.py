@@ -358,12 +358,20 @@ class LightEstimate:
         return out
 
     def write_hdr_map(self, path: str | Path) -> Path:
-        """Write :attr:`hdr_map` as an EXR (atomic)."""
-        from arlight.io.images import write_exr
+        """Write :attr:`hdr_map` as an EXR (atomic).
+
+        A map read by :func:`arlight.io.images.read_hdr` lives in a Mitsuba bitmap; that
+        bitmap is written directly, so a 4k map is not copied once more to be written."""
+        from arlight.io.images import atomic_write, write_exr
 
         if self.hdr_map is None:
             raise ValueError("this estimate has no HDR map")
-        return write_exr(path, self.hdr_map)
+        bitmap = _own_bitmap(self.hdr_map)
+        if bitmap is None:
+            return write_exr(path, self.hdr_map)
+        with atomic_write(path, ".exr") as tmp:
+            bitmap.write(str(tmp))
+        return Path(path)
 
     # ------------------------------------------------------------------ JSON
 
@@ -590,6 +598,22 @@ def _check_keys(d: dict, layout: str) -> None:
         raise ValueError("confidence: expected a number")
     if "timestamp" in d and not isinstance(d["timestamp"], int | float):
         raise ValueError("timestamp: expected a number")
+
+
+def _own_bitmap(image: np.ndarray):
+    """The Mitsuba RGB float32 bitmap whose whole memory ``image`` is, or None."""
+    base = getattr(image, "base", None)
+    if base is None or type(base).__name__ != "Bitmap" or not image.flags["C_CONTIGUOUS"]:
+        return None
+    import mitsuba as mi
+
+    ok = (isinstance(base, mi.Bitmap) and base.pixel_format() == mi.Bitmap.PixelFormat.RGB
+          and base.component_format() == mi.Struct.Type.Float32
+          and tuple(base.size()) == (image.shape[1], image.shape[0]) and image.ndim == 3
+          and image.shape[2] == 3 and image.dtype == np.float32
+          and np.asarray(base).__array_interface__["data"][0]
+          == image.__array_interface__["data"][0])
+    return base if ok else None
 
 
 def _same(a: Path, b: Path) -> bool:
