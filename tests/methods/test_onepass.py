@@ -175,9 +175,15 @@ def test_mirror_lower_hemisphere_changes_only_downward_misses():
 
 def test_glass_with_ior_one_is_invisible():
     """Checklist 10: through an IOR-1 virtual glass sphere the camera frame is reprojected,
-    so the sphere's pixels equal the frame."""
+    so the sphere's pixels equal the frame. The sphere floats and the light is behind it: NEE
+    treats glass as opaque, so the sphere's own shadow, where seen through it, would rightly
+    darken it (see the next test)."""
     d = table_scene(40, 30, lights="point", glass_ior=1.0)
     d["shapes"] = [s for s in d["shapes"] if s["name"] != "ball" and s["name"] != "ring"]
+    for shape in d["shapes"]:  # float it in front of the wall, its shadow out of view
+        if shape["name"] == "glass":
+            shape["transform"] = {"translate": [-0.1, 0.8, 0.45]}
+    d["lights"] = [{"type": "point", "position": [-0.1, 1.6, -0.7], "intensity": 3.0}]
     frame = np.random.default_rng(5).random((30, 40, 3)).astype(np.float32)
     scene = make(d, frame)
     layers = render(scene, spp=4, max_depth=8)
@@ -185,6 +191,42 @@ def test_glass_with_ior_one_is_invisible():
     assert inside.sum() > 20
     np.testing.assert_allclose(layers.mixed[inside], frame[inside], rtol=1e-6)
     np.testing.assert_allclose(layers.composite[inside], frame[inside], rtol=1e-6)
+
+
+def _shadow_through_glass_scene(glass: bool) -> dict:
+    """A large real floor under a point light; a virtual board casts a shadow on it that the
+    camera sees through a virtual IOR-1 glass sphere (the light does not pass the sphere)."""
+    shapes = [{"name": "floor", "role": "real", "type": "rectangle", "size": [40, 40],
+               "normal": [0, 1, 0], "material": {"type": "diffuse", "albedo": 0.6}},
+              {"name": "board", "role": "virtual", "type": "box", "size": [0.25, 0.05, 0.25],
+               "transform": {"translate": [0, 0.35, 0.25]},
+               "material": {"type": "diffuse", "albedo": 0.5}}]
+    if glass:
+        shapes.append({"name": "glass", "role": "virtual", "type": "sphere", "radius": 0.35,
+                       "transform": {"translate": [0, 0.75, 1.1]},
+                       "material": {"type": "glass", "ior": 1.0}})
+    return {"camera": {"resolution": [40, 30], "fov_y_deg": 40,
+                       "look_at": {"origin": [0, 1.2, 2.0], "target": [0, 0, 0.2],
+                                   "up": [0, 1, 0]}},
+            "shapes": shapes,
+            "lights": [{"type": "point", "position": [0, 1.5, -0.6], "intensity": 2.0}]}
+
+
+def test_reprojection_keeps_the_virtual_shadow_seen_through_glass():
+    """Through an invisible (IOR 1) virtual glass sphere, the reprojected frame carries the
+    direct part of the differential: the shadow a virtual board casts on the real floor shows
+    through the sphere exactly as it does without the sphere (the same camera samples reach
+    the same floor points; the path through the glass is two vertices longer, hence
+    max_depth 4 against 2: direct light only in both). Rejects reprojection that takes the
+    frame alone (the shadow vanishes inside the sphere) and a delta with the wrong sign."""
+    frame = 0.25
+    a = render(make(_shadow_through_glass_scene(True), frame), spp=4, max_depth=4, seed=1)
+    b = render(make(_shadow_through_glass_scene(False), frame), spp=4, max_depth=2, seed=1)
+    through = (a.mask == 1.0) & (b.mask == 0.0)  # glass pixels that do not see the board
+    assert through.sum() > 300
+    np.testing.assert_allclose(a.composite[through], b.composite[through], atol=1e-5)
+    shadowed = through & (b.composite[..., 0] < frame - 0.01)
+    assert shadowed.sum() > 20  # the shadow is seen through the sphere: not a vacuous test
 
 
 def test_bad_options_name_the_field():

@@ -310,6 +310,16 @@ class OnePassTracer:
         return (mi.has_flag(flags, mi.EmitterFlags.Infinite)
                 & ~mi.has_flag(flags, mi.EmitterFlags.DeltaDirection))
 
+    def _reprojected_shadow(self, lm: mi.Color3f, contrib: mi.Color3f, shadow: mi.Ray3f,
+                            blocked_m: mi.Bool, c: dict[str, mi.UInt32]) -> mi.Color3f:
+        """The direct part of the differential at a reprojected point: the frame already
+        holds the real light there, so light that reaches it in µ but is blocked in ρ (a
+        virtual object's shadow, seen through virtual glass) is subtracted. ``blocked_m``:
+        reprojected lanes whose mixed shadow ray is blocked; their real ray is traced."""
+        c["rays_real_shadow"] += dr.select(blocked_m, 1, 0)
+        vis_r = blocked_m & ~self.real.scene.ray_test(shadow, blocked_m)
+        return lm - dr.select(vis_r, contrib, 0.0)
+
     def _vertex(self, view: SceneView, st: _Path, si: mi.SurfaceInteraction3f, role: mi.Int32,
                 key: mi.UInt32, depth: mi.UInt32, lm: mi.Color3f | None, lr: mi.Color3f, *,
                 to_real: mi.Bool | bool, to_mixed: bool, c: dict[str, mi.UInt32],
@@ -333,7 +343,9 @@ class OnePassTracer:
                 return acc + val
             return acc + dr.select(where, val, 0.0)
 
-        # -- reprojection of the camera frame (Kán §5.2): ends the path
+        # -- reprojection of the camera frame (Kán §5.2): ends the path, after the direct
+        #    part of the point's differential (the NEE below, mixed minus real visibility)
+        reproj = mi.Bool(False)
         if self.reproj is not None and to_mixed:
             cand = (active & st.spec_virtual & valid & (role == ROLE_REAL)
                     & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Diffuse))
@@ -341,6 +353,7 @@ class OnePassTracer:
             val, ok, _ = self.reproj.lookup(si.p, cand)
             lm = lm + dr.select(ok, st.beta * val, 0.0)
             active &= ~ok
+            reproj = ok
 
         # -- emitter hit (area light or environment on a miss), MIS vs the previous BSDF
         if self.opts.mirror_lower_hemisphere:
@@ -358,8 +371,9 @@ class OnePassTracer:
         active_next = active & valid
         if self.opts.max_depth > 0:
             active_next &= depth + 1 < self.opts.max_depth
+            reproj &= depth + 1 < self.opts.max_depth
         bsdf = si.bsdf()
-        active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        active_em = (active_next | reproj) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         ds, em_weight = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False,
                                                        active_em)
         active_em &= ds.pdf != 0.0
@@ -369,28 +383,33 @@ class OnePassTracer:
         # one BSDF call for the NEE evaluation and the bounce sample (as Mitsuba's ``path``)
         f_em, pdf_em, bs, weight = bsdf.eval_pdf_sample(
             self.ctx, si, wo, _rand1(key, depth, _DIM_BSDF1), _rand2(key, depth, _DIM_BSDF2),
-            active_next)
-        mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, pdf_em))
+            active_next | reproj)
+        # a reprojected path ends here: its NEE is the only strategy (weight 1)
+        mis_em = dr.select(ds.delta | reproj, 1.0, mis_weight(ds.pdf, pdf_em))
         contrib = st.beta * mis_em * f_em * em_weight
         active_em &= dr.max(contrib) > 0
         shadow = si.spawn_ray_to(ds.p)
         if shadow_kind is not None:  # two-pass: this view's own shadow rays
             c[f"rays_{shadow_kind}_shadow"] += dr.select(active_em, 1, 0)
             vis = active_em & ~scene.ray_test(shadow, active_em)
-            lm = add(lm, contrib, vis)
+            lm = add(lm, contrib, vis & ~reproj)
+            if self.reproj is not None and to_mixed:
+                lm = self._reprojected_shadow(lm, contrib, shadow, reproj & active_em & ~vis, c)
         elif to_mixed:  # slot A: mixed shadow ray; real one only where needed
             c["rays_mixed_shadow"] += dr.select(active_em, 1, 0)
             vis_m = active_em & ~self.mixed.scene.ray_test(shadow, active_em)
             if self.same_views:
                 vis_r = vis_m
             else:
-                need_r = active_em & ~vis_m
+                need_r = active_em & ~vis_m & ~reproj
                 if to_real is not True:
                     need_r &= to_real
                 c["rays_real_shadow"] += dr.select(need_r, 1, 0)
                 vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
-            lm = add(lm, contrib, vis_m)
-            lr = add(lr, contrib, vis_r if to_real is True else vis_r & to_real)
+            lm = add(lm, contrib, vis_m & ~reproj)
+            lr = add(lr, contrib, (vis_r if to_real is True else vis_r & to_real) & ~reproj)
+            if self.reproj is not None:
+                lm = self._reprojected_shadow(lm, contrib, shadow, reproj & active_em & ~vis_m, c)
         else:  # slot B: real shadow ray (none on a retraced prefix, where to_real is off)
             if to_real is not True:
                 active_em &= to_real
