@@ -35,12 +35,12 @@ AGREE_SPP = 64
 """Samples per pixel of the photographs and the methods in the per-pixel test."""
 BIAS_SPP = 256
 """Samples per pixel in the aggregate test: a 5 % shift of the virtual pixels' radiance is
-then 4.5-11 standard errors of their summed difference on four of the six scenes (about half
+then 4.5-11 standard errors of their summed difference on four of the six first scenes (about half
 that at 64 spp, too close to the bound)."""
 Z_BOUND = 4.0
 """Bound on each aggregate z-score. For a correct method every z is standard normal
-(independent pixels, independent renders), and this module computes 6 scenes × 2 methods ×
-2 regions × 3 channels = 72 of them; by Bonferroni P(any |z| > 4) <= 72 · 6.3e-5 < 0.5 %."""
+(independent pixels, independent renders), and this module computes 7 scenes × 2 methods ×
+2 regions × 3 channels = 84 of them; by Bonferroni P(any |z| > 4) <= 84 · 6.3e-5 < 0.6 %."""
 RING_PX = 6
 """The relit region: real pixels at most this far (in pixels, ~7 % of the quick width) from a
 virtual pixel — where the virtual objects' shadows, bleeding and reflections concentrate."""

@@ -11,8 +11,8 @@ from arlight.errors import InputError
 from arlight.evaluate.suite import get_scene, list_scenes, scenes_dir
 from arlight.io.images import read_linear
 
-EXPECTED = {"bunny-box", "glass-ring", "mirror-dragon", "red-paper", "cornell-near-field",
-            "outdoor-env"}
+EXPECTED = {"bunny-box", "glass-ring", "glass-ring-point", "mirror-dragon", "red-paper",
+            "cornell-near-field", "outdoor-env"}
 FULL = {"cornell-near-field": (960, 540)}
 
 
@@ -48,8 +48,9 @@ def test_cornell_lights_are_rohmers():
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_proxy_differs_from_the_world_only_in_real_detail(name):
     """Every scene has a proxy.toml; it keeps the world's camera, virtual objects and lights
-    (a method must be graded on the same insertion under the same light), and its real part
-    is a different, coarser reconstruction."""
+    (a method must be graded on the same insertion under the same light; a bulb of the
+    world, ``type = "sphere"``, is the point light of the same position and intensity that a
+    light estimate gives), and its real part is a different, coarser reconstruction."""
     assert (scenes_dir() / name / "proxy.toml").is_file()
     s = get_scene(name, quick=False)
     w, p = s.world, s.proxy
@@ -63,7 +64,9 @@ def test_proxy_differs_from_the_world_only_in_real_detail(name):
     for a, b in zip((x for x in w.shapes if x.role == "virtual"),
                     (x for x in p.shapes if x.role == "virtual"), strict=True):
         np.testing.assert_array_equal(a.to_world, b.to_world)
-    assert p.raw["lights"] == w.raw["lights"]
+    as_estimated = [{"type": "point", "position": lt["position"], "intensity": lt["intensity"]}
+                    if lt["type"] == "sphere" else lt for lt in w.raw["lights"]]
+    assert p.raw["lights"] == as_estimated
     assert p.raw["shapes"] != w.raw["shapes"] or p.raw.get("materials") != w.raw.get("materials")
 
 
