@@ -623,7 +623,11 @@ class Pipeline:
     def _e7(self, hits: Hits, frame: np.ndarray, rr: np.ndarray, cc: np.ndarray,
             t: Transfer, sh: np.ndarray) -> np.ndarray:
         """E7 at samples: virtual ``a_v/π T_mix·l``; real additive ``a/π (T_mix−T_real)·l``
-        or ratio ``I_c (T_mix·l / T_real·l − 1)``."""
+        or ratio ``I_c (T_mix·l / T_real·l − 1)``.
+
+        The model has no interreflection, so an occluder can only remove light: where the
+        truncated SH rings negative in the blocked directions the delta would come out
+        positive; it is clamped to ≤ 0 (ratio ≤ 1), and virtual radiance to ≥ 0."""
         a = hits.albedo[rr, cc]
         virt = (hits.role[rr, cc] == ROLE_VIRTUAL)[:, None]
         lm = t.mixed @ sh
@@ -631,12 +635,12 @@ class Pipeline:
         if self.settings.ratio:
             ic = np.asarray(frame, np.float64)[rr, cc]
             with np.errstate(divide="ignore", invalid="ignore"):
-                ratio = np.where(lr > 1e-12, lm / lr, 1.0)
+                ratio = np.where(lr > 1e-12, np.clip(lm / lr, 0.0, 1.0), 1.0)
             same = np.all(t.mixed == t.real, axis=1)[:, None]  # no change: exactly 0
             real = np.where(same, 0.0, ic * (ratio - 1.0))
         else:
-            real = a / np.pi * ((t.mixed - t.real) @ sh)
-        return np.where(virt, a / np.pi * lm, real)
+            real = np.minimum(a / np.pi * ((t.mixed - t.real) @ sh), 0.0)
+        return np.where(virt, np.maximum(a / np.pi * lm, 0.0), real)
 
     def _upsample(self, val: np.ndarray, own: np.ndarray, hits: Hits, frame: np.ndarray,
                   sh: np.ndarray) -> np.ndarray:

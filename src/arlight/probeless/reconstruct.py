@@ -67,7 +67,8 @@ class RGBDFrame:
 
 
 def _auto_origin(frames: list[RGBDFrame], volume: float, depth_trunc: float) -> np.ndarray:
-    """Corner of the cube: centred on the median of the observed points (a subsample)."""
+    """Corner of the cube: centred on the middle of the observed points' 2nd-98th
+    percentile box (a subsample), so a camera moving to one side keeps both ends."""
     pts = []
     for f in frames:
         ok = f.valid_depth & (f.depth < depth_trunc)
@@ -81,7 +82,10 @@ def _auto_origin(frames: list[RGBDFrame], volume: float, depth_trunc: float) -> 
         pc = np.stack([(u + 0.5 - c.cx) / c.fx * z, (v + 0.5 - c.cy) / c.fy * z, z], axis=1)
         m = c.world_from_camera
         pts.append(pc @ m[:3, :3].T + m[:3, 3])
-    centre = np.median(np.concatenate(pts), axis=0) if pts else np.zeros(3)
+    if not pts:
+        return np.full(3, -volume / 2)
+    lo, hi = np.percentile(np.concatenate(pts), [2, 98], axis=0)
+    centre = (lo + hi) / 2
     return centre - volume / 2
 
 
@@ -95,7 +99,8 @@ def reconstruct(frames: list[RGBDFrame], volume: float = GRUBER_VOLUME,
         volume: cube edge (m). resolution: voxels per axis.
         sdf_trunc: truncation distance (m); default 4 voxels.
         depth_trunc: depths beyond this (m) are ignored.
-        origin: cube corner (world, m); default centred on the observed points.
+        origin: cube corner (world, m); default centred on the observed points'
+            2nd-98th percentile box.
         albedo: the diffuse albedo assumed for the reconstruction (E5's scale).
 
     Raises:

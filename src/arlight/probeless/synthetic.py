@@ -164,5 +164,30 @@ def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: i
     return frames
 
 
+def sensor_depth(world: ARScene) -> np.ndarray:
+    """What a depth sensor at the world's camera reads: camera-space ``z`` (m) of the first
+    *real* surface (virtual objects are not in the real world), NaN where nothing is hit."""
+    hits = primary_hits(build_views(world.without_virtual()), world.camera, mixed=False)
+    return np.where(np.isfinite(hits.z), hits.z, np.nan).astype(np.float32)
+
+
+def write_suite_depth(name: str) -> Path:
+    """Write ``depth.exr`` of suite scene ``name`` (full resolution, from its world.toml),
+    which its proxy.toml names as ``[frame] depth`` (the RGB-D input of ``probeless``)."""
+    from arlight.evaluate.suite import scenes_dir
+    from arlight.io.images import write_exr
+    from arlight.scene.load import load_scene
+
+    folder = scenes_dir() / name
+    return write_exr(folder / "depth.exr", sensor_depth(load_scene(folder / "world.toml")))
+
+
+if __name__ == "__main__":  # python -m arlight.probeless.synthetic SCENE
+    import sys
+
+    print(write_suite_depth(sys.argv[1]))
+
+
 __all__ = ["ALBEDO", "SyntheticFrame", "bundled_hdr", "camera_path", "cap_light",
-           "light_directions", "render_sequence", "room_shapes"]
+           "light_directions", "render_sequence", "room_shapes", "sensor_depth",
+           "write_suite_depth"]
