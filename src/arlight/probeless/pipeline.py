@@ -95,6 +95,8 @@ class Settings:
         ratio: real pixels by the ratio form of E7 instead of the additive one.
         edge_depth: relative depth jump that makes a virtual pixel an edge (adaptive).
         edge_normal: normal cosine below which neighbouring virtual pixels are a crease.
+        plane_reject: upsampling: a grid sample further than this times the pixel's depth
+            from the pixel's tangent plane is on another surface and is not used.
     """
 
     max_distance: float = 0.10
@@ -109,6 +111,7 @@ class Settings:
     ratio: bool = False
     edge_depth: float = 0.03
     edge_normal: float = 0.9
+    plane_reject: float = 0.01
 
 
 # ----------------------------------------------------------------------------- primary hits
@@ -611,7 +614,10 @@ class Pipeline:
         for rr, cc, t in (reg, dense):
             val[rr, cc] = self._e7(hits, frame, rr, cc, t, sh)
             own[rr, cc] = True
-        full = self._upsample(val, own, hits, frame, sh)
+        full, fill_rays, fill_samples = self._upsample(val, own, hits, frame, sh)
+        res.stats["rays"] += fill_rays  # pixels no grid sample could serve
+        res.stats["samples"] += fill_samples
+        res.stats["fill_samples"] = float(fill_samples)
         virt = hits.role == ROLE_VIRTUAL
         mixed = np.where(virt[..., None], full + self._phong(hits, camera, sh), 0.0)
         delta = np.where((hits.role == ROLE_REAL)[..., None], full, 0.0)
@@ -643,14 +649,15 @@ class Pipeline:
         return np.where(virt, np.maximum(a / np.pi * lm, 0.0), real)
 
     def _upsample(self, val: np.ndarray, own: np.ndarray, hits: Hits, frame: np.ndarray,
-                  sh: np.ndarray) -> np.ndarray:
+                  sh: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Bilinear interpolation of the regular grid for pixels without their own sample.
-        Naive (non-adaptive variants): nodes of the same role. Adaptive: also depth within
-        ``depth_reject`` and normals agreeing; a pixel left without a valid node gets its
-        own sample (all directions), so no shading crosses a depth edge."""
+        Naive (non-adaptive variants): nodes of the same role. Adaptive: also on the
+        pixel's tangent plane (``plane_reject``) with agreeing normals; a pixel left without a valid node gets its
+        own sample (all directions), so no shading crosses a depth edge. Returns the image and
+        the rays and samples those extra pixels cost."""
         s = self.variant.spacing
         if s == 1:
-            return val
+            return val, 0, 0
         h, w = own.shape
         py, px = np.mgrid[0:h, 0:w]
         i0, j0 = py // s, px // s
@@ -664,10 +671,11 @@ class Pipeline:
             ok = (ny < h) & (nx < w)
             ny_, nx_ = np.minimum(ny, h - 1), np.minimum(nx, w - 1)
             ok &= own[ny_, nx_] & (hits.role[ny_, nx_] == hits.role)
-            if self.variant.adaptive:
-                zn, z = hits.z[ny_, nx_], hits.z
+            if self.variant.adaptive:  # the node must lie on the pixel's tangent plane
+                off = np.einsum("hwc,hwc->hw", hits.position[ny_, nx_] - hits.position,
+                                hits.normal)
                 with np.errstate(invalid="ignore"):
-                    ok &= np.abs(zn - z) <= st.depth_reject * z
+                    ok &= np.abs(off) <= st.plane_reject * hits.z
                 ok &= np.einsum("hwc,hwc->hw", hits.normal[ny_, nx_], hits.normal) \
                     >= st.normal_reject
             wt = np.where(ok, wt + 1e-9, 0.0)
@@ -680,7 +688,8 @@ class Pipeline:
             t = self._full(hits.position[hr, hc], hits.normal[hr, hc],
                            hits.role[hr, hc] == ROLE_REAL)
             out[hr, hc] = self._e7(hits, frame, hr, hc, t, sh)
-        return out
+            return out, t.rays, len(hr)
+        return out, 0, 0
 
 
 def run_variant(views: SceneViews, frames: list[tuple[Camera, np.ndarray, np.ndarray | None]],
