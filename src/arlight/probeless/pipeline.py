@@ -652,9 +652,9 @@ class Pipeline:
                   sh: np.ndarray) -> tuple[np.ndarray, int, int]:
         """Bilinear interpolation of the regular grid for pixels without their own sample.
         Naive (non-adaptive variants): nodes of the same role. Adaptive: also on the
-        pixel's tangent plane (``plane_reject``) with agreeing normals; a pixel left without a valid node gets its
-        own sample (all directions), so no shading crosses a depth edge. Returns the image and
-        the rays and samples those extra pixels cost."""
+        pixel's tangent plane (``plane_reject``) with agreeing normals; a pixel left without
+        a valid node gets its own sample (all directions), so no shading crosses a depth
+        edge. Returns the image and the rays and samples those extra pixels cost."""
         s = self.variant.spacing
         if s == 1:
             return val, 0, 0
