@@ -140,15 +140,16 @@ def arcore_shader_factors() -> np.ndarray:
     return k * A / np.pi
 
 
-def _clip_band(threshold: float, keep: np.ndarray | None
+def _clip_band(threshold: float, keep: np.ndarray | None, lum: np.ndarray | None
                ) -> Callable[[int, int, np.ndarray], np.ndarray]:
     """A band function for :func:`arlight.sphere.sh.project_equirect`: rows ``[r0, r1)``
     clipped at luminance ``threshold`` (``L min(1, t / Y(L))``, the
     :func:`~arlight.light.extract.split_highlights` rule), except where ``keep`` is True
-    (sources that stay in the remainder whole)."""
+    (sources that stay in the remainder whole). ``lum``: the map's luminance plane when
+    already computed (None: computed per band)."""
 
     def band(r0: int, r1: int, rows: np.ndarray) -> np.ndarray:
-        y = luminance(rows)
+        y = luminance(rows) if lum is None else lum[r0:r1]
         with np.errstate(divide="ignore", invalid="ignore"):
             f = np.where(y > threshold, np.float32(threshold) / y, np.float32(1.0))
         if keep is not None:
@@ -271,17 +272,18 @@ class LightEstimate:
                                           gap_deg=gap_deg)
                 lights, dropped = found.lights, found.dropped
             else:
-                rest_of_img = _clip_band(thr, None)(0, img.shape[0], img)
+                rest_of_img = _clip_band(thr, None, lum)(0, img.shape[0], img)
                 bright = img - rest_of_img
                 del rest_of_img
                 cand = median_cut(bright, n_lights, method=method)
                 del bright
                 tot = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in cand)
                 lights = [lt for lt in cand if float(lt.irradiance @ SH.LUMINANCE) > 1e-9 * tot]
-        del lum  # the SH bands recompute their rows' luminance: no second plane kept
-        band = _clip_band(thr, dropped) if n_lights > 0 else None
+        if full is not img:
+            lum = None  # the SH bands compute the luminance of sh_map's rows themselves
+        band = _clip_band(thr, dropped, lum) if n_lights > 0 else None
         coeffs = SH.project_equirect(full, sh_order, band=band)
-        del band
+        del band, lum
         held = sum(float(lt.irradiance @ SH.LUMINANCE) for lt in lights)
         fraction = min(1.0, held / total) if total > 0 else 0.0
         if lights:
