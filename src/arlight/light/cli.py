@@ -312,9 +312,9 @@ def estimate(
     except (CliError, ValueError) as exc:
         _fail(str(exc))
     share = est.explicit_fraction or 0.0
-    typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}, "
-               f"{len(est.lights)} more lights holding with it {100 * share:.1f} % of the "
-               f"energy, SH order {sh_order}, confidence {est.confidence:.2f}")
+    typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}"
+               f" + {len(est.lights)} more; the explicit lights hold {100 * share:.1f} % of "
+               f"the map's energy; SH order {sh_order}; confidence {est.confidence:.2f}")
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:

@@ -280,6 +280,7 @@ class OcamCamera:
     size: tuple[int, int]                # (width, height)
     fov_deg: float | None = None
     world_from_camera: np.ndarray = field(default_factory=zenith_camera)
+    r_max: float = field(init=False)  # calibrated sensor radius (px), see _calibrated_radius
 
     def __post_init__(self) -> None:
         self.pol = np.asarray(self.pol, np.float64).reshape(-1)
