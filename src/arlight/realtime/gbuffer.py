@@ -37,6 +37,8 @@ class GBuffer:
         pixel: pixel index ``row · width + col`` of each lane.
         to_camera: unit direction from the hit towards the camera.
         spp, width, height: layout.
+        shape: index of the hit shape in the world's ``shapes`` (−1 miss; None when the
+            G-buffer was built without it).
     """
 
     position: mi.Point3f
@@ -49,6 +51,7 @@ class GBuffer:
     spp: int
     width: int
     height: int
+    shape: mi.Int32 | None = None
 
     @property
     def valid(self) -> mi.Bool:
@@ -87,8 +90,9 @@ def render_gbuffer(view: SceneView, camera: Camera, spp: int = 1, seed: int = 0)
     albedo = surface_albedo(si, valid)
     depth = dr.select(valid, si.t, dr.inf)
     pos = mi.Point3f(si.p)
-    dr.eval(pos, n, albedo, role, depth, pixel, to_cam)
-    return GBuffer(pos, n, albedo, role, depth, pixel, to_cam, spp, w, h)
+    shape = view.hit_shape(si)
+    dr.eval(pos, n, albedo, role, depth, pixel, to_cam, shape)
+    return GBuffer(pos, n, albedo, role, depth, pixel, to_cam, spp, w, h, shape)
 
 
 def resolve(gb: GBuffer, values: mi.Color3f) -> np.ndarray:
