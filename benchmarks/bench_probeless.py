@@ -7,9 +7,12 @@ the sequence on the reconstruction. Lights: an SH cap light (16 coefficients, Gr
 "circular area light falling off from centre to border"), and real HDR maps rotated 45° per
 frame (``studio_small_03`` and ``rooitou_park`` from ``../shared/assets/hdri`` when present,
 and the bundled ``lebombo``, whose ground reflects 81 % as much as the sky: its dominant
-direction depends on light the floor hides). Static and moving camera; mean ± std of
-``dot(d_est, d_true)`` over frames, the relative SH error, the upper-hemisphere radiance error,
-time of RT + estimation (median, ms) and rays per frame.
+direction depends on light the floor hides). Static and moving camera, a virtual sphere and
+box inserted; mean ± std of ``dot(d_est, d_true)`` over frames, the relative SH error, the
+upper-hemisphere radiance error, the environment-map error (median |ΔL| / mean L on a
+lat-long map), MSAD (median over frames of Σ|composite − RM's composite|, W/(sr·m²) summed
+over 160×120×3 values), time of RT + estimation and of shading (median, ms) and rays per
+frame (visibility, including the virtual objects' dense samples).
 
 Part 2 — Gruber's Fig. 5 timing at 640×480 on this machine's cores: RM and ART4, the same
 sequence, interleaved frame by frame (the load of other processes hits both alike), median
@@ -33,7 +36,7 @@ from arlight.backend.mitsuba_scene import build_views
 from arlight.probeless.experiment import table1
 from arlight.probeless.pipeline import VARIANTS, Pipeline
 from arlight.probeless.reconstruct import reconstruct
-from arlight.probeless.synthetic import ALBEDO, render_sequence
+from arlight.probeless.synthetic import ALBEDO, render_sequence, virtual_objects
 from arlight.scene.model import World
 
 HEADING = "## Probeless light estimation: Gruber Table 1 and RM vs ART4 time (issue 16)"
@@ -50,7 +53,7 @@ def accuracy(n: int) -> str:
         if (SHARED_HDRI / name).is_file():
             lights[f"HDR {name.split('_1k')[0]}"] = ("hdr", SHARED_HDRI / name)
     lights["HDR lebombo (bundled)"] = ("hdr", None)
-    res = table1(n=n, lights=lights)
+    res = table1(n=n, lights=lights, virtual=virtual_objects())
     names = list(VARIANTS)
     lines = ["| light | camera | measure | " + " | ".join(names) + " |",
              "|---|---|---|" + "---|" * len(names)]
@@ -60,7 +63,10 @@ def accuracy(n: int) -> str:
             "dot mean ± std": [f"{s.dot.mean():.4f} ± {s.dot.std():.4f}" for s in sc.values()],
             "SH error": [f"{s.sh_error.mean():.2f}" for s in sc.values()],
             "upper-hemisphere error": [f"{s.upper_error.mean():.2f}" for s in sc.values()],
+            "env-map error": [f"{np.median(s.env_error):.2f}" for s in sc.values()],
+            "MSAD vs RM": [f"{np.median(s.msad):.1f}" for s in sc.values()],
             "ms RT + estimation": [f"{1000 * np.median(s.seconds):.0f}" for s in sc.values()],
+            "ms shading": [f"{1000 * np.median(s.shade_seconds):.0f}" for s in sc.values()],
             "rays per frame": [f"{s.rays.mean():.0f}" for s in sc.values()],
         }
         for k, v in rows.items():

@@ -32,18 +32,21 @@ def test_noise_free_rank_16(room_transfer):
 
 
 def test_two_percent_noise_relit_rms(room_transfer):
-    """With 2 % pixel noise over ≥ 1000 samples the relit shading has < 2 % RMS error.
-    Rejects an estimator that overfits the noise (e.g. an unregularised solve of a badly
-    scaled system) or ignores the albedo."""
+    """With 2 % pixel noise over ≥ 1000 samples the relit shading has < 2 % RMS error
+    (ridge 1e-4: the default 3e-3, chosen for model mismatch, biases this noise-only case to
+    2.1 %, still < 3 %). Rejects an estimator that overfits the noise or ignores the
+    albedo."""
     rng = np.random.default_rng(1)
     light = S.cap_light([-0.5, 0.7, 0.2])
     clean = room_transfer @ light * (0.6 / np.pi)
     assert len(clean) >= 1000
     noisy = clean * (1 + 0.02 * rng.normal(size=clean.shape))
-    fit = estimate_light(room_transfer, noisy, 0.6)
-    relit = room_transfer @ fit.sh * (0.6 / np.pi)
-    rms = np.sqrt(np.mean((relit - clean) ** 2)) / np.sqrt(np.mean(clean ** 2))
-    assert rms < 0.02
+    for ridge, bound in ((1e-4, 0.02), (None, 0.03)):
+        fit = estimate_light(room_transfer, noisy, 0.6, **({} if ridge is None else
+                                                           {"ridge": ridge}))
+        relit = room_transfer @ fit.sh * (0.6 / np.pi)
+        rms = np.sqrt(np.mean((relit - clean) ** 2)) / np.sqrt(np.mean(clean ** 2))
+        assert rms < bound, (ridge, rms)
 
 
 def test_dominant_direction_of_cap_light(room_transfer):

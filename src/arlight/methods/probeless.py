@@ -32,6 +32,7 @@ import numpy as np
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings, require_frame
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.probeless.estimate import DEFAULT_RIDGE
 from arlight.probeless.pipeline import VARIANTS, Pipeline, Settings
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
@@ -44,7 +45,7 @@ OPTIONS: dict[str, Field] = {
                    "instead of the additive a/π (T_mix − T_real)·l"),
     "max_distance": Field("float", 0.10, "visibility ray length (Gruber: 10 cm)", "m",
                           min=1e-3, max=10.0),
-    "ridge": Field("float", 1e-4, "Tikhonov weight of the light fit relative to σ_max² "
+    "ridge": Field("float", DEFAULT_RIDGE, "Tikhonov weight of the light fit relative to σ_max² "
                    "(damps light directions the scene does not see)", "", min=0.0, max=1.0),
 }
 

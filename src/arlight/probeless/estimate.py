@@ -31,6 +31,9 @@ MAX_CONDITION = 1e3
 """Singular values below ``σ_max / MAX_CONDITION`` count as unobservable. The floor-and-boxes
 room has ``σ_16/σ_1 ≈ 4e-3`` (band 3 seen only through occlusion); a reconstructed plane has
 ``σ_2/σ_1 ≈ 5e-3`` and then < 2e-4 (marching-cubes normal noise), so 1e3 separates them."""
+DEFAULT_RIDGE = 3e-3
+"""Tikhonov weight relative to ``σ_max²``, chosen on the synthetic sequences of
+``benchmarks/bench_probeless.py`` (1e-3: static camera worse; 1e-2: every case worse)."""
 MIN_RANK = 4
 """Fewer observable light directions than this: the light is undetermined (at least the
 constant and the linear band must be seen for a dominant direction)."""
@@ -76,7 +79,7 @@ class SHLightFit:
 
 
 def estimate_light(transfer: np.ndarray, observed: np.ndarray, albedo: np.ndarray | float,
-                   ridge: float = 1e-6, max_condition: float = MAX_CONDITION,
+                   ridge: float = DEFAULT_RIDGE, max_condition: float = MAX_CONDITION,
                    min_rank: int = MIN_RANK) -> SHLightFit:
     """Solve E5 for the 16×3 radiance SH.
 
@@ -84,7 +87,8 @@ def estimate_light(transfer: np.ndarray, observed: np.ndarray, albedo: np.ndarra
         transfer: ``T_real`` of the samples ``(M, 16)`` (sr).
         observed: linear pixel values ``b`` ``(M, 3)`` (W/(sr·m²)).
         albedo: diffuse albedo per sample ``(M, 3)`` or one number.
-        ridge: Tikhonov weight relative to ``σ_max²`` (0: plain least squares).
+        ridge: Tikhonov weight relative to ``σ_max²`` of the channel's system (0: plain
+            least squares on the observable subspace).
         max_condition: singular values below ``σ_max / max_condition`` are not observable.
         min_rank: below this rank the light is reported undetermined.
     """
@@ -97,22 +101,22 @@ def estimate_light(transfer: np.ndarray, observed: np.ndarray, albedo: np.ndarra
     if m == 0:
         return SHLightFit(np.zeros((N_COEFFS, 3)), np.array([0.0, 1.0, 0.0]), float("inf"),
                           0, 0, np.zeros(3), False, "no samples")
-    s = np.linalg.svd(T, compute_uv=False)
-    smax = float(s[0]) if s.size else 0.0
+    # Normal equations on 16×16 matrices: O(M·256) per channel, no M×16 factorisation
+    # (float64; the room's condition 250 squares to 6e4, far from trouble).
+    ev = np.clip(np.linalg.eigvalsh(T.T @ T)[::-1], 0.0, None)
+    s = np.sqrt(ev)
+    smax = float(s[0])
     rank = int(np.count_nonzero(s > smax / max_condition)) if smax > 0 else 0
-    smin = float(s[-1]) if len(s) == N_COEFFS else 0.0
-    cond = smax / smin if smin > 0 else float("inf")
-    lam = ridge * smax * smax
+    cond = smax / float(s[-1]) if s[-1] > 0 else float("inf")
     sh = np.zeros((N_COEFFS, 3))
     res = np.zeros(3)
     for c in range(3):
         A = T * (a[:, c] / np.pi)[:, None]
-        if lam > 0:
-            A_ = np.vstack([A, np.sqrt(lam) * np.eye(N_COEFFS)])
-            b_ = np.concatenate([b[:, c], np.zeros(N_COEFFS)])
-        else:
-            A_, b_ = A, b[:, c]
-        sh[:, c] = np.linalg.lstsq(A_, b_, rcond=1.0 / max_condition)[0]
+        w, V = np.linalg.eigh(A.T @ A)
+        wmax = float(w.max())
+        keep = w > wmax / max_condition ** 2 if wmax > 0 else np.zeros_like(w, bool)
+        inv = np.where(keep, 1.0 / np.where(keep, w + ridge * wmax, 1.0), 0.0)
+        sh[:, c] = V @ (inv * (V.T @ (A.T @ b[:, c])))
         res[c] = float(np.sqrt(np.mean((A @ sh[:, c] - b[:, c]) ** 2)))
     determined = rank >= min_rank
     message = "" if determined else (
@@ -123,4 +127,4 @@ def estimate_light(transfer: np.ndarray, observed: np.ndarray, albedo: np.ndarra
                       singular_values=s)
 
 
-__all__ = ["MAX_CONDITION", "MIN_RANK", "SHLightFit", "estimate_light"]
+__all__ = ["DEFAULT_RIDGE", "MAX_CONDITION", "MIN_RANK", "SHLightFit", "estimate_light"]

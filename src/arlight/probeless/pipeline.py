@@ -37,7 +37,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_REAL, ROLE_VIRTUAL, SceneViews
 from arlight.probeless.directions import N_COEFFS, DirectionSet, unoccluded_transfer
-from arlight.probeless.estimate import SHLightFit, estimate_light
+from arlight.probeless.estimate import DEFAULT_RIDGE, SHLightFit, estimate_light
 from arlight.probeless.transfer import Transfer, compute_transfer, real_hits_from
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.scene.camera import Camera, look_at
@@ -107,7 +107,7 @@ class Settings:
     state_voxel: float = 2.0 / 268
     cvc_size: int = 64
     cvc_threshold: float = 0.01
-    ridge: float = 1e-4
+    ridge: float = DEFAULT_RIDGE
     ratio: bool = False
     edge_depth: float = 0.03
     edge_normal: float = 0.9
@@ -360,6 +360,7 @@ class Pipeline:
                              f"{self.variant.interleave}")
         self.frame_index = 0
         self.caches: list[PhaseCache | None] = [None] * self.variant.interleave
+        self.dense_caches: list[PhaseCache | None] = [None] * self.variant.interleave
         self.free_keys = np.zeros(0, np.int64)
         self.cvcs: list[ValidationCamera] = []
         self._dynamic: ValidationCamera | None = None
@@ -414,20 +415,21 @@ class Pipeline:
                                 st.max_distance, st.ray_offset)
 
     def _interleaved(self, p: np.ndarray, n: np.ndarray, need_real: np.ndarray,
-                     camera: Camera, grid_cells: np.ndarray,
-                     stats: dict[str, float]) -> Transfer:
-        """Fused transfer of the regular samples: the current phase cast now (and stored in
-        its cache), the other phases reprojected from their caches or rebuilt on a miss."""
+                     camera: Camera, grid_cells: np.ndarray, caches: list[PhaseCache | None],
+                     spacing: int, stats: dict[str, float]) -> Transfer:
+        """Fused transfer of samples: the current phase cast now (and stored in its cache
+        of ``caches``, an image grid of ``spacing``), the other phases reprojected from
+        their caches or rebuilt on a miss."""
         st, k = self.settings, self.variant.interleave
         phase = self.frame_index % k
         out = Transfer.zeros(len(p))
-        new = PhaseCache.empty(camera, self.variant.spacing)
+        new = PhaseCache.empty(camera, spacing)
         for c in range(k):
             sub = self.directions.subset(c)
             todo = np.ones(len(p), bool)
-            if c != phase and self.caches[c] is not None:
-                hit, cell = self.caches[c].lookup(p, n, st.depth_reject, st.normal_reject)
-                cache = self.caches[c]
+            cache = caches[c]
+            if c != phase and cache is not None:
+                hit, cell = cache.lookup(p, n, st.depth_reject, st.normal_reject)
                 out.real[hit] += cache.real.reshape(-1, N_COEFFS)[cell[hit]]
                 out.mixed[hit] += cache.mixed.reshape(-1, N_COEFFS)[cell[hit]]
                 out.cast[hit] += cache.cast.reshape(-1)[cell[hit]]
@@ -456,14 +458,15 @@ class Pipeline:
         new.z.reshape(-1)[grid_cells] = camera.project(p)[1]
         new.normal.reshape(-1, 3)[grid_cells] = n
         new.position.reshape(-1, 3)[grid_cells] = p
-        self.caches[phase] = new
+        caches[phase] = new
         return out
 
     def _sample_transfer(self, p: np.ndarray, n: np.ndarray, need_real: np.ndarray,
-                         regular: bool, camera: Camera, grid_cells: np.ndarray,
+                         dense: bool, camera: Camera, grid_cells: np.ndarray,
                          stats: dict[str, float]) -> Transfer:
         """Transfer of samples, through the state cache (free points: E6, no rays) and, for
-        regular samples of interleaved variants, the reprojection caches."""
+        interleaved variants, the reprojection caches: the regular grid's, or for
+        ``dense`` samples per-pixel caches (``grid_cells``: row·width + column)."""
         v = self.variant
         out = Transfer.zeros(len(p))
         free = np.zeros(len(p), bool)
@@ -478,9 +481,11 @@ class Pipeline:
             stats["free_samples"] += float(free.sum())
         todo = ~free
         if np.any(todo):
-            if regular and v.interleave > 1:
+            if v.interleave > 1:
+                caches, spacing = ((self.dense_caches, 1) if dense
+                                   else (self.caches, v.spacing))
                 part = self._interleaved(p[todo], n[todo], need_real[todo], camera,
-                                         grid_cells[todo], stats)
+                                         grid_cells[todo], caches, spacing, stats)
             else:
                 part = self._full(p[todo], n[todo], need_real[todo])
             out.real[todo] = part.real
@@ -517,7 +522,7 @@ class Pipeline:
         reg = _regular_mask(h, w, v.spacing) & hits.valid
         virt = hits.role == ROLE_VIRTUAL
         dense = np.zeros((h, w), bool)
-        if v.adaptive and np.any(virt):
+        if v.adaptive and shade and np.any(virt):  # dense samples serve only the shading
             dense |= virtual_edges(hits, st.edge_depth, st.edge_normal) & ~reg
         # regular samples (cached path)
         rr, cc = np.nonzero(reg)
@@ -525,10 +530,10 @@ class Pipeline:
         need_r = hits.role[rr, cc] == ROLE_REAL
         ws = -(-w // v.spacing)
         cells = (rr // v.spacing) * ws + cc // v.spacing
-        t_reg = self._sample_transfer(pr, nr, need_r, True, camera, cells, stats)
+        t_reg = self._sample_transfer(pr, nr, need_r, False, camera, cells, stats)
         stats["rays"] += t_reg.rays
         # adaptive: real surfaces hit by visibility rays from virtual points
-        if v.adaptive and np.any(virt):
+        if v.adaptive and shade and np.any(virt):  # dense samples serve only the shading
             vsel = virt & (reg | dense)
             vr, vc = np.nonzero(vsel)
             sub = self.directions.subset(self.frame_index % v.interleave)
@@ -546,10 +551,12 @@ class Pipeline:
                 mark[vv[inside], u[inside]] = True
                 r = max(1, v.spacing // 2)
                 dense |= _dilate(mark, r) & (hits.role == ROLE_REAL) & ~reg
+        if v.adaptive and shade:  # pixels that no grid sample can serve: their own sample
+            dense |= self.unserved(hits, reg) & ~reg
         dr_, dc_ = np.nonzero(dense)
         t_dense = self._sample_transfer(hits.position[dr_, dc_], hits.normal[dr_, dc_],
-                                        hits.role[dr_, dc_] == ROLE_REAL, False, camera,
-                                        np.zeros(len(dr_), np.int64), stats)
+                                        hits.role[dr_, dc_] == ROLE_REAL, True, camera,
+                                        dr_ * w + dc_, stats)
         stats["rays"] += t_dense.rays
         stats["samples"] = float(len(rr) + len(dr_))
         stats["dense_samples"] = float(len(dr_))
@@ -648,37 +655,53 @@ class Pipeline:
             real = np.minimum(a / np.pi * ((t.mixed - t.real) @ sh), 0.0)
         return np.where(virt, np.maximum(a / np.pi * lm, 0.0), real)
 
-    def _upsample(self, val: np.ndarray, own: np.ndarray, hits: Hits, frame: np.ndarray,
-                  sh: np.ndarray) -> tuple[np.ndarray, int, int]:
-        """Bilinear interpolation of the regular grid for pixels without their own sample.
-        Naive (non-adaptive variants): nodes of the same role. Adaptive: also on the
-        pixel's tangent plane (``plane_reject``) with agreeing normals; a pixel left without
-        a valid node gets its own sample (all directions), so no shading crosses a depth
-        edge. Returns the image and the rays and samples those extra pixels cost."""
-        s = self.variant.spacing
-        if s == 1:
-            return val, 0, 0
-        h, w = own.shape
+    def _grid_weights(self, hits: Hits, nodes: np.ndarray
+                      ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per pixel, the 4 surrounding regular-grid nodes and their weights: bilinear ×
+        (node is a sample of the same role); adaptive variants also require the node on the
+        pixel's tangent plane (``plane_reject`` × depth) with agreeing normals. Returns
+        ``[(node_row, node_col, weight)]`` ``(H, W)`` each."""
+        s, st = self.variant.spacing, self.settings
+        h, w = nodes.shape
         py, px = np.mgrid[0:h, 0:w]
         i0, j0 = py // s, px // s
         fy, fx = (py - i0 * s) / s, (px - j0 * s) / s
-        acc = np.zeros((h, w, 3))
-        wsum = np.zeros((h, w))
-        st = self.settings
+        out = []
         for di, dj, wt in ((0, 0, (1 - fy) * (1 - fx)), (0, 1, (1 - fy) * fx),
                            (1, 0, fy * (1 - fx)), (1, 1, fy * fx)):
             ny, nx = (i0 + di) * s, (j0 + dj) * s
             ok = (ny < h) & (nx < w)
             ny_, nx_ = np.minimum(ny, h - 1), np.minimum(nx, w - 1)
-            ok &= own[ny_, nx_] & (hits.role[ny_, nx_] == hits.role)
-            if self.variant.adaptive:  # the node must lie on the pixel's tangent plane
+            ok &= nodes[ny_, nx_] & (hits.role[ny_, nx_] == hits.role)
+            if self.variant.adaptive:
                 off = np.einsum("hwc,hwc->hw", hits.position[ny_, nx_] - hits.position,
                                 hits.normal)
                 with np.errstate(invalid="ignore"):
                     ok &= np.abs(off) <= st.plane_reject * hits.z
                 ok &= np.einsum("hwc,hwc->hw", hits.normal[ny_, nx_], hits.normal) \
                     >= st.normal_reject
-            wt = np.where(ok, wt + 1e-9, 0.0)
+            out.append((ny_, nx_, np.where(ok, wt + 1e-9, 0.0)))
+        return out
+
+    def unserved(self, hits: Hits, regular: np.ndarray) -> np.ndarray:
+        """Valid pixels that no regular-grid sample may be interpolated into (adaptive:
+        across a depth or normal edge): they get their own (dense) sample."""
+        if self.variant.spacing == 1:
+            return np.zeros_like(regular)
+        wsum = sum(wt for _, _, wt in self._grid_weights(hits, regular))
+        return hits.valid & ~regular & (wsum == 0)
+
+    def _upsample(self, val: np.ndarray, own: np.ndarray, hits: Hits, frame: np.ndarray,
+                  sh: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """Bilinear interpolation of the regular grid (:meth:`_grid_weights`) for pixels
+        without their own sample. Adaptive variants gave every pixel no grid node serves a
+        dense sample already (:meth:`unserved`); any left (naive variants: none is traced)
+        gets its own sample here. Returns the image and the rays and samples those cost."""
+        if self.variant.spacing == 1:
+            return val, 0, 0
+        acc = np.zeros(val.shape)
+        wsum = np.zeros(own.shape)
+        for ny_, nx_, wt in self._grid_weights(hits, own):
             acc += wt[..., None] * val[ny_, nx_]
             wsum += wt
         out = np.where(own[..., None], val, acc / np.maximum(wsum, 1e-300)[..., None])

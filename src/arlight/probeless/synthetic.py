@@ -62,6 +62,17 @@ def room_shapes(albedo: float = ALBEDO) -> list[Shape]:
     return shapes
 
 
+def virtual_objects() -> list[Shape]:
+    """A virtual Phong sphere and a diffuse box on the floor of the room, in view of the
+    camera paths: what the image-quality comparison of the variants inserts."""
+    from arlight.probeless.compose import virtual_sphere
+
+    box = _box("vbox", (0.14, 0.14, 0.14), (0.12, 0.07, 0.05), 30.0,
+               mat=Material("vbox", "diffuse", {"albedo": [0.7, 0.5, 0.3], "texture": None,
+                                                "two_sided": True}), role="virtual")
+    return [virtual_sphere(np.array([-0.08, 0.06, 0.15]), 0.06), box]
+
+
 def cap_light(direction: np.ndarray, power: float = 4.0, ambient: float = 0.25,
               width_deg: float = 40.0) -> np.ndarray:
     """16×3 SH of ``ambient + power · smooth cap around direction`` (cos² fall-off to the
@@ -189,5 +200,5 @@ if __name__ == "__main__":  # python -m arlight.probeless.synthetic SCENE
 
 
 __all__ = ["ALBEDO", "SyntheticFrame", "bundled_hdr", "camera_path", "cap_light",
-           "light_directions", "render_sequence", "room_shapes", "sensor_depth",
+           "light_directions", "render_sequence", "room_shapes", "sensor_depth", "virtual_objects",
            "write_suite_depth"]
