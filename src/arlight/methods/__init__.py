@@ -50,6 +50,7 @@ BUILTINS: dict[str, str] = {
     "onepass": "arlight.methods.onepass:OnePassMethod",
     "dlpv": "arlight.methods.dlpv:DLPVMethod", "dir": "arlight.methods.dir:DIRMethod",
     "probeless": "arlight.methods.probeless:ProbelessMethod",
+    "dvct": "arlight.methods.dvct:DVCTMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 

@@ -1,0 +1,674 @@
+"""``dvct``: Delta Voxel Cone Tracing (Franke 2014, thesis §5.4).
+
+Per frame (stages of thesis Table 5.6):
+
+1. **G-buffer** (ray cast) and, per reduced light, the RSM pair ``R_ρ`` / ``R_µ``
+   (:mod:`arlight.realtime.rsm`, the texels that see the virtual object cast twice);
+2. **voxelisation** into ``V_η`` (occupancy ``α`` and normal, conservative,
+   :func:`arlight.realtime.voxels.voxelize`): the real proxy once per prepared world, the
+   virtual objects every frame; ``α_all = max(α_real, α_virtual)`` and ``α_real`` are kept;
+3. **split injection** (Eq. 5.17): a texel whose mixed-scene hit is real cancels and injects
+   nothing; a virtual texel injects ``+Φ_ρ/π`` at the virtual surface and ``−Φ_µ/π`` at the
+   real surface ``R_µ`` sees there (now in its shadow) into ``V_Δ``; ``V_ρ`` receives every
+   ``R_ρ`` texel (the first bounce that lights the virtual objects). VPLs move half a cell
+   along their normal before their cell is chosen (as ``dlpv``);
+4. **filtering**: mip chains of ``V_η`` (α included), ``V_Δ`` and ``V_ρ``;
+5. **cone tracing** (:func:`arlight.realtime.voxels.trace_cones`, Eq. 5.18–5.19 in the
+   standard front-to-back form) at full or reduced resolution (``cone_scale``), then
+   edge-aware upsampling:
+
+   * real pixels: one shadow cone per light (Eq. 5.20, aperture from the light's size), nine
+     diffuse cones into ``V_Δ`` (Eq. 5.21) and, on specular materials, one cone along the
+     reflected view direction (Eq. 5.22, aperture from the roughness);
+   * virtual pixels: nine diffuse cones and one specular cone into ``V_ρ`` (Eq. 5.24–5.25);
+
+6. **shading and composition** (§5.4.4): real pixels ``B + ρ/π · ΔE + k_s C_Δ,spec −
+   h α_spec B``; virtual pixels ``ρ/π (E_direct + E_cones + E_ambient (1 − AO)) +`` GGX
+   specular (Eq. 5.23, direct from the reduced lights with shadow rays) ``+ F C_ρ,spec``.
+
+**The real-occluder question** (the thesis leaves it open): ``V_η`` holds the real proxy,
+whose shadows are already in the photograph. Every cone accumulates occlusion twice, against
+``α_all`` and ``α_real``; the shadow term is ``−(a_all − a_real) E_i``, the occlusion the
+virtual objects add, so a real occluder alone darkens nothing and a virtual object inside a
+real shadow darkens no further.
+
+**Occlusion weighting of reflections** (§5.4.2: "the sampled visibility α from C_Δ is used to
+weight the contribution in the background image"): on a real specular pixel the background's
+reflected part is hidden by the virtual occlusion along the specular cone,
+``−h · (a_all − a_real) · B`` with ``h`` the specular share of the material (1 for mirrors
+and rough conductors, ``|k_s| / (|k_s| + |k_d|)`` for Phong, 0 for diffuse), and the
+virtual object's first bounce ``k_s C_Δ`` takes its place.
+
+**Ambient** (the SH remainder of the light reduction): the diffuse cones' added occlusion
+also removes the ambient light the virtual objects block, ``−ρ/π E_amb(n)/π Σ w_k
+(a_all − a_real)_k`` (the AO-like term of thesis §5.4.6, ours for the delta).
+
+Layers: ``mixed`` is the shaded virtual object on virtual pixels and ``B + delta`` elsewhere;
+``delta`` is the DVCT correction of the real pixels; ``mask`` the G-buffer coverage.
+Stats: ``time_gbuffer``, ``time_rsm``, ``time_voxelize``, ``time_inject``, ``time_filter``,
+``time_cones``, ``time_upsample``, ``time_shade``, ``time_assemble`` (s); ``lights``,
+``vpls_delta``, ``voxels``, ``volume_cell`` (m), ``cone_lanes``. See
+``docs/methods/dvct.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
+from arlight.errors import InputError
+from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.dlpv import rsm_pair
+from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
+from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
+from arlight.realtime.light_reduction import LightSet, ReducedLight, reduce_lights
+from arlight.realtime.rsm import RSMPair
+from arlight.realtime.rsm import check_memory as check_rsm_memory
+from arlight.realtime.sh_volume import Grid, cell_index
+from arlight.realtime.shading import (
+    ambient_irradiance_dr,
+    direct_irradiance,
+    direct_irradiance_compact,
+    virtual_bounds,
+)
+from arlight.realtime.voxels import (
+    ConeResult,
+    ConeVolumes,
+    MipVolume,
+    Voxels,
+    build_mips,
+    check_memory,
+    eta_level0,
+    shape_triangles,
+    trace_cones,
+    voxelize,
+    voxelize_shapes,
+)
+from arlight.scene.model import FrameView, World
+from arlight.timing import StageTimer
+
+OPTIONS: dict[str, Field] = {
+    "volume_size": Field("int", 128, "cells per edge of V_η, V_Δ, V_ρ, a power of two "
+                         "(Franke: 256³)", "cells", min=2, max=1024),
+    "rsm_size": Field("int", 512, "RSM resolution per light, texels per side (Franke: 1024²)",
+                      "texels", min=1, max=16384),
+    "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
+                          "bounding box (Franke: 2)", "", min=1.0, max=100.0),
+    "cone_scale": Field("int", 2, "cones traced on every k-th pixel per direction, then "
+                        "edge-aware upsampling (1: full resolution)", "pixels", min=1, max=8),
+    "diffuse_aperture_deg": Field("float", 60.0, "full aperture σ of the 9 diffuse cones "
+                                  "(ours; the thesis gives none)", "deg", min=0.0, max=120.0,
+                                  exclusive_min=True),
+    "specular_min_aperture_deg": Field("float", 1.0, "smallest full aperture β of a "
+                                       "specular cone (mirrors); otherwise 2·atan(GGX α)",
+                                       "deg", min=0.0, max=120.0, exclusive_min=True),
+    "directional_aperture_deg": Field("float", 0.53, "full shadow-cone aperture γ of a "
+                                      "directional light (the sun: 0.53°)", "deg", min=0.0,
+                                      max=90.0, exclusive_min=True),
+    "point_light_radius": Field("float", 0.0, "radius given to point and spot lights for "
+                                "their shadow cone (0: hard shadows)", "m", min=0.0,
+                                max=100.0),
+    "diffuse_cones": Field("bool", True, "trace the 9 diffuse cones (T_Δ², Eq. 5.21; "
+                           "off: shadows and reflections only)"),
+    "specular_cones": Field("bool", True, "trace the specular cone on specular materials "
+                            "(Eq. 5.22, 5.25)"),
+    **REDUCTION_OPTIONS,
+}
+
+
+def _check(opts: Options) -> None:
+    n = int(opts.volume_size)
+    if n & (n - 1):
+        raise InputError(f"volume_size must be a power of two (mip chain), got {n}",
+                         field="options.volume_size")
+
+
+SPEC = MethodSpec(
+    name="dvct",
+    description="Delta Voxel Cone Tracing (Franke 2014): voxelised scene, delta volume, "
+                "shadow, diffuse and specular cones; real time on a GPU.",
+    options=OPTIONS,
+    capabilities=Capabilities(interactive=True, materials=frozenset(
+        {"diffuse", "phong", "mirror", "roughconductor"})),
+    check=_check,
+)
+
+LUM = np.array([0.2126, 0.7152, 0.0722])
+
+
+# --------------------------------------------------------------------------------------------
+# Per-world data
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class Materials:
+    """Per-shape specular parameters (index = shape index in the world), Dr.Jit arrays:
+    ``spec`` specular reflectance / F0 (RGB), ``rough`` GGX α (0 for mirrors), ``hide`` the
+    specular share of the pixel's radiance (occlusion weighting), all 0 on diffuse shapes."""
+
+    spec: mi.Color3f
+    rough: mi.Float
+    hide: mi.Float
+
+    @staticmethod
+    def of(world: World) -> Materials:
+        spec, rough, hide = [], [], []
+        for s in world.shapes:
+            p, t = s.material.params, s.material.type
+            ks, a, h = np.zeros(3), 0.0, 0.0
+            if t == "mirror":
+                ks, h = np.broadcast_to(np.asarray(p["reflectance"], float), (3,)), 1.0
+            elif t == "roughconductor":
+                ks, a, h = np.broadcast_to(np.asarray(p["reflectance"], float), (3,)), float(
+                    p["alpha"]), 1.0
+            elif t == "phong":
+                ks = np.broadcast_to(np.asarray(p["ks"], float), (3,))
+                kd = np.broadcast_to(np.asarray(p["kd"], float), (3,))
+                a = math.sqrt(2.0 / (float(p["exponent"]) + 2.0))  # Walter et al. 2007
+                h = float(ks @ LUM) / max(float(ks @ LUM + kd @ LUM), 1e-12)
+            spec.append(ks)
+            rough.append(a)
+            hide.append(h)
+        arr = np.asarray(spec, np.float32).reshape(-1, 3)
+        return Materials(mi.Color3f(*(arr[:, c] for c in range(3))),
+                         mi.Float(np.asarray(rough, np.float32)),
+                         mi.Float(np.asarray(hide, np.float32)))
+
+    def at(self, shape: mi.Int32, active: mi.Bool) -> tuple[mi.Color3f, mi.Float, mi.Float]:
+        idx = mi.UInt32(dr.maximum(shape, 0))
+        ok = active & (shape >= 0)
+        return (dr.gather(mi.Color3f, self.spec, idx, ok), dr.gather(mi.Float, self.rough,
+                                                                      idx, ok),
+                dr.gather(mi.Float, self.hide, idx, ok))
+
+
+@dataclass
+class DVCTData:
+    """What ``prepare_world`` keeps: world, Mitsuba views, reduced lights, the volume grid
+    (None without virtual objects), the real proxy's voxels, the virtual objects' triangles
+    (re-voxelised every frame), per-shape materials and the light radii (m) of the shadow
+    cones (directional lights: ``tan(γ/2)``)."""
+
+    world: World
+    views: SceneViews
+    lights: LightSet
+    grid: Grid | None
+    real_voxels: Voxels | None
+    virtual_triangles: np.ndarray | None
+    materials: Materials
+    light_size: list[float]
+
+
+def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float]:
+    """Per reduced light: the radius (m) of the disk its shadow cone opens onto (Eq. 5.20:
+    "the cone aperture γ directly depends on the area of the light source") — an area light's
+    ``area_grid²`` patches each as a disk of the patch's area, point and spot lights
+    ``point_light_radius``; for directional lights ``tan(γ/2)``."""
+    by_name = {(lt.name or f"light{i}"): lt for i, lt in enumerate(world.lights)}
+    out = []
+    for lt in lights.lights:
+        if lt.kind == "directional":
+            out.append(math.tan(math.radians(options.directional_aperture_deg) / 2.0))
+        elif lt.kind == "cosine":
+            src = by_name[lt.source].params
+            m = np.asarray(src["to_world"], np.float64)
+            area = float(np.linalg.norm(np.cross(m[:3, 0] * src["size"][0],
+                                                 m[:3, 1] * src["size"][1])))
+            out.append(math.sqrt(area / math.pi) / options.area_grid)
+        else:
+            out.append(float(options.point_light_radius))
+    return out
+
+
+def prepare(world: World, options: Options) -> DVCTData:
+    """Mitsuba views, reduced lights, volume placement and the real proxy's voxels."""
+    check_rsm_memory(options.rsm_size)
+    check_memory(options.volume_size)
+    views = build_views(world)
+    lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
+    bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
+    grid = real = tris = None
+    if bounds is not None:
+        grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
+        real = voxelize_shapes(world.real_shapes, grid)
+        tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
+    return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
+                    _light_sizes(world, lights, options))
+
+
+# --------------------------------------------------------------------------------------------
+# Volumes of one frame
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class Volumes:
+    """The filtered volumes of one frame: ``alpha`` (V_η: α_all, α_real), ``normal`` (V_η
+    mean normals), ``delta`` (V_Δ) and ``rho`` (V_ρ) intensities (W/sr), and counters."""
+
+    alpha: MipVolume
+    normal: MipVolume
+    delta: MipVolume
+    rho: MipVolume
+    vpls_delta: int
+    voxels: int
+
+
+def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f,
+            flux: mi.Color3f, active: mi.Bool, sign: float) -> int:
+    """Add VPL intensities ``sign · Φ/π`` (Eq. 5.17) into a packed 3-channel level, each at
+    the cell of its position moved half a cell along its normal. Returns the VPLs injected."""
+    idx, inside = cell_index(grid, position + normal * (0.5 * grid.cell))
+    act = active & inside
+    val = flux * (sign / math.pi)
+    for c in range(3):
+        dr.scatter_reduce(dr.ReduceOp.Add, buf, val[c], idx * 3 + c, act)
+    return int(dr.count(act)[0]) if dr.width(act) else 0
+
+
+def inject_split(grid: Grid, pairs: list[RSMPair]) -> tuple[mi.Float, mi.Float, int]:
+    """Split injection (thesis §5.4.1, Eq. 5.17): packed finest levels of ``V_Δ`` (only the
+    texels whose mixed hit is virtual: ``+R_ρ`` there, ``−R_µ`` at what the real scene shows
+    there) and ``V_ρ`` (every ``R_ρ`` texel)."""
+    m = grid.n ** 3 * 3
+    delta, rho = dr.zeros(mi.Float, m), dr.zeros(mi.Float, m)
+    count = 0
+    for pair in pairs:
+        r = pair.rho
+        _inject(rho, grid, r.position, r.normal, r.flux_out, r.valid, 1.0)
+        if dr.width(pair.changed) == 0:
+            continue
+        rc, mc = pair.rho_changed(), pair.mu_changed
+        count += _inject(delta, grid, rc.position, rc.normal, rc.flux_out, rc.valid, 1.0)
+        _inject(delta, grid, mc.position, mc.normal, mc.flux_out, mc.valid, -1.0)
+    dr.eval(delta, rho)
+    return delta, rho, count
+
+
+def inject_regular(grid: Grid, pairs: list[RSMPair], which: int) -> mi.Float:
+    """Packed finest level of a regular volume: every ``R_ρ`` (``which=0``) or ``R_µ``
+    (``which=1``) texel — ``V_ρ`` and ``V_µ`` of Eq. 5.26."""
+    buf = dr.zeros(mi.Float, grid.n ** 3 * 3)
+    for pair in pairs:
+        r = pair.rho if which == 0 else pair.mu()
+        _inject(buf, grid, r.position, r.normal, r.flux_out, r.valid, 1.0)
+    dr.eval(buf)
+    return buf
+
+
+def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = None
+                  ) -> Volumes | None:
+    """RSMs, voxelisation, split injection and filtering of one frame (Table 5.6 rows)."""
+    timer = timer or StageTimer()
+    grid = data.grid
+    if grid is None:
+        return None
+    with timer.stage("rsm"):
+        pairs = rsm_pair(data, grid, options.rsm_size) if data.lights.lights else []
+    with timer.stage("voxelize"):
+        virt = voxelize(data.virtual_triangles, grid)
+        alpha0, normal0 = eta_level0(data.real_voxels, virt)
+    with timer.stage("inject"):
+        if pairs:
+            d0, r0, count = inject_split(grid, pairs)
+        else:
+            d0 = r0 = dr.zeros(mi.Float, grid.n ** 3 * 3)
+            count = 0
+    with timer.stage("filter"):
+        alpha = build_mips(alpha0, grid, 2)
+        normal = build_mips(normal0, grid, 3)
+        delta = build_mips(d0, grid, 3)
+        rho = build_mips(r0, grid, 3)
+    return Volumes(alpha, normal, delta, rho, count, data.real_voxels.union(virt).occupied)
+
+
+# --------------------------------------------------------------------------------------------
+# Cones
+# --------------------------------------------------------------------------------------------
+
+RING_POLAR = math.radians(60.0)
+"""Polar angle of the 8 outer diffuse cones (the 9th is along the normal)."""
+
+
+def diffuse_cone_set(aperture_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The 9 diffuse cones in the normal's local frame (z = normal): unit directions
+    ``(9, 3)``, weights ``(9,)`` with ``Σ w = π`` (a uniform radiance ``L`` gathers
+    ``E = πL``: the centre cone takes the cosine-weighted cap within half the aperture,
+    ``π sin²(σ/2)``, the 8 ring cones share the rest), and ``tan(σ/2)``."""
+    half = math.radians(aperture_deg) / 2.0
+    cap = math.pi * math.sin(min(half, math.pi / 2)) ** 2
+    dirs = [[0.0, 0.0, 1.0]]
+    for k in range(8):
+        phi = 2.0 * math.pi * k / 8
+        dirs.append([math.sin(RING_POLAR) * math.cos(phi), math.sin(RING_POLAR) * math.sin(phi),
+                     math.cos(RING_POLAR)])
+    w = np.array([cap] + [(math.pi - cap) / 8.0] * 8)
+    return np.array(dirs), w, math.tan(half)
+
+
+@dataclass
+class Lanes:
+    """G-buffer lanes that cones start from: position, normal, view direction (to the
+    camera), role and shape."""
+
+    position: mi.Point3f
+    normal: mi.Vector3f
+    to_camera: mi.Vector3f
+    role: mi.Int32
+    shape: mi.Int32
+
+    def subset(self, idx: mi.UInt32) -> Lanes:
+        return Lanes(*(dr.gather(type(v), v, idx) for v in (self.position, self.normal,
+                                                              self.to_camera, self.role,
+                                                              self.shape)))
+
+    @property
+    def width(self) -> int:
+        return dr.width(self.role)
+
+
+def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
+                  alpha_for_light: int = 0) -> tuple[mi.Color3f, mi.Float, mi.Float]:
+    """Nine diffuse cones per lane (Eq. 5.21 / 5.24): ``(Σ w_k C_k`` — irradiance, W/m² —
+    ``, Σ w_k a_all,k / π, Σ w_k (a_all − a_real)_k / π)``, the last two cosine-weighted
+    occlusions in [0, 1]. Cones start two cells off the surface along the normal and sample
+    the nearest mip level only (wide cones; half the gathers of quadrilinear sampling)."""
+    dirs, w, tan_h = diffuse_cone_set(aperture_deg)
+    n = lanes.width
+    k = len(w)
+    lane = dr.arange(mi.UInt32, n * k)
+    src = lane // k
+    cone = lane % k
+    p = dr.gather(mi.Point3f, lanes.position, src)
+    nrm = dr.gather(mi.Vector3f, lanes.normal, src)
+    frame = mi.Frame3f(nrm)
+    local = dr.gather(mi.Vector3f, mi.Vector3f(*(dirs[:, c].astype(np.float32)
+                                                 for c in range(3))), cone)
+    d = frame.to_world(local)
+    wt = dr.gather(mi.Float, mi.Float(w.astype(np.float32)), cone)
+    s0 = vols.alpha.grid.cell
+    res = trace_cones(vols, p + nrm * (2.0 * s0), d, tan_h, dr.inf, mi.Bool(True),
+                      t_start=0.5 * s0, alpha_for_light=alpha_for_light,
+                      quadrilinear=False)
+    e = dr.block_sum(res.radiance * wt, k)
+    ao = dr.block_sum(res.a_all * wt, k) * (1.0 / math.pi)
+    added = dr.block_sum(res.added * wt, k) * (1.0 / math.pi)
+    return e, ao, added
+
+
+def reflect(v: mi.Vector3f, n: mi.Vector3f) -> mi.Vector3f:
+    """Mirror direction of the unit direction ``v`` (towards the viewer) about ``n``."""
+    return 2.0 * dr.dot(v, n) * n - v
+
+
+def specular_cone(vols: ConeVolumes, lanes: Lanes, rough: mi.Float, min_aperture_deg: float,
+                  active: mi.Bool) -> ConeResult:
+    """One cone along the reflected view direction (Eq. 5.22 / 5.25), full aperture
+    ``β = max(min_aperture, 2 atan(α))`` for GGX roughness ``α``."""
+    tan_min = math.tan(math.radians(min_aperture_deg) / 2.0)
+    d = reflect(lanes.to_camera, lanes.normal)
+    s0 = vols.alpha.grid.cell
+    return trace_cones(vols, lanes.position + lanes.normal * (1.5 * s0), d,
+                       dr.maximum(rough, tan_min), dr.inf, active, t_start=0.5 * s0)
+
+
+def light_direction(lt: ReducedLight, p: mi.Point3f) -> tuple[mi.Vector3f, mi.Float]:
+    """Unit direction from ``p`` towards the light and its distance (inf: directional)."""
+    if lt.kind == "directional":
+        return -mi.Vector3f(*[float(x) for x in lt.axis]) + 0.0 * p.x, mi.Float(dr.inf)
+    to = mi.Point3f(*[float(x) for x in lt.position]) - p
+    dist = dr.norm(to)
+    return to / dr.maximum(dist, 1e-12), dist
+
+
+def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes) -> mi.Color3f:
+    """Direct relighting (Eq. 5.20): ``−Σ_i (a_all − a_real)_i E_i`` (W/m²), one shadow cone
+    per reduced light of half-angle ``atan(r_i / dist)`` (directional: the light's own), with
+    ``E_i`` the unshadowed irradiance of light ``i``."""
+    out = mi.Color3f(0.0)
+    s0 = vols.alpha.grid.cell
+    for lt, size in zip(data.lights.lights, data.light_size, strict=True):
+        d, dist = light_direction(lt, lanes.position)
+        tan_h = mi.Float(size) if lt.kind == "directional" else size / dr.maximum(dist, 1e-9)
+        e = direct_irradiance(data.views.real, LightSet([lt]), lanes.position, lanes.normal,
+                              mi.Bool(True), shadows=False)
+        lit = dr.dot(d, lanes.normal) > 0.0
+        res = trace_cones(vols, lanes.position + lanes.normal * (1.5 * s0), d, tan_h,
+                          dist, lit, t_start=0.5 * s0)
+        out -= e * res.added
+    return out
+
+
+@dataclass
+class ConeTerms:
+    """Per cone lane. Real lanes: ``x`` delta irradiance (shadows + diffuse bounce + ambient
+    occlusion, W/m²), ``y`` the specular cone's ``C_Δ`` (radiance), ``z`` its added
+    occlusion. Virtual lanes: ``x`` the diffuse cones' irradiance from ``V_ρ``, ``y`` the
+    specular cone's ``C_ρ``, ``z`` the ambient occlusion."""
+
+    x: mi.Color3f
+    y: mi.Color3f
+    z: mi.Float
+
+
+def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
+               stats: dict | None = None) -> ConeTerms:
+    """All cones of ``lanes`` (real lanes against ``V_Δ``, virtual against ``V_ρ``)."""
+    n = lanes.width
+    x, y, z = dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n)
+    cv_delta = ConeVolumes(vols.alpha, vols.normal, vols.delta)
+    cv_rho = ConeVolumes(vols.alpha, vols.normal, vols.rho)
+    count = 0
+    for role, cv in ((ROLE_REAL, cv_delta), (ROLE_VIRTUAL, cv_rho)):
+        idx = dr.compress(lanes.role == role)
+        if dr.width(idx) == 0:
+            continue
+        sub = lanes.subset(idx)
+        count += dr.width(idx)
+        xs = dr.zeros(mi.Color3f, dr.width(idx))
+        zs = dr.zeros(mi.Float, dr.width(idx))
+        if options.diffuse_cones:
+            e, ao, added = diffuse_cones(cv, sub, options.diffuse_aperture_deg)
+            if role == ROLE_REAL:
+                amb = ambient_irradiance_dr(data.lights, sub.normal) * (1.0 / math.pi)
+                xs = e - amb * (math.pi * added)
+            else:
+                xs, zs = e, ao
+        if role == ROLE_REAL and data.lights.lights:
+            xs = xs + shadow_cones(data, ConeVolumes(vols.alpha), sub)
+        ys = dr.zeros(mi.Color3f, dr.width(idx))
+        if options.specular_cones:
+            spec, rough, _ = data.materials.at(sub.shape, mi.Bool(True))
+            has = dr.max(spec) > 0.0
+            sidx = dr.compress(has)
+            if dr.width(sidx):
+                ss = sub.subset(sidx)
+                res = specular_cone(cv, ss, dr.gather(mi.Float, rough, sidx),
+                                    options.specular_min_aperture_deg, mi.Bool(True))
+                dr.scatter(ys, res.radiance, sidx)
+                if role == ROLE_REAL:
+                    dr.scatter(zs, res.added, sidx)
+        dr.eval(xs, ys, zs)
+        dr.scatter(x, xs, idx)
+        dr.scatter(y, ys, idx)
+        dr.scatter(z, zs, idx)
+    dr.eval(x, y, z)
+    if stats is not None:
+        stats["cone_lanes"] = float(count)
+    return ConeTerms(x, y, z)
+
+
+# --------------------------------------------------------------------------------------------
+# Reduced resolution and edge-aware upsampling
+# --------------------------------------------------------------------------------------------
+
+def low_res_lanes(gb: GBuffer, k: int) -> mi.UInt32:
+    """G-buffer lanes of the cone samples: pixel ``(k i + k//2, k j + k//2)`` (clamped) of
+    every ``k × k`` block, row-major over the ``ceil(H/k) × ceil(W/k)`` low-res grid."""
+    hl, wl = -(-gb.height // k), -(-gb.width // k)
+    rows = np.minimum(np.arange(hl) * k + k // 2, gb.height - 1)
+    cols = np.minimum(np.arange(wl) * k + k // 2, gb.width - 1)
+    pix = (rows[:, None] * gb.width + cols[None, :]).ravel()
+    return mi.UInt32(pix.astype(np.uint32) * gb.spp)
+
+
+def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> ConeTerms:
+    """Edge-aware (joint bilateral) upsampling of low-res cone terms to every G-buffer lane:
+    the 4 nearest low-res samples, bilinear weights × ``exp(−(<n, p_s − p>/s)²)`` (distance of
+    the sample from the pixel's tangent plane in cells) × ``max(0, <n, n_s>)⁸`` × same role;
+    where every geometric weight vanishes, the same-role bilinear mean (weight 10⁻³)."""
+    hl, wl = -(-gb.height // k), -(-gb.width // k)
+    pix = gb.pixel
+    row = mi.Float(pix // gb.width)
+    col = mi.Float(pix % gb.width)
+    fy = (row - float(k // 2)) * (1.0 / k)
+    fx = (col - float(k // 2)) * (1.0 / k)
+    y0 = dr.floor(fy)
+    x0 = dr.floor(fx)
+    ty, tx = fy - y0, fx - x0
+    p, n, role = gb.position, gb.normal, gb.role
+    acc_x, acc_y, acc_z, acc_w = mi.Color3f(0.0), mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0)
+    inv = 1.0 / cell
+    for dy in (0, 1):
+        for dx in (0, 1):
+            yy = dr.clip(mi.Int32(y0) + dy, 0, hl - 1)
+            xx = dr.clip(mi.Int32(x0) + dx, 0, wl - 1)
+            bil = (ty if dy else 1.0 - ty) * (tx if dx else 1.0 - tx)
+            i = mi.UInt32(yy * wl + xx)
+            ps = dr.gather(mi.Point3f, low.position, i)
+            ns = dr.gather(mi.Vector3f, low.normal, i)
+            rs = dr.gather(mi.Int32, low.role, i)
+            plane = dr.dot(n, ps - p) * inv
+            cosn = dr.maximum(dr.dot(n, ns), 0.0)
+            cos2 = cosn * cosn
+            cos8 = cos2 * cos2 * cos2 * cos2
+            w = bil * (dr.exp(-plane * plane) * cos8 + 1e-3)
+            w = dr.select(rs == role, w, 0.0)
+            acc_x += dr.gather(mi.Color3f, terms.x, i) * w
+            acc_y += dr.gather(mi.Color3f, terms.y, i) * w
+            acc_z += dr.gather(mi.Float, terms.z, i) * w
+            acc_w += w
+    norm = dr.select(acc_w > 0.0, dr.rcp(dr.maximum(acc_w, 1e-30)), 0.0)
+    out = ConeTerms(acc_x * norm, acc_y * norm, acc_z * norm)
+    dr.eval(out.x, out.y, out.z)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Shading
+# --------------------------------------------------------------------------------------------
+
+def ggx_specular(n: mi.Vector3f, wo: mi.Vector3f, wi: mi.Vector3f, f0: mi.Color3f,
+                 alpha: mi.Float) -> mi.Color3f:
+    """GGX microfacet BRDF ``D G F / (4 <n,wi> <n,wo>)`` (Walter et al. 2007 [WMLT07], thesis
+    Eq. 4.11ff), Smith separable masking, Schlick Fresnel from ``f0`` (sr⁻¹)."""
+    a = dr.maximum(alpha, 1e-3)
+    a2 = a * a
+    h = dr.normalize(wi + wo)
+    cos_h = dr.maximum(dr.dot(n, h), 0.0)
+    cos_i = dr.maximum(dr.dot(n, wi), 1e-6)
+    cos_o = dr.maximum(dr.dot(n, wo), 1e-6)
+    den = cos_h * cos_h * (a2 - 1.0) + 1.0
+    d = a2 / (math.pi * den * den)
+
+    def g1(c):
+        return 2.0 * c / (c + dr.sqrt(a2 + (1.0 - a2) * c * c))
+
+    f = f0 + (1.0 - f0) * dr.power(1.0 - dr.maximum(dr.dot(wi, h), 0.0), 5.0)
+    return f * (d * g1(cos_i) * g1(cos_o) / (4.0 * cos_i * cos_o))
+
+
+def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None
+          ) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
+    """Per lane ``(mixed radiance on virtual lanes, delta radiance on real lanes, hidden
+    fraction h·a of the background on real lanes)`` (§5.4.4)."""
+    virt = gb.virtual
+    real = gb.valid & ~virt
+    n_l = dr.width(gb.role)
+    if terms is None:
+        z = dr.zeros(mi.Color3f, n_l)
+        return z, z, dr.zeros(mi.Float, n_l)
+    spec, rough, hide = data.materials.at(gb.shape, gb.valid)
+    # real pixels: ρ/π ΔE + k_s C_Δ,spec, and −h a_spec B (applied by the caller)
+    delta = gb.albedo * (1.0 / math.pi) * terms.x + spec * terms.y
+    delta = dr.select(real, delta, mi.Color3f(0.0))
+    hidden = dr.select(real, hide * terms.z, 0.0)
+    # virtual pixels (Eq. 5.23–5.25)
+    e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
+                                      virt)
+    e_amb = ambient_irradiance_dr(data.lights, gb.normal)
+    diffuse = gb.albedo * (1.0 / math.pi) * (e_dir + terms.x + e_amb * (1.0 - terms.z))
+    glossy = virt & (dr.max(spec) > 0.0)
+    spec_direct = mi.Color3f(0.0)
+    if dr.any(glossy):
+        for lt in data.lights.lights:
+            wi, _ = light_direction(lt, gb.position)
+            e_i = direct_irradiance(data.views.mixed, LightSet([lt]), gb.position, gb.normal,
+                                    glossy)
+            spec_direct += ggx_specular(gb.normal, gb.to_camera, wi, spec, rough) * e_i
+    mixed = dr.select(virt, diffuse + spec_direct + spec * terms.y, mi.Color3f(0.0))
+    dr.eval(mixed, delta, hidden)
+    return mixed, delta, hidden
+
+
+class DVCTMethod(BaseMethod):
+    """Delta Voxel Cone Tracing (Franke 2014)."""
+
+    spec = SPEC
+
+    def prepare_world(self, world: World, options: Options, settings: RenderSettings
+                      ) -> DVCTData:
+        return prepare(world, options)
+
+    def render_view(self, data: DVCTData, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        with timer.stage("gbuffer"):
+            gb = render_gbuffer(data.views.mixed, view.camera, 1, settings.seed)
+        vols = build_volumes(data, options, timer)
+        stats: dict[str, float] = {"lights": float(len(data.lights.lights)),
+                                   "volume_cell": data.grid.cell if data.grid else 0.0}
+        terms = None
+        if vols is not None:
+            k = int(options.cone_scale)
+            with timer.stage("cones"):
+                idx = low_res_lanes(gb, k) if k > 1 else dr.arange(mi.UInt32, dr.width(gb.role))
+                full = Lanes(gb.position, gb.normal, gb.to_camera, gb.role, gb.shape)
+                low = full.subset(idx) if k > 1 else full
+                terms = cone_terms(data, vols, low, options, stats)
+            if k > 1:
+                with timer.stage("upsample"):
+                    terms = upsample(gb, k, low, terms, vols.alpha.grid.cell)
+            stats["vpls_delta"] = float(vols.vpls_delta)
+            stats["voxels"] = float(vols.voxels)
+        with timer.stage("shade"):
+            mixed, delta, hidden = shade(data, gb, terms)
+        with timer.stage("assemble"):
+            if terms is not None:
+                h = resolve_scalar(gb, hidden)
+                rows = h > 0
+                layers_delta = delta
+                layers = assemble(gb, view.frame, mixed, layers_delta, stats)
+                if rows.any():  # occlusion weighting of reflections: −h a B
+                    d = layers.delta.copy()
+                    bg = np.asarray(view.frame, np.float32)
+                    d[rows] -= h[rows][:, None] * bg[rows]
+                    m = layers.mixed.copy()
+                    cover = layers.mask > 0
+                    m[~cover] = bg[~cover] + d[~cover]
+                    layers = Layers.assemble(bg, m, d, layers.mask, stats=stats)
+            else:
+                layers = assemble(gb, view.frame, mixed, delta, stats)
+        if not data.world.has_virtual:
+            assert not np.any(layers.delta), "dvct: delta must vanish without virtual objects"
+        return layers
+
+
+__all__ = ["DVCTData", "DVCTMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
+           "cone_terms", "diffuse_cone_set", "diffuse_cones", "ggx_specular",
+           "inject_regular", "inject_split", "prepare", "shade", "shadow_cones",
+           "specular_cone", "upsample"]
