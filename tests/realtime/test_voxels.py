@@ -142,15 +142,19 @@ def test_front_to_back_accumulation_is_the_standard_form():
 
 
 def test_added_occlusion_counts_only_virtual_geometry():
-    """A real opaque layer before a virtual one: a_all = a_real = 1 and the added occlusion
-    ``a_all − a_real`` is 0 (the real occluder's shadow is in the photograph); a virtual
-    layer alone adds 1. Rejects a shadow term taken from α_all alone."""
-    vols, _ = _slab_volumes(layers={3: (1.0, 0.0), 5: (1.0, 0.0)}, real={3})
+    """A half-covering real layer (the receiving surface seen by a cone's own samples, or a
+    real occluder) adds nothing: ``1 − keep = 0`` although ``a_all = a_real = 0.5``; an
+    opaque virtual layer adds 1 — also behind the real layer, whose own shadow is the
+    caller's question. Rejects an added occlusion taken from ``a_all`` alone, and the
+    difference ``a_all − a_real``, which a saturated real layer drives to 0."""
     o, d = mi.Point3f(0.5, 4.5, 4.5), mi.Vector3f(1, 0, 0)
+    vols, _ = _slab_volumes(layers={3: (0.5, 0.0)}, real={3})
     r = trace_cones(ConeVolumes(vols.alpha), o, d, 0.0, dr.inf, mi.Bool(True))
+    assert float(r.a_all[0]) == pytest.approx(0.5, abs=1e-6)
     assert float(r.added[0]) == pytest.approx(0.0, abs=1e-6)
-    vols, _ = _slab_volumes(layers={5: (1.0, 0.0)})
+    vols, _ = _slab_volumes(layers={3: (1.0, 0.0), 5: (1.0, 0.0)}, real={3})
     r = trace_cones(ConeVolumes(vols.alpha), o, d, 0.0, dr.inf, mi.Bool(True))
+    assert float(r.a_all[0] - r.a_real[0]) == pytest.approx(0.0, abs=1e-6)
     assert float(r.added[0]) == pytest.approx(1.0, abs=1e-3)
     # the cone stops at t_max: a light in front of the layer sees no occluder
     r = trace_cones(ConeVolumes(vols.alpha), o, d, 0.0, 3.0, mi.Bool(True))

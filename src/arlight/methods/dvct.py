@@ -23,25 +23,27 @@ Per frame (stages of thesis Table 5.6):
    * virtual pixels: nine diffuse cones and one specular cone into ``V_ρ`` (Eq. 5.24–5.25);
 
 6. **shading and composition** (§5.4.4): real pixels ``B + ρ/π · ΔE + k_s C_Δ,spec −
-   h α_spec B``; virtual pixels ``ρ/π (E_direct + E_cones + E_ambient (1 − AO)) +`` GGX
+   h α_spec B``; virtual pixels ``ρ/π (E_direct + E_cones + E_ambient (1 − AO_virtual)) +`` GGX
    specular (Eq. 5.23, direct from the reduced lights with shadow rays) ``+ F C_ρ,spec``.
 
 **The real-occluder question** (the thesis leaves it open): ``V_η`` holds the real proxy,
-whose shadows are already in the photograph. Every cone accumulates occlusion twice, against
-``α_all`` and ``α_real``; the shadow term is ``−(a_all − a_real) E_i``, the occlusion the
-virtual objects add, so a real occluder alone darkens nothing and a virtual object inside a
-real shadow darkens no further.
+whose shadows are already in the photograph. Cones accumulate, besides ``α_all`` and
+``α_real``, the transmittance ``k`` the virtual objects leave in the space the real geometry
+leaves free (per sample ``(1 − α_all)/(1 − α_real)``, so a cone's false self-occlusion by
+the receiving surface cancels); the shadow term is ``−(1 − k) E_i^µ`` with ``E_i^µ`` the
+light's irradiance in the real proxy (one shadow ray): a real occluder alone darkens
+nothing, and a virtual object inside a real shadow darkens no further.
 
 **Occlusion weighting of reflections** (§5.4.2: "the sampled visibility α from C_Δ is used to
 weight the contribution in the background image"): on a real specular pixel the background's
 reflected part is hidden by the virtual occlusion along the specular cone,
-``−h · (a_all − a_real) · B`` with ``h`` the specular share of the material (1 for mirrors
+``−h · (1 − k) · B`` with ``h`` the specular share of the material (1 for mirrors
 and rough conductors, ``|k_s| / (|k_s| + |k_d|)`` for Phong, 0 for diffuse), and the
 virtual object's first bounce ``k_s C_Δ`` takes its place.
 
 **Ambient** (the SH remainder of the light reduction): the diffuse cones' added occlusion
 also removes the ambient light the virtual objects block, ``−ρ/π E_amb(n)/π Σ w_k
-(a_all − a_real)_k`` (the AO-like term of thesis §5.4.6, ours for the delta).
+(1 − k)_k`` (the AO-like term of thesis §5.4.6, ours for the delta).
 
 Layers: ``mixed`` is the shaded virtual object on virtual pixels and ``B + delta`` elsewhere;
 ``delta`` is the DVCT correction of the real pixels; ``mask`` the G-buffer coverage.
@@ -331,6 +333,15 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
 # Cones
 # --------------------------------------------------------------------------------------------
 
+DELTA_VISIBILITY = 2
+"""Which occlusion attenuates the light diffuse cones gather from ``V_Δ`` on real surfaces:
+2, the virtual objects' only (``keep``): the receiving surface's false self-occlusion at
+coarse levels would otherwise hide the bounce (:func:`~arlight.realtime.voxels.trace_cones`);
+real walls between a virtual bounce and a real receiver are not counted (ours)."""
+
+DIFFUSE_START = 2.0
+"""Diffuse cones start this many cells off the surface along its normal."""
+
 RING_POLAR = math.radians(60.0)
 """Polar angle of the 8 outer diffuse cones (the 9th is along the normal)."""
 
@@ -375,7 +386,7 @@ class Lanes:
 def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
                   alpha_for_light: int = 0) -> tuple[mi.Color3f, mi.Float, mi.Float]:
     """Nine diffuse cones per lane (Eq. 5.21 / 5.24): ``(Σ w_k C_k`` — irradiance, W/m² —
-    ``, Σ w_k a_all,k / π, Σ w_k (a_all − a_real)_k / π)``, the last two cosine-weighted
+    ``, Σ w_k a_all,k / π, Σ w_k (1 − k)_k / π)``, the last two cosine-weighted
     occlusions in [0, 1]. Cones start two cells off the surface along the normal and sample
     the nearest mip level only (wide cones; half the gathers of quadrilinear sampling)."""
     dirs, w, tan_h = diffuse_cone_set(aperture_deg)
@@ -392,7 +403,7 @@ def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
     d = frame.to_world(local)
     wt = dr.gather(mi.Float, mi.Float(w.astype(np.float32)), cone)
     s0 = vols.alpha.grid.cell
-    res = trace_cones(vols, p + nrm * (2.0 * s0), d, tan_h, dr.inf, mi.Bool(True),
+    res = trace_cones(vols, p + nrm * (DIFFUSE_START * s0), d, tan_h, dr.inf, mi.Bool(True),
                       t_start=0.5 * s0, alpha_for_light=alpha_for_light,
                       quadrilinear=False)
     e = dr.block_sum(res.radiance * wt, k)
@@ -427,16 +438,19 @@ def light_direction(lt: ReducedLight, p: mi.Point3f) -> tuple[mi.Vector3f, mi.Fl
 
 
 def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes) -> mi.Color3f:
-    """Direct relighting (Eq. 5.20): ``−Σ_i (a_all − a_real)_i E_i`` (W/m²), one shadow cone
-    per reduced light of half-angle ``atan(r_i / dist)`` (directional: the light's own), with
-    ``E_i`` the unshadowed irradiance of light ``i``."""
+    """Direct relighting (Eq. 5.20): ``−Σ_i (1 − k_i) E_i^µ`` (W/m²), one shadow cone per
+    reduced light of half-angle ``atan(r_i / dist)`` (directional: the light's own), ``k_i``
+    the transmittance the virtual objects leave along it
+    (:func:`~arlight.realtime.voxels.trace_cones`) and ``E_i^µ`` light ``i``'s irradiance
+    in the *real* proxy, with one shadow ray: the real-occluder question — where a real
+    occluder already shadows the point, the photograph is dark and nothing is removed."""
     out = mi.Color3f(0.0)
     s0 = vols.alpha.grid.cell
     for lt, size in zip(data.lights.lights, data.light_size, strict=True):
         d, dist = light_direction(lt, lanes.position)
         tan_h = mi.Float(size) if lt.kind == "directional" else size / dr.maximum(dist, 1e-9)
         e = direct_irradiance(data.views.real, LightSet([lt]), lanes.position, lanes.normal,
-                              mi.Bool(True), shadows=False)
+                              mi.Bool(True), shadows=True)
         lit = dr.dot(d, lanes.normal) > 0.0
         res = trace_cones(vols, lanes.position + lanes.normal * (1.5 * s0), d, tan_h,
                           dist, lit, t_start=0.5 * s0)
@@ -449,7 +463,10 @@ class ConeTerms:
     """Per cone lane. Real lanes: ``x`` delta irradiance (shadows + diffuse bounce + ambient
     occlusion, W/m²), ``y`` the specular cone's ``C_Δ`` (radiance), ``z`` its added
     occlusion. Virtual lanes: ``x`` the diffuse cones' irradiance from ``V_ρ``, ``y`` the
-    specular cone's ``C_ρ``, ``z`` the ambient occlusion."""
+    specular cone's ``C_ρ``, ``z`` the ambient occlusion by the virtual objects (``1 − k``:
+    a real surface that hides the sky from a virtual one reflects ambient light itself,
+    which ``V_ρ`` — the RSMs' first bounce — does not hold; counting only the virtual
+    occluders stands in for that reflection; ours)."""
 
     x: mi.Color3f
     y: mi.Color3f
@@ -473,12 +490,13 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
         xs = dr.zeros(mi.Color3f, dr.width(idx))
         zs = dr.zeros(mi.Float, dr.width(idx))
         if options.diffuse_cones:
-            e, ao, added = diffuse_cones(cv, sub, options.diffuse_aperture_deg)
+            e, ao, added = diffuse_cones(cv, sub, options.diffuse_aperture_deg,
+                                         DELTA_VISIBILITY if role == ROLE_REAL else 0)
             if role == ROLE_REAL:
                 amb = ambient_irradiance_dr(data.lights, sub.normal) * (1.0 / math.pi)
                 xs = e - amb * (math.pi * added)
             else:
-                xs, zs = e, ao
+                xs, zs = e, added
         if role == ROLE_REAL and data.lights.lights:
             xs = xs + shadow_cones(data, ConeVolumes(vols.alpha), sub)
         ys = dr.zeros(mi.Color3f, dr.width(idx))
