@@ -74,6 +74,15 @@ def test_cli_end_to_end_on_slambook_frames(tmp_path):
     assert est.sh.shape == (16, 3) and 0 < est.confidence <= 1
     doc = json.loads((tmp_path / "light.frames.json").read_text())
     assert len(doc["frames"]) == 5 and all(f["rank"] >= 1 for f in doc["frames"])
+    # a scene uses the estimate through an `sh` light
+    from arlight.scene.load import parse_scene
+
+    raw = json.loads(out.read_text())
+    scene = parse_scene({"camera": {"resolution": [8, 6], "fov_y_deg": 40,
+                                    "look_at": {"origin": [0, 1, 2], "target": [0, 0, 0]}},
+                         "shapes": [], "lights": [{"type": "sh", "coefficients":
+                                                   raw["sh"]["coefficients"]}]})
+    assert scene.lights[0].type == "sh" and len(scene.lights[0].params["coefficients"]) == 16
 
 
 @pytest.mark.parametrize("case", ["size", "poses", "nodepth", "plane"])
