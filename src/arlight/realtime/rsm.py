@@ -129,7 +129,7 @@ def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float]) 
         r = float(radius)
         local = mi.Vector3f((2.0 * uv.x - 1.0) * r, (2.0 * uv.y - 1.0) * r, 0.0)
         start = np.asarray(centre, np.float64) - axis * (4.0 * r + 1.0)
-        origin = mi.Point3f(*[float(x) for x in start]) + frame.to_world(local)
+        origin = mi.Point3f(mi.Point3f(*[float(x) for x in start]) + frame.to_world(local))
         d = dr.zeros(mi.Vector3f, res * res) + mi.Vector3f(*[float(x) for x in axis])
         flux = i0 * ((2.0 * r / res) ** 2)
     flux = dr.zeros(mi.Color3f, res * res) + flux
