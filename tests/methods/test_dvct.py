@@ -175,9 +175,8 @@ def test_point_light_shadow_cone_matches_the_ray_traced_shadow_64():
     assert _hard_shadow_iou(64) >= 0.8
 
 
-@pytest.mark.slow
 def test_point_light_shadow_cone_matches_the_ray_traced_shadow_256():
-    """Issue 12 acceptance: IoU ≥ 0.9 at 256³."""
+    """Issue 12 acceptance: IoU ≥ 0.9 at 256³ (measured 0.925; 0.86 at 128³; ~4 s)."""
     assert _hard_shadow_iou(256) >= 0.9
 
 
@@ -269,6 +268,18 @@ def test_reduced_resolution_cones_follow_the_full_resolution_ones():
     diff = np.abs(full.delta - half.delta) @ LUM
     assert -(full.delta @ LUM).min() > 0.2
     assert (diff > 0.02).mean() < 0.03
+
+
+def test_directional_light_casts_a_shadow():
+    """A directional light (the environment-map highlights of the light reduction) builds
+    its orthographic RSM and its shadow cone (aperture ``directional_aperture_deg``): the
+    cube's shadow is negative. Rejects a crash on the orthographic map's ray origins and a
+    directional shadow cone aimed along the light's travel instead of towards it."""
+    d = box_scene(w=64, h=48)
+    d["lights"] = [{"type": "directional", "direction": [-0.3, -1.0, -0.4], "irradiance": 2.0}]
+    layers = run(make(d), cone_scale=1)
+    lum = layers.delta @ LUM
+    assert lum[layers.mask == 0].min() < -0.1
 
 
 def test_volumes_build_without_lights_in_rsm():

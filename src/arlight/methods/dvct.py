@@ -521,6 +521,25 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
     return ConeTerms(x, y, z)
 
 
+def cone_error(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
+               pairs: list[RSMPair]) -> dict[str, np.ndarray]:
+    """The cone-tracing error of thesis Eq. 5.27, ``E = C_ρ − (C_µ + C_Δ)``, of the nine
+    diffuse cones (irradiance, W/m², ``(N, 3)`` per lane): ``C_ρ`` gathers ``V_ρ`` with
+    ``α_all``, ``C_µ`` a regular ``V_µ`` (every ``R_µ`` texel) with ``α_real`` and ``C_Δ``
+    ``V_Δ`` with ``α_all``. At the finest level ``V_ρ = V_µ + V_Δ`` (Eq. 5.26); the cones
+    differ because ``V_µ`` is seen through the real scene's occlusion. Returns the three
+    terms and ``E``."""
+    grid = vols.alpha.grid
+    mu = build_mips(inject_regular(grid, pairs, 1), grid, 3)
+    out = {}
+    for name, light, which in (("rho", vols.rho, 0), ("mu", mu, 1), ("delta", vols.delta, 0)):
+        e, _, _ = diffuse_cones(ConeVolumes(vols.alpha, vols.normal, light), lanes,
+                                options.diffuse_aperture_deg, which)
+        out[name] = np.array(e, np.float64).T
+    out["error"] = out["rho"] - (out["mu"] + out["delta"])
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Reduced resolution and edge-aware upsampling
 # --------------------------------------------------------------------------------------------
@@ -687,6 +706,6 @@ class DVCTMethod(BaseMethod):
 
 
 __all__ = ["DVCTData", "DVCTMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
-           "cone_terms", "diffuse_cone_set", "diffuse_cones", "ggx_specular",
+           "cone_error", "cone_terms", "diffuse_cone_set", "diffuse_cones", "ggx_specular",
            "inject_regular", "inject_split", "prepare", "shade", "shadow_cones",
            "specular_cone", "upsample"]

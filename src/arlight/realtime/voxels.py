@@ -152,34 +152,30 @@ def check_memory(n: int) -> None:
                          f"{avail / 2**30:.1f} GiB available", field="options.volume_size")
 
 
-def _overlaps(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray, h: float) -> np.ndarray:
-    """Separating-axis test (Akenine-Möller 2001) of triangles ``(M, 3)`` given relative to
-    the centres of axis-aligned boxes of half size ``h``: True where they overlap (touching
-    counts, with a relative tolerance of 1e-6 so that faces on cell borders mark both)."""
-    tol = h * 1e-6
-    r_box = h + tol
-    for ax in range(3):  # box face normals
-        lo = np.minimum(np.minimum(v0[:, ax], v1[:, ax]), v2[:, ax])
-        hi = np.maximum(np.maximum(v0[:, ax], v1[:, ax]), v2[:, ax])
-        if ax == 0:
-            ok = (lo <= r_box) & (hi >= -r_box)
-        else:
-            ok &= (lo <= r_box) & (hi >= -r_box)
+def _overlaps(v0: mi.Vector3f, v1: mi.Vector3f, v2: mi.Vector3f, h: float) -> mi.Bool:
+    """Separating-axis test (Akenine-Möller 2001) of triangles given relative to the centres
+    of axis-aligned boxes of half size ``h`` (one Dr.Jit lane per triangle/box pair): True
+    where they overlap (touching counts, with a relative tolerance of 1e-6 so that faces on
+    cell borders mark both cells)."""
+    r_box = h * (1.0 + 1e-6)
+    ok = mi.Bool(True)
+    for ax in range(3):  # the box's face normals
+        lo = dr.minimum(dr.minimum(v0[ax], v1[ax]), v2[ax])
+        hi = dr.maximum(dr.maximum(v0[ax], v1[ax]), v2[ax])
+        ok &= (lo <= r_box) & (hi >= -r_box)
     e = (v1 - v0, v2 - v1, v0 - v2)
-    nrm = np.cross(e[0], e[1])
-    r = h * np.abs(nrm).sum(1) + tol * np.abs(nrm).sum(1)
-    ok &= np.abs((nrm * v0).sum(1)) <= r
-    for ei in e:  # the 9 cross products e_i × unit axis
+    nrm = dr.cross(e[0], e[1])
+    ok &= dr.abs(dr.dot(nrm, v0)) <= r_box * (dr.abs(nrm.x) + dr.abs(nrm.y) + dr.abs(nrm.z))
+    for ei in e:  # the 9 axes e_i × unit axis: components (u, w) = (e_w, −e_u)
         for ax in range(3):
-            a = np.zeros_like(ei)
             u, w = (ax + 1) % 3, (ax + 2) % 3
-            # a = e × axis_ax: components (e_u, e_w) rotated
-            a[:, u] = ei[:, w]
-            a[:, w] = -ei[:, u]
-            p0, p1, p2 = (a * v0).sum(1), (a * v1).sum(1), (a * v2).sum(1)
-            rr = (h + tol) * np.abs(a).sum(1)
-            ok &= (np.minimum(np.minimum(p0, p1), p2) <= rr) & (
-                np.maximum(np.maximum(p0, p1), p2) >= -rr)
+            au, aw = ei[w], -ei[u]
+            p0 = au * v0[u] + aw * v0[w]
+            p1 = au * v1[u] + aw * v1[w]
+            p2 = au * v2[u] + aw * v2[w]
+            rr = r_box * (dr.abs(au) + dr.abs(aw))
+            ok &= (dr.minimum(dr.minimum(p0, p1), p2) <= rr) & (
+                dr.maximum(dr.maximum(p0, p1), p2) >= -rr)
     return ok
 
 
@@ -233,8 +229,9 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20) -> Voxels:
     §5.4.2; [SS10]): every cell whose closed box the triangle touches is occupied (``α = 1``),
     and gets the triangle's area-weighted normal added (orientation from the winding).
     Triangles outside the grid are clipped away; degenerate ones mark the cells they touch
-    with no normal. Candidates are the cells of each triangle's bounding box, tested
-    ``chunk`` at a time (NumPy)."""
+    with no normal. Candidates are the cells of each triangle's bounding box (NumPy),
+    tested ``chunk`` at a time in one Dr.Jit kernel (float32 in cell units relative to
+    the cell centre)."""
     tri = np.asarray(triangles, np.float64)
     if len(tri) == 0:
         return Voxels.empty(grid)
@@ -250,18 +247,20 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20) -> Voxels:
     starts = np.concatenate([[0], np.cumsum(count)])
     total = int(starts[-1])
     flats, norms = [], []
+    tri_of = np.repeat(np.arange(len(count)), count)
     for a in range(0, total, chunk):
         b = min(total, a + chunk)
-        cand = np.arange(a, b)
-        t = np.searchsorted(starts, cand, side="right") - 1
-        k = cand - starts[t]
+        t = tri_of[a:b]
+        k = np.arange(a, b) - starts[t]
         ex = ext[t]
         ix = lo[t, 0] + k % ex[:, 0]
         iy = lo[t, 1] + (k // ex[:, 0]) % ex[:, 1]
         iz = lo[t, 2] + k // (ex[:, 0] * ex[:, 1])
         centre = np.stack([ix, iy, iz], 1) + 0.5
-        v = local[t] - centre[:, None, :]
-        hit = _overlaps(v[:, 0], v[:, 1], v[:, 2], 0.5)
+        v = (local[t] - centre[:, None, :]).astype(np.float32)
+        hit = np.array(_overlaps(*(mi.Vector3f(*(np.ascontiguousarray(v[:, k, c])
+                                                   for c in range(3))) for k in range(3)),
+                                 0.5), dtype=bool)
         flats.append((ix + n * (iy + n * iz))[hit])
         norms.append(area_n[t[hit]])
     if not flats:
