@@ -107,7 +107,7 @@ OPTIONS: dict[str, Field] = {
     "diffuse_aperture_deg": Field("float", 60.0, "full aperture σ of the 9 diffuse cones "
                                   "(ours; the thesis gives none)", "deg", min=0.0, max=120.0,
                                   exclusive_min=True),
-    "specular_min_aperture_deg": Field("float", 1.0, "smallest full aperture β of a "
+    "specular_min_aperture_deg": Field("float", 4.0, "smallest full aperture β of a "
                                        "specular cone (mirrors); otherwise 2·atan(GGX α)",
                                        "deg", min=0.0, max=120.0, exclusive_min=True),
     "directional_aperture_deg": Field("float", 0.53, "full shadow-cone aperture γ of a "
