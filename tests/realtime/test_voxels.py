@@ -162,18 +162,17 @@ def test_added_occlusion_counts_only_virtual_geometry():
 
 
 def test_wide_cones_see_a_surface_with_its_radiance_at_every_level():
-    """A cone of 60° aperture towards an opaque lit plane 24 cells away arrives at level ~4.8
-    and still sees most of the plane (a_all > 0.7; trilinear samples one block apart
-    straddle the plane, so not 1) with the plane's radiance ``I/s²`` per unit coverage
-    (``c / a = I``): the ``2^l`` scaling of block coverage and radiance. Rejects raw mip
-    means, which fade a thin surface by ``2^−l`` (a ≈ 0.06 here)."""
+    """A cone of 60° aperture towards a lit plane 24 cells away arrives at a coarse level and
+    still gathers most of the plane's radiance ``I/s²`` (``c > 0.7 I``: the ``2^l`` scaling of
+    a block's radiance) and a coverage near ``SHELLS`` (a single sheet counts as half a
+    closed surface). Rejects raw mip means, which fade a thin surface by ``2^−l`` (c ≈ 0.2 I
+    here)."""
     vols, _ = _slab_volumes(n=32, layers={28: (1.0, 3.0)})
     o = mi.Point3f(4.0, 16.0, 16.0)
     r = trace_cones(vols, o, mi.Vector3f(1, 0, 0), math.tan(math.radians(30)), dr.inf,
                     mi.Bool(True))
-    a = float(r.a_all[0])
-    assert a > 0.7
-    assert float(r.radiance.x[0]) / a == pytest.approx(3.0, rel=0.05)
+    assert 0.3 < float(r.a_all[0]) < 0.8
+    assert 0.7 * 3.0 < float(r.radiance.x[0]) < 1.1 * 3.0
 
 
 def test_eta_level0_keeps_real_and_all_occupancy():

@@ -17,9 +17,12 @@
 Radiometry of a cone sample (ours; the thesis gives the accumulation only). Level ``l`` has
 cells of size ``s_l = s_0 2^l``; a cell of level ``l`` stores the mean of its ``8^l`` finest
 cells. A surface crossing a block touches about ``4^l`` of them, so the block's coverage of
-a ray is ``α_l = min(1, 2^l · mean α)`` and the radiance it shows is its total intensity over
-its face area, ``c_l = Σ I / s_l² = 2^l · mean I / s_0²`` (W sr⁻¹ m⁻²): for a lit plane of
-radiosity ``B`` both give ``α = 1`` and ``c = B/π`` at every level. Intensities are injected
+a ray is about ``2^l · mean α`` and the radiance it shows is its total intensity over its face
+area, ``c_l = Σ I / s_l² = 2^l · mean I / s_0²`` (W sr⁻¹ m⁻²): for a lit plane of radiosity
+``B`` both give ``α = 1`` and ``c = B/π`` at every level. A closed surface crosses a block
+twice (front and back) while it covers it once, so the coverage used is
+``α_l = min(1, max(1, 2^(l−1)) · mean α)`` (:data:`SHELLS`; only the lit side injects
+light, so ``c_l`` keeps ``2^l``). Intensities are injected
 as ``I = Φ/π`` (Eq. 5.17). Seen from behind its mean normal ``n̄`` (length ≤ 1 after
 filtering) a cell's radiance is attenuated (``d`` the cone's
 travel direction) by ``max(0, 1 − 4 <n̄, d>+)``: a lit plane is dark from below, a cell
@@ -68,6 +71,12 @@ BACK_FALLOFF = 4.0
 """A cell seen from behind its mean normal ``n̄`` shows ``max(0, 1 − 4 <n̄, d>+)`` of its
 radiance: a clean surface goes dark 14° behind its plane, a cell of mixed normals
 (``|n̄|`` small) stays nearly isotropic."""
+
+SHELLS = 0.5
+"""Coverage scale of a block of level ``l``: ``α_l = min(1, max(1, SHELLS · 2^l) · mean α)``
+(ours). 1 is exact for a single sheet (a real plane); closed objects cross a block twice, so
+0.5 (bunny-box 32.3 → 33.3 dB, red-paper 28.7 → 31.3 dB: Lucy's soft shadow had come out
+opaque)."""
 
 LEVEL_BIAS = 1.0
 """Mip levels finer than ``log2(d / s_0)`` at which a cone of diameter ``d`` samples (ours):
@@ -305,20 +314,24 @@ class MipVolume:
         return arr.reshape(n, n, n, self.channels)
 
 
+_PACKETS = {1: mi.Float, 2: mi.Vector2f, 3: mi.Vector3f, 4: mi.Vector4f}
+
+
 def _downsample(src: mi.Float, n: int, channels: int) -> mi.Float:
-    """2×2×2 mean of a packed level of ``n³`` cells (one Dr.Jit kernel)."""
+    """2×2×2 mean of a packed level of ``n³`` cells (one Dr.Jit kernel, one lane per output
+    cell, the ``C`` channels of a cell gathered as one packet)."""
     m = n // 2
-    lin = dr.arange(mi.UInt32, m ** 3 * channels)
-    c = lin % channels
-    cell = lin // channels
+    cell = dr.arange(mi.UInt32, m ** 3)
     x, y, z = (cell % m) * 2, ((cell // m) % m) * 2, (cell // (m * m)) * 2
-    acc = mi.Float(0.0)
+    kind = _PACKETS[channels]
+    acc = dr.zeros(kind, m ** 3)
     for dz in (0, 1):
         for dy in (0, 1):
             for dx in (0, 1):
-                idx = ((x + dx) + n * ((y + dy) + n * (z + dz))) * channels + c
-                acc += dr.gather(mi.Float, src, idx)
-    return acc * 0.125
+                acc += dr.gather(kind, src, (x + dx) + n * ((y + dy) + n * (z + dz)))
+    out = dr.zeros(mi.Float, m ** 3 * channels)
+    dr.scatter(out, acc * 0.125, cell)
+    return out
 
 
 def build_mips(level0: mi.Float | np.ndarray, grid: Grid, channels: int) -> MipVolume:
@@ -516,8 +529,9 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
             return xa * (1.0 - fr) + xb * fr
 
         al_a, al_b = s_a[0], s_b[0]
-        al_all = mix(dr.minimum(al_a[0] * k_a, 1.0), dr.minimum(al_b[0] * k_b, 1.0))
-        al_real = mix(dr.minimum(al_a[1] * k_a, 1.0), dr.minimum(al_b[1] * k_b, 1.0))
+        ka, kb = dr.maximum(k_a * SHELLS, 1.0), dr.maximum(k_b * SHELLS, 1.0)
+        al_all = mix(dr.minimum(al_a[0] * ka, 1.0), dr.minimum(al_b[0] * kb, 1.0))
+        al_real = mix(dr.minimum(al_a[1] * ka, 1.0), dr.minimum(al_b[1] * kb, 1.0))
         if light is not None:
             nrm = mix(s_a[1], s_b[1])
             back = dr.maximum(1.0 - BACK_FALLOFF * dr.maximum(dr.dot(nrm, direction), 0.0), 0.0)
