@@ -73,6 +73,8 @@ def run(rgbd_dir: Path, poses: Path | None, output: Path, intrinsics: str | None
                           (depth_trunc, "--depth-trunc", 0.0)):
         if not np.isfinite(val) or val <= lo:
             raise InputError(f"must be a finite number > {lo:g}, got {val}", field=name)
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"expected at least 1 frame, got {max_frames}", field="--max-frames")
     if not 8 <= resolution <= 1024:
         raise InputError(f"expected 8 to 1024 voxels, got {resolution}", field="--resolution")
     frames_out = output.with_name(f"{output.stem}.frames.json")

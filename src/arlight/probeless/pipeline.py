@@ -134,8 +134,9 @@ class Hits:
 
 
 def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True) -> Hits:
-    """One ray per pixel centre into the mixed (or real) view: position, normal turned to
-    the camera, diffuse albedo, role, shape index and camera-space depth."""
+    """One ray per pixel centre into the mixed (or real) view: position, shading normal on
+    the camera's side of the surface, diffuse albedo, role, shape index and camera-space
+    depth."""
     view = views.mixed if mixed else views.real
     h, w = camera.height, camera.width
     v, u = np.mgrid[0:h, 0:w]
@@ -145,7 +146,11 @@ def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True) -> Hits:
     ray = mi.Ray3f(mi.Point3f(oo[0], oo[1], oo[2]), mi.Vector3f(dd[0], dd[1], dd[2]))
     si = view.scene.ray_intersect(ray)
     valid = si.is_valid()
-    n = facing(mi.Vector3f(si.sh_frame.n), -ray.d)
+    # the side facing the camera from the geometric normal; the shading normal on that side
+    # (flipping the shading normal itself by the view turns silhouette pixels of smooth
+    # meshes inside the object: their visibility rays start blocked and they shade black)
+    ng = facing(mi.Vector3f(si.n), -ray.d)
+    n = facing(mi.Vector3f(si.sh_frame.n), ng)
     alb = surface_albedo(si, valid)
     role = view.hit_role(si)
     shape = view.hit_shape(si)
