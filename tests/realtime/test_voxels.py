@@ -189,3 +189,27 @@ def test_eta_level0_keeps_real_and_all_occupancy():
     nv = np.array(normal).reshape(-1, 3)
     assert np.allclose(np.linalg.norm(nv[[0, 1, 5]], axis=1), 1.0)
     assert np.allclose(nv[1], np.array([1, 3, 0]) / math.sqrt(10))
+
+
+def test_back_faces_dim_a_surface_seen_from_behind():
+    """With V_η normals (``back_faces``), a lit layer whose normal points away from the cone
+    shows no radiance, facing the cone it shows ``I/s²``; without normals it is isotropic.
+    Rejects the sign of the back-face test inverted."""
+    n = 8
+    g = Grid(np.zeros(3), 1.0, n)
+    alpha = np.zeros((n, n, n, 2), np.float32)
+    light = np.zeros((n, n, n, 3), np.float32)
+    alpha[:, :, 4, 0] = 1.0
+    light[:, :, 4, :] = 2.0
+    o, d = mi.Point3f(0.5, 4.5, 4.5), mi.Vector3f(1, 0, 0)
+    for nx, expect in ((1.0, 0.0), (-1.0, 2.0)):
+        nrm = np.zeros((n, n, n, 3), np.float32)
+        nrm[:, :, 4, 0] = nx
+        vols = ConeVolumes(build_mips(pack(alpha.reshape(-1, 2)), g, 2),
+                           build_mips(pack(nrm.reshape(-1, 3)), g, 3),
+                           build_mips(pack(light.reshape(-1, 3)), g, 3))
+        r = trace_cones(vols, o, d, 0.0, dr.inf, mi.Bool(True))
+        assert float(r.radiance.x[0]) == pytest.approx(expect, abs=1e-5)
+        iso = trace_cones(ConeVolumes(vols.alpha, None, vols.light), o, d, 0.0, dr.inf,
+                          mi.Bool(True))
+        assert float(iso.radiance.x[0]) == pytest.approx(2.0, abs=1e-5)

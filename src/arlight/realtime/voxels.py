@@ -25,8 +25,8 @@ twice (front and back) while it covers it once, so the coverage used is
 light, so ``c_l`` keeps ``2^l``). Intensities are injected
 as ``I = Φ/π`` (Eq. 5.17). Seen from behind its mean normal ``n̄`` (length ≤ 1 after
 filtering) a cell's radiance is attenuated (``d`` the cone's
-travel direction) by ``max(0, 1 − 4 <n̄, d>+)``: a lit plane is dark from below, a cell
-with mixed normals is nearly isotropic.
+travel direction) by ``max(0, 1 − 4 <n̄, d>+)`` when the cones are given the normals: a lit
+plane is dark from below, a cell with mixed normals is nearly isotropic.
 
 Front-to-back accumulation, standard form ([CNS+11]; the thesis prints
 ``c = α₀c₀ + (1 − α₀)α_v c_v`` (Eq. 5.18), whose ``α₀`` factor on ``c₀`` would fade light
@@ -71,6 +71,12 @@ BACK_FALLOFF = 4.0
 """A cell seen from behind its mean normal ``n̄`` shows ``max(0, 1 − 4 <n̄, d>+)`` of its
 radiance: a clean surface goes dark 14° behind its plane, a cell of mixed normals
 (``|n̄|`` small) stays nearly isotropic."""
+
+FAR_START = 8.0
+"""Cones attenuated by the virtual occlusion only (``alpha_for_light`` 2) also stop where
+the whole scene is opaque (``a_all`` > ``stop_alpha``) beyond this many cells: near the
+start ``a_all`` is the receiving surface's own false occlusion, farther on it is real
+geometry in the way (no light through walls, and fewer steps)."""
 
 SHELLS = 0.5
 """Coverage scale of a block of level ``l``: ``α_l = min(1, max(1, SHELLS · 2^l) · mean α)``
@@ -387,8 +393,8 @@ def eta_level0(real: Voxels, virtual: Voxels) -> tuple[mi.Float, mi.Float]:
 @dataclass
 class ConeVolumes:
     """What cones read: ``alpha`` (V_η occupancy: ``α_all``, ``α_real``) and, for radiance
-    cones, ``normal`` (V_η mean normal, 3 channels) and ``light`` (3 channels: V_Δ, V_ρ or
-    V_µ intensities, W/sr). All on the same grid."""
+    cones, ``light`` (3 channels: V_Δ, V_ρ or V_µ intensities, W/sr) and optionally
+    ``normal`` (V_η mean normal, 3 channels: back-face attenuation). All on the same grid."""
 
     alpha: MipVolume
     normal: MipVolume | None = None
@@ -499,6 +505,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     light_alpha = int(alpha_for_light)  # 0 α_all, 1 α_real, 2 keep (virtual occlusion only)
     max_lvl = float(levels - 1)
     quad = bool(quadrilinear)
+    far_start = FAR_START * s0
     bias = float(level_bias)
 
     def cond(t, c, a_all, a_real, keep, act):
@@ -508,7 +515,8 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         diam = dr.maximum(s0, 2.0 * t * tan_h)
         lvl_f = dr.clip(dr.log2(diam * (1.0 / s0)) - bias, 0.0, max_lvl)
         p = origin + direction * t
-        vs = [alpha] if light is None else [alpha, vols.normal, light]
+        vs = [alpha] if light is None else (
+            [alpha, light] if vols.normal is None else [alpha, light, vols.normal])
         if quad:
             l0 = mi.UInt32(dr.floor(lvl_f))
             l1 = dr.minimum(l0 + 1, levels - 1)
@@ -533,9 +541,11 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         al_all = mix(dr.minimum(al_a[0] * ka, 1.0), dr.minimum(al_b[0] * kb, 1.0))
         al_real = mix(dr.minimum(al_a[1] * ka, 1.0), dr.minimum(al_b[1] * kb, 1.0))
         if light is not None:
-            nrm = mix(s_a[1], s_b[1])
-            back = dr.maximum(1.0 - BACK_FALLOFF * dr.maximum(dr.dot(nrm, direction), 0.0), 0.0)
-            rad = mi.Color3f(mix(s_a[2] * k_a, s_b[2] * k_b)) * (back * (1.0 / (s0 * s0)))
+            rad = mi.Color3f(mix(s_a[1] * k_a, s_b[1] * k_b)) * (1.0 / (s0 * s0))
+            if vols.normal is not None:
+                nrm = mix(s_a[2], s_b[2])
+                rad *= dr.maximum(1.0 - BACK_FALLOFF * dr.maximum(dr.dot(nrm, direction), 0.0),
+                                  0.0)
             vis = (1.0 - a_all) if light_alpha == 0 else (
                 (1.0 - a_real) if light_alpha == 1 else keep)
             c = dr.select(act, c + rad * vis, c)
@@ -549,8 +559,10 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         if light is None:
             done = keep < 1.0 - stop
         else:
-            done = ((a_all if light_alpha == 0 else a_real) > stop) if light_alpha < 2 else (
-                keep < 1.0 - stop)
+            if light_alpha < 2:
+                done = (a_all if light_alpha == 0 else a_real) > stop
+            else:  # past the start, where self-occlusion fills a_all, the scene blocks too
+                done = (keep < 1.0 - stop) | ((a_all > stop) & (t > far_start))
         act = act & (t < t_end) & ~done
         return t, c, a_all, a_real, keep, act
 
