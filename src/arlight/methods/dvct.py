@@ -230,8 +230,16 @@ def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float
     return out
 
 
-def prepare(world: World, options: Options) -> DVCTData:
-    """Mitsuba views, reduced lights, volume placement and the real proxy's voxels."""
+def _same_grid(a: Grid | None, b: Grid | None) -> bool:
+    return (a is not None and b is not None and a.n == b.n and a.cell == b.cell
+            and np.array_equal(a.origin, b.origin))
+
+
+def prepare(world: World, options: Options, previous: DVCTData | None = None) -> DVCTData:
+    """Mitsuba views, reduced lights, volume placement and the real proxy's voxels. With
+    ``previous`` (the same world in another pose of its virtual objects) the real proxy's
+    voxels are reused when the volume has not moved (its centre is snapped to the cell
+    lattice, so small motions keep it)."""
     check_rsm_memory(options.rsm_size)
     check_memory(options.volume_size)
     views = build_views(world)
@@ -240,7 +248,10 @@ def prepare(world: World, options: Options) -> DVCTData:
     grid = real = tris = None
     if bounds is not None:
         grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
-        real = voxelize_shapes(world.real_shapes, grid)
+        if previous is not None and _same_grid(previous.grid, grid):
+            real = previous.real_voxels
+        else:
+            real = voxelize_shapes(world.real_shapes, grid)
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
                     _light_sizes(world, lights, options))
@@ -664,6 +675,12 @@ class DVCTMethod(BaseMethod):
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> DVCTData:
         return prepare(world, options)
+
+    def pose(self, state, transforms: dict[str, np.ndarray], settings: RenderSettings
+             ) -> DVCTData:
+        """The posed world's data; the real proxy's voxels are kept when the volume stays
+        where it was (only the virtual objects are voxelised again, every frame)."""
+        return prepare(state.world.posed(transforms), state.options, previous=state.data)
 
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
