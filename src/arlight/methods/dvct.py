@@ -353,6 +353,14 @@ DELTA_VISIBILITY = 2
 coarse levels would otherwise hide the bounce (:func:`~arlight.realtime.voxels.trace_cones`);
 real walls between a virtual bounce and a real receiver are not counted (ours)."""
 
+SHADOW_LIFT = 0.5
+"""Shadow cones start this many cells off the surface along its normal and
+:data:`SHADOW_START` cells along the cone. The per-sample transmittance cancels the real
+receiver's own occlusion, so they can start close: lifted by 1.5 cells (and 0.5 along) they
+darkened a band along the objects' bases (bunny-box 33.40 → 33.77 dB approx., point-light
+shadow IoU 0.84/0.93 → 0.86/0.95 at 64³/256³; red-paper −0.05 dB)."""
+SHADOW_START = 1.5
+
 DIFFUSE_START = 2.0
 """Diffuse cones start this many cells off the surface along its normal."""
 
@@ -466,8 +474,8 @@ def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes) -> mi.Color3f:
         e = direct_irradiance(data.views.real, LightSet([lt]), lanes.position, lanes.normal,
                               mi.Bool(True), shadows=True)
         lit = dr.dot(d, lanes.normal) > 0.0
-        res = trace_cones(vols, lanes.position + lanes.normal * (1.5 * s0), d, tan_h,
-                          dist, lit, t_start=0.5 * s0)
+        res = trace_cones(vols, lanes.position + lanes.normal * (SHADOW_LIFT * s0), d, tan_h,
+                          dist, lit, t_start=SHADOW_START * s0)
         out -= e * res.added
     return out
 
