@@ -52,11 +52,13 @@ from arlight.realtime.sh_volume import (
     inject,
     plane_response,
     propagate,
+    query_irradiance,
     query_irradiance_compact,
 )
 from arlight.realtime.shading import (
     ambient_irradiance_dr,
-    direct_irradiance_compact,
+    direct_irradiance,
+    on_active,
     virtual_bounds,
 )
 from arlight.scene.model import FrameView, World
@@ -105,11 +107,16 @@ class DLPVData:
 
 @dataclass
 class Volumes:
-    """The volumes of one frame and how many VPL texels went into ``V_Δ``."""
+    """The volumes of one frame and the masks of the VPL texels that went into ``V_Δ``."""
 
     delta: SHVolume | None
     rho: SHVolume | None
-    vpls_delta: int
+    injected: list
+
+    @property
+    def vpls_delta(self) -> int:
+        """VPL texels injected into ``V_Δ`` (waits for the injection kernels)."""
+        return injected_count(self.injected)
 
 
 def prepare(world: World, options: Options) -> DLPVData:
@@ -134,37 +141,40 @@ def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[RSMPair]:
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
-                 indirect: bool = True) -> int:
+                 indirect: bool = True) -> list[mi.Bool]:
     """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``. Texels that see
     the same surface in both maps cancel and are skipped (§4.3.1: "VPLs visible in both RSMs
     are eliminated"): only the texels whose mixed-scene hit is virtual are injected. Returns
-    the texels injected (VPL pairs, per kind)."""
+    the injected-lane masks of the indirect lobes (see :func:`injected_count`)."""
     half = 0.5 * vol.grid.cell
-    count = 0
+    masks = []
     for pair in pairs:
         for r, sign in ((pair.rho_changed(), 1.0), (pair.mu_changed, -1.0)):
             if indirect:
-                count += inject(vol, r.position, r.normal, r.flux_out * sign, r.valid,
-                                offset=r.normal * half)
+                masks.append(inject(vol, r.position, r.normal, r.flux_out * sign, r.valid,
+                                    offset=r.normal * half))
             if direct:
                 inject(vol, r.position, r.direction, r.flux_in * sign, r.valid,
                        offset=r.direction * (-half))
-    return count
+    return masks
+
+
+def injected_count(masks: list[mi.Bool]) -> int:
+    """How many lanes the masks of :func:`inject_delta` hold (waits for their kernels)."""
+    return sum(int(dr.count(m)[0]) for m in masks if dr.width(m))
 
 
 def inject_regular(vol: SHVolume, pairs: list[RSMPair], which: int = 0,
-                   direct: bool = False) -> int:
+                   direct: bool = False) -> None:
     """A regular LPV: every VPL of ``R_ρ`` (``which=0``) or ``R_µ`` (``which=1``), and with
     ``direct`` also the direct lobes (the two-volume baseline of the linearity test)."""
     half = 0.5 * vol.grid.cell
-    count = 0
     for pair in pairs:
         r = pair.rho if which == 0 else pair.mu()
-        count += inject(vol, r.position, r.normal, r.flux_out, r.valid, offset=r.normal * half)
+        inject(vol, r.position, r.normal, r.flux_out, r.valid, offset=r.normal * half)
         if direct:
             inject(vol, r.position, r.direction, r.flux_in, r.valid,
                    offset=r.direction * (-half))
-    return count
 
 
 def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = None
@@ -173,7 +183,7 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
     timer = timer or StageTimer()
     grid = data.grid
     if grid is None or not data.lights.lights:
-        return Volumes(None, None, 0)
+        return Volumes(None, None, [])
     with timer.stage("rsm"):
         pairs = rsm_pair(data, grid, options.rsm_size)
     with timer.stage("inject_rho"):
@@ -181,7 +191,7 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
         inject_regular(v_rho, pairs, 0)
     with timer.stage("inject_delta_indirect"):
         v_delta = SHVolume.zeros(grid)
-        n = inject_delta(v_delta, pairs, direct=False)
+        injected = inject_delta(v_delta, pairs, direct=False)
     if options.direct_inject:
         with timer.stage("inject_delta_direct"):
             inject_delta(v_delta, pairs, direct=True, indirect=False)
@@ -189,27 +199,31 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
         v_rho = propagate(v_rho, options.steps, options.dampening)
     with timer.stage("propagate_delta"):
         v_delta = propagate(v_delta, options.steps, options.dampening)
-    return Volumes(v_delta, v_rho, n)
+    return Volumes(v_delta, v_rho, injected)
 
 
 def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Color3f]:
     """Per-lane ``(virtual radiance, delta radiance)`` (Alg. 1 / Eqs. 5.14–5.16)."""
     virt = gb.virtual
     real = gb.valid & ~virt
-    e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
-                                      virt)
     e_amb = ambient_irradiance_dr(data.lights, gb.normal)
-    e_ind = mi.Color3f(0.0)
+    k = float(data.read_scale)
+    half = 0.5 * vols.rho.grid.cell if vols.rho is not None else 0.0
+
+    def virtual_irradiance(p: mi.Point3f, n: mi.Vector3f) -> mi.Color3f:
+        """Direct (shadow rays) plus ``V_ρ``'s indirect irradiance on virtual lanes."""
+        e = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
+        if vols.rho is None:
+            return e
+        return e + query_irradiance(vols.rho, p + n * half, n) * k  # [KD10]: half a cell off
+
+    e_virtual = on_active(virtual_irradiance, gb.position, gb.normal, virt)
     delta = mi.Color3f(0.0)
-    if vols.rho is not None:
-        half = 0.5 * vols.rho.grid.cell
-        q = gb.position + gb.normal * half  # [KD10]: look up half a cell off the surface
-        k = float(data.read_scale)
-        e_ind = query_irradiance_compact(vols.rho, q, gb.normal, virt) * k
+    if vols.delta is not None:
+        q = gb.position + gb.normal * half
         delta = gb.albedo * (k / np.pi) * query_irradiance_compact(vols.delta, q, gb.normal,
                                                                    real)
-    mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_dir + e_ind + e_amb),
-                      mi.Color3f(0.0))
+    mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_virtual + e_amb), mi.Color3f(0.0))
     delta = dr.select(real, delta, mi.Color3f(0.0))
     dr.eval(mixed, delta)
     return mixed, delta
@@ -243,4 +257,4 @@ class DLPVMethod(BaseMethod):
 
 
 __all__ = ["DLPVData", "DLPVMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
-           "inject_delta", "inject_regular", "prepare", "rsm_pair"]
+           "inject_delta", "inject_regular", "injected_count", "prepare", "rsm_pair"]

@@ -184,13 +184,15 @@ def cell_index(grid: Grid, p: mi.Point3f) -> tuple[mi.UInt32, mi.Bool]:
 
 
 def inject(vol: SHVolume, position: mi.Point3f, direction: mi.Vector3f, flux: mi.Color3f,
-           active: mi.Bool, offset: mi.Vector3f | None = None) -> int:
+           active: mi.Bool, offset: mi.Vector3f | None = None) -> mi.Bool:
     """Add cosine lobes ``flux/π · <direction, ω>+`` (Franke Eq. 12) into ``vol`` (in place).
 
     Each lobe goes into the cell containing ``position + offset`` (Franke §4.3.1: "half the
     size of a voxel along its normal"); lobes outside the volume are dropped. Negative
     ``flux`` injects antiradiance (Eq. 13: ``R_µ`` texels enter with a minus sign).
-    Returns the number of lobes injected.
+    Returns the lanes injected (active and inside the volume); ``dr.count`` them only when
+    the number is needed, since a count waits for the kernels (the injection itself is only
+    launched).
     """
     p = position if offset is None else position + offset
     idx, inside = cell_index(vol.grid, p)
@@ -202,8 +204,8 @@ def inject(vol: SHVolume, position: mi.Point3f, direction: mi.Vector3f, flux: mi
             scale * (f1 * direction.z)]
     for k in range(4):
         dr.scatter_reduce(dr.ReduceOp.Add, vol.coeffs[k], vals[k], idx, act)
-    dr.eval(vol.coeffs)
-    return int(dr.count(act)[0]) if dr.width(act) else 0
+    dr.eval(vol.coeffs, act)
+    return act
 
 
 @functools.lru_cache(maxsize=8)
