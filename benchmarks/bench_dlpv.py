@@ -4,13 +4,14 @@ The bunny-box proxy at 640×480 with its one area light (one cosine point light 
 reduction; the constant sky becomes SH ambient, no RSM): ``dlpv`` at Franke's defaults
 (32³ volume, 32 propagation steps, 512² RSMs, dampening on) and ``dir`` with 256 VPLs
 (interleave 4 and 8). Every frame is rendered from the prepared state after a warm-up frame
-(kernel compilation); medians over the repeats, methods interleaved so that the load of
+(kernel compilation); medians over the repeats, methods in rounds (a few consecutive frames
+of one method per round, as an interactive loop runs them) so that the load of
 other processes on the shared machine hits all of them alike. In the same run, the
 propagation of the frame's ``V_Δ`` (32 steps) by the Dr.Jit kernel and by the plain NumPy
 peer (:func:`arlight.realtime.sh_volume.propagate_numpy`, same maths, float64) gives the
 ratio. Usage:
 
-    python benchmarks/bench_dlpv.py [--repeats 7] [--write]
+    python benchmarks/bench_dlpv.py [--repeats 7] [--block 3] [--write]
 """
 
 from __future__ import annotations
@@ -70,7 +71,9 @@ def _cpu_pressure() -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--repeats", type=int, default=7, help="rounds over the methods")
+    ap.add_argument("--block", type=int, default=3,
+                    help="consecutive frames of one method per round")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
 
@@ -102,8 +105,9 @@ def main() -> None:
     peer = {"drjit": [], "drjit_damped": [], "numpy": []}
     for _ in range(args.repeats):
         for name, (method, settings, state) in states.items():
-            layers = method.render(state, scene.view, settings)
-            stats[name].append(layers.stats)
+            for _ in range(args.block):  # consecutive frames, as an interactive loop runs
+                layers = method.render(state, scene.view, settings)
+                stats[name].append(layers.stats)
         t = time.perf_counter()
         propagate(vol, opts.steps)
         dr.sync_thread()  # dr.eval only launches the LLVM kernels; wait for them
@@ -152,10 +156,12 @@ def main() -> None:
                         + f" | {rays / 1e6:.2f} M | **{med(name, 'seconds'):.1f}** |")
     text = "\n".join([
         HEADING, "",
-        f"`python benchmarks/bench_dlpv.py --repeats {args.repeats}`; bunny-box proxy, "
+        f"`python benchmarks/bench_dlpv.py --repeats {args.repeats} --block {args.block}`; "
+        f"bunny-box proxy, "
         f"{w}×{h}, one light (the area light as one cosine point; constant sky → SH ambient), "
         f"{os.cpu_count()} CPU threads (shared), Mitsuba llvm_ad_rgb; medians of "
-        f"{args.repeats} warm frames from the prepared state, methods interleaved.", "",
+        f"{args.repeats} × {args.block} warm frames from the prepared state: {args.repeats} "
+        f"rounds over the methods, {args.block} consecutive frames of a method per round.", "",
         "DLPV at Franke's defaults (32³, 32 steps, 512² RSMs, dampening on), next to the "
         "thesis's Table 5.2 (Cornell Box column, GTX 470 GPU, ms):", "",
         "| stage | ours, ms | Franke Table 5.2, ms |", "|---|---|---|", *rows, "",
