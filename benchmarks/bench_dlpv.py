@@ -23,7 +23,7 @@ import time
 
 import drjit as dr
 import numpy as np
-from results import publish
+from results import cpu_pressure, publish
 
 from arlight.evaluate.suite import scenes_dir
 from arlight.methods import RenderSettings, get_method
@@ -57,16 +57,6 @@ def _verdict(frame: float, best: float, d: dict[str, float], dir_frames: dict[st
             f"({'met' if min(dir_frames.values()) <= 100 else 'not met'} with the faster "
             "setting); its cost is the ray-traced VPL visibility (Knecht used imperfect shadow "
             "maps).")
-
-
-def _cpu_pressure() -> str:
-    """Share of the last 60 s in which runnable tasks waited for a CPU (Linux PSI), or ''."""
-    try:
-        with open("/proc/pressure/cpu") as f:
-            some = f.readline().split()
-        return next(x.split("=")[1] for x in some if x.startswith("avg60="))
-    except (OSError, StopIteration, IndexError):
-        return ""
 
 
 def main() -> None:
@@ -173,7 +163,7 @@ def main() -> None:
         "| run | G-buffer | direct | RSM VPLs | gather | filter | assemble | shadow rays | "
         "frame |", "|---|---|---|---|---|---|---|---|---|", *dir_rows, "",
         f"Load average of the machine during the run: {os.getloadavg()[0]:.1f}; CPU pressure "
-        f"(PSI, share of time tasks waited for a core, 60 s): {_cpu_pressure() or 'n/a'} % "
+        f"(PSI, share of time tasks waited for a core, 60 s): {cpu_pressure() or 'n/a'} % "
         "(other jobs share the 2 cores; the ratios above are taken in the same run).", "",
         _verdict(frame, best, d, {n: med(n, "seconds") for n in ("dir (k=4)", "dir (k=8)")}),
     ])

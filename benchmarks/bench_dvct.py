@@ -22,7 +22,7 @@ import statistics
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-from results import publish
+from results import cpu_pressure, publish
 
 from arlight.evaluate.suite import scenes_dir
 from arlight.methods import RenderSettings, get_method
@@ -41,16 +41,6 @@ FRANKE_5_7 = {"voxelize": {64: 0.95, 128: 1.27, 256: 3.03},
               "cones": {64: 3.47, 128: 5.33, 256: 8.70}}
 STAGES = ["gbuffer", "rsm", "voxelize", "inject", "filter", "cones", "upsample", "shade",
           "assemble"]
-
-
-def _cpu_pressure() -> str:
-    """Share of the last 60 s in which runnable tasks waited for a CPU (Linux PSI), or ''."""
-    try:
-        with open("/proc/pressure/cpu") as f:
-            some = f.readline().split()
-        return next(x.split("=")[1] for x in some if x.startswith("avg60="))
-    except (OSError, StopIteration, IndexError):
-        return ""
 
 
 def cone_error_report(scene) -> str:
@@ -154,7 +144,7 @@ def main() -> None:
         "|---|---|---|---|---|---|---|", *sweep, "",
         cone_error_report(load_scene(scenes_dir() / "bunny-box" / "proxy.toml")), "",
         f"Load average of the machine during the run: {os.getloadavg()[0]:.1f}; CPU pressure "
-        f"(PSI, share of time tasks waited for a core, 60 s): {_cpu_pressure() or 'n/a'} % "
+        f"(PSI, share of time tasks waited for a core, 60 s): {cpu_pressure() or 'n/a'} % "
         "(other jobs share the 2 cores).", "",
         verdict,
     ])

@@ -12,6 +12,18 @@ from pathlib import Path
 RESULTS = Path(__file__).with_name("RESULTS.md")
 
 
+def cpu_pressure() -> str:
+    """Percentage of the last 60 s in which runnable tasks waited for a CPU (Linux PSI
+    ``some avg60``), or '' where the kernel does not report it: how busy the shared machine
+    was during a benchmark."""
+    try:
+        with open("/proc/pressure/cpu") as f:
+            some = f.readline().split()
+        return next(x.split("=")[1] for x in some if x.startswith("avg60="))
+    except (OSError, StopIteration, IndexError):
+        return ""
+
+
 def write_section(text: str, path: Path = RESULTS) -> Path:
     """Replace the section whose heading is ``text``'s first line (``## ...``) by ``text``."""
     heading = text.lstrip().splitlines()[0]
