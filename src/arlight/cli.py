@@ -7,6 +7,7 @@
     arlight methods [NAME]             list methods, or one's options and capabilities
     arlight light ...                  light estimation (SH, env maps, probes, fisheye)
     arlight eval ...                   evaluation harness (scenes × methods → report)
+    arlight insert PHOTO ...           insert a virtual object into a photo with a marker
 
 Errors in the input print one line naming the file and field and exit with status 2.
 """
@@ -25,6 +26,7 @@ from arlight.bounds import MAX_FRAMES, MAX_SECONDS_BUDGET, MAX_SEED, MAX_SPP
 from arlight.errors import ArlightError
 from arlight.evaluate import cli as eval_cli
 from arlight.importers.cli import import_mitsuba_command
+from arlight.insert.cli import insert_command
 from arlight.light import cli as light_cli
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -257,6 +259,7 @@ app.add_typer(light_cli.app, name="light", help="light estimation: SH, environme
               "probes, fisheye cameras, light extraction")
 app.command("eval")(eval_cli.eval_command)
 app.command("import-mitsuba")(import_mitsuba_command)
+app.command("insert")(insert_command)
 
 
 def _usage_error_types() -> tuple[type[BaseException], ...]:
