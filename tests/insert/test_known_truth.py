@@ -22,7 +22,26 @@ from arlight.transfer import Transfer
 from tests.insert import world as W
 
 ORIGIN, TARGET = (0.3, 0.42, 0.62), (0.08, 0.0, 0.17)
-AT = (-0.08, 0.0, 0.12)  # the ball stands on the table beside the board, its shadow off it
+RADIUS = 0.04
+AT = (-0.045, 0.0, 0.12)  # the ball stands beside the board; its shadow falls onto it
+
+
+def _texture_vs_truth(texture: np.ndarray, table_png) -> float:
+    """Correlation, over the printed board, of the estimated albedo texture (the default
+    1 m × 1 m plane centred on the board) with the table texture the world was made of."""
+    from arlight.io.images import read_linear
+
+    truth = read_linear(table_png)[..., 1]
+    nz, nx = texture.shape[:2]
+    cx, cz = W.SQUARES[0] * W.SQUARE / 2, W.SQUARES[1] * W.SQUARE / 2
+    x = cx - 0.5 + (np.arange(nx) + 0.5) / nx
+    z = cz - 0.5 + (np.arange(nz) + 0.5) / nz
+    inside_x = (x > 0.005) & (x < 2 * cx - 0.005)
+    inside_z = (z > 0.005) & (z < 2 * cz - 0.005)
+    cols = ((x[inside_x] - W.TABLE_LO[0]) * W.PX_PER_M).astype(int)
+    rows = ((z[inside_z] - W.TABLE_LO[1]) * W.PX_PER_M).astype(int)
+    est = texture[np.ix_(inside_z, inside_x)][..., 1]
+    return float(np.corrcoef(est.ravel(), truth[np.ix_(rows, cols)].ravel())[0, 1])
 
 
 def _pose_errors(estimated: np.ndarray, true: np.ndarray) -> tuple[float, float]:
@@ -35,17 +54,15 @@ def _pose_errors(estimated: np.ndarray, true: np.ndarray) -> tuple[float, float]
 @pytest.fixture(scope="module")
 def ball(tmp_path_factory):
     folder = tmp_path_factory.mktemp("insert_world")
-    return folder, W.sphere_mesh(folder / "ball.obj", 0.04)
+    return folder, W.sphere_mesh(folder / "ball.obj", RADIUS)
 
 
 def test_pose_and_albedo_from_a_distorted_ldr_photo(ball):
     """Pose within 1 px mean reprojection error, 1° and 5 mm, and the table's albedo within
     5 %, from an 8-bit sRGB photo taken through a lens with known barrel distortion and a
     calibration in OpenCV's YAML. Rejects: a board frame that is not the world frame (a
-    missing or transposed WORLD_FROM_BOARD rotates the pose by 90°), distortion ignored or
-    applied with the wrong sign (corners off by several px near the edges), OpenCV's
-    integer pixel centres taken for ours (0.5 px ≈ 1 mm shift of the camera), an albedo
-    without π or with the wrong irradiance (off by 3× or by the sun's cosine)."""
+    missing or transposed WORLD_FROM_BOARD rotates the pose by 90°), an albedo without π
+    or with the wrong irradiance (off by 3× or by the sun's cosine)."""
     folder, obj = ball
     w, h, fx = 480, 360, 495.0
     scene = parse_scene(W.world(folder, (w, h), fx, ORIGIN, TARGET), folder)
@@ -75,16 +92,17 @@ def test_pose_and_albedo_from_a_distorted_ldr_photo(ball):
 def test_composite_agrees_with_the_ground_truth(ball, tmp_path):
     """The composite of ``run_insert`` (reference method, per-texel albedo) is within 3
     standard errors of the ground truth of the same world with the ball in it on >= 99 % of
-    the pixels (the frame's own noise counted where it shows), the pose is within 1°/5 mm
-    and the written scene file loads back to the rendered scene. Rejects: a shadow of the
-    wrong direction or strength (sun direction negated, irradiance without the cosine), an
-    object placed by its origin instead of its bottom (floats 4 cm up), the object's albedo
-    texture mirrored (rows along −Z: the board's squares land on the table), the composite
-    built from the render instead of the photo."""
+    the pixels (the frame's own noise counted where it shows), the pose is within 1°/5 mm,
+    the scene camera projects the board's corners onto the detected ones, and the written
+    scene file loads back to the rendered scene. Rejects: a shadow of the wrong direction or
+    strength (sun direction negated, albedo without π), an object placed by its origin
+    instead of its bottom (sunk 4 cm into the table), the plane's albedo texture mirrored or
+    transposed (its squares do not correlate with the printed board's), OpenCV's integer
+    pixel centres taken for ours (every corner 0.5 px off)."""
     folder, obj = ball
     w, h, fx = 240, 180, 260.0
     spp = 64
-    world = parse_scene(W.world(folder, (w, h), fx, ORIGIN, TARGET, obj, AT), folder)
+    world = parse_scene(W.world(folder, (w, h), fx, ORIGIN, TARGET, obj, AT, RADIUS), folder)
     photo = synthesize(world, spp=spp, batches=spp, cache_dir=folder / "cache")
     write_exr(tmp_path / "photo.exr", photo.frame)
     (tmp_path / "cam.json").write_text(json.dumps({"K": W.opencv_K(fx, w, h).tolist(),
@@ -97,6 +115,10 @@ def test_composite_agrees_with_the_ground_truth(ball, tmp_path):
     angle, shift = _pose_errors(result.registration.world_from_camera,
                                 world.camera.world_from_camera)
     assert angle < 1.0 and shift < 0.005, (angle, shift)
+    reg = result.registration  # the scene camera sees the corners where they were detected
+    uv, _ = result.scene.camera.project(reg.world_points)
+    off = np.linalg.norm(uv - (reg.image_points + 0.5), axis=1).mean()
+    assert off <= reg.reprojection_px + 0.05, (off, reg.reprojection_px)
     se = np.sqrt(np.square(layers.stderr["composite"])
                  + np.square((1 - layers.mask)[..., None] * photo.frame_stderr))
     frac = agreement_fraction(layers.composite, se, photo.ground_truth,
@@ -104,6 +126,8 @@ def test_composite_agrees_with_the_ground_truth(ball, tmp_path):
     assert frac >= 0.99, frac
     assert agreement_fraction(photo.frame, photo.frame_stderr, photo.ground_truth,
                               photo.ground_truth_stderr) < 0.99  # the ball shows
+    board = _texture_vs_truth(result.albedo.texture, folder / "table.png")
+    assert board > 0.8, f"albedo texture vs the printed board: correlation {board:.2f}"
     saved = load_scene(out / "scene.toml")
     np.testing.assert_allclose(saved.camera.world_from_camera,
                                result.scene.camera.world_from_camera)

@@ -29,7 +29,7 @@ WOOD = np.array([150, 110, 80], np.uint8)
 WOOD_ALBEDO = srgb_decode(WOOD / 255.0)
 TABLE_LO, TABLE_HI = (-0.6, -0.5), (0.8, 0.9)  # (X, Z) corners of the table, m
 PX_PER_M = 800
-SUN_TO = (0.6, 1.0, 0.3)  # towards the sun, board frame
+SUN_TO = (-0.8, 1.0, 0.2)  # towards the sun, board frame
 SUN_E = 3.0
 AMBIENT = 0.3
 LIGHT = f"sun:{SUN_TO[0]},{SUN_TO[1]},{SUN_TO[2]}:{SUN_E}:{AMBIENT}"
@@ -52,25 +52,25 @@ def table_texture(path: Path) -> Path:
 
 
 def sphere_mesh(path: Path, radius: float) -> Path:
-    """An icosphere whose lowest point is the origin (so ``--at`` is its contact point)."""
+    """An icosphere centred on the origin (``--at`` names its lowest point, so the pipeline
+    must lift it by ``radius``)."""
     import trimesh
 
-    m = trimesh.creation.icosphere(subdivisions=3, radius=radius)
-    m.apply_translation([0, radius, 0])
-    m.export(path)
+    trimesh.creation.icosphere(subdivisions=3, radius=radius).export(path)
     return path
 
 
 def world(folder: Path, resolution: tuple[int, int], fx: float, origin, target,
-          obj: Path | None = None, at=(0.0, 0.0, 0.0)) -> dict:
-    """The world (scene dict): textured table, sun + ambient, optional object at ``at``."""
+          obj: Path | None = None, at=(0.0, 0.0, 0.0), radius: float = 0.0) -> dict:
+    """The world (scene dict): textured table, sun + ambient, optional centred sphere mesh
+    ``obj`` of ``radius`` standing on the table at ``at``."""
     tex = table_texture(folder / "table.png")
     w, h = resolution
     shapes = [{**plane_shape(TABLE_LO, TABLE_HI, {"type": "diffuse", "texture": str(tex)}),
                "name": "table"}]
     if obj is not None:
         shapes.append({"name": "object", "role": "virtual", "type": "mesh", "file": str(obj),
-                       "transform": {"translate": list(at)},
+                       "transform": {"translate": [at[0], at[1] + radius, at[2]]},
                        "material": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]}})
     d = np.asarray(SUN_TO, float)
     return {"camera": {"resolution": [w, h],
