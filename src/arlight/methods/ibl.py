@@ -1,0 +1,255 @@
+"""``ibl``: the *dynamic pipeline* of Franke thesis §4.2 with AR-OOF relighting (§5.2).
+
+Per frame:
+
+1. a ray-cast G-buffer (:mod:`arlight.realtime.gbuffer`);
+2. **virtual pixels** (compacted): ``ρ/π (E_dir + A · E_amb(n)) + S``, where
+
+   * ``E_dir`` — the reduced lights (:mod:`arlight.realtime.light_reduction`: point, spot,
+     area patches and the environment's brightest regions as directional lights) with one
+     shadow ray each in the mixed scene;
+   * ``E_amb(n)`` — SH irradiance of the ambient remainder, order ``sh_order`` (2: Ramamoorthi
+     & Hanrahan's 9 coefficients, thesis Eqs. 4.4–4.9; higher orders are the map's SH minus
+     the SH of the extracted lights);
+   * ``A`` — ray-traced ambient occlusion of the virtual objects (Eq. 2.29, ``ao_rays``);
+   * ``S`` — GGX specular by filtered importance sampling of the mip-mapped environment
+     (Eqs. 4.11–4.23, ``samples`` = 40), for ``phong`` (``α = √(2/(n+2))``),
+     ``roughconductor`` and ``mirror`` materials; point, spot and area lights give diffuse
+     light only;
+3. **real pixels**: ``B · f`` with the multiplicative shadow factor of
+   :func:`arlight.realtime.oof.shadow_factor` — shadow rays for the reduced lights, the AR
+   object occlusion field for the ambient part; ``delta = B (f − 1) ≤ 0``.
+
+Layers: ``mixed`` is the shaded virtual object on virtual pixels and ``B + delta``
+elsewhere; ``delta`` the darkening; ``mask`` the G-buffer coverage. Without virtual objects
+``delta`` is exactly zero. Stats: ``time_gbuffer``, ``time_shade_virtual``,
+``time_shade_real``, ``time_assemble`` (s), ``virtual_lanes``, ``lights``. See
+``docs/methods/ibl.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import SceneViews, build_views
+from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
+from arlight.realtime.ibl_shading import (
+    MipEnvironment,
+    ambient_occlusion,
+    environment_map,
+    specular_fis,
+)
+from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
+from arlight.realtime.light_reduction import LightSet, reduce_lights
+from arlight.realtime.oof import (
+    OOF_OPTIONS,
+    OcclusionField,
+    field_from_options,
+    shadow_factor,
+    virtual_scene,
+)
+from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, virtual_bounds
+from arlight.scene.model import FrameView, World
+from arlight.sphere.sh import directional_light_coeffs, irradiance, n_coeffs, project_equirect
+from arlight.timing import StageTimer
+
+OPTIONS: dict[str, Field] = {
+    "sh_order": Field("int", 2, "SH order of the ambient irradiance (2: the 9 coefficients of "
+                      "Ramamoorthi & Hanrahan)", "", min=0, max=8),
+    "samples": Field("int", 40, "GGX filtered importance samples per pixel (Franke: 40)", "",
+                     min=1, max=1024),
+    "ao_rays": Field("int", 16, "ambient-occlusion rays per virtual pixel (0: no AO)", "",
+                     min=0, max=1024),
+    "ao_distance": Field("float", 0.0, "longest AO ray; 0: the virtual objects' bounding "
+                         "diameter", "m", min=0.0),
+    **OOF_OPTIONS,
+    **REDUCTION_OPTIONS,
+    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
+                         max=64),
+}
+
+MATERIALS = frozenset({"diffuse", "phong", "roughconductor", "mirror"})
+MIRROR_ALPHA = 1e-3
+"""GGX roughness standing in for a perfect mirror."""
+
+SPEC = MethodSpec(
+    name="ibl",
+    description="Dynamic pipeline (Franke §4.2): SH irradiance, GGX filtered importance "
+                "sampling, AO; AR-OOF shadows on real surfaces; real time.",
+    options=OPTIONS,
+    capabilities=Capabilities(interactive=True, materials=MATERIALS),
+)
+
+
+def specular_tables(world: World) -> tuple[mi.Float, mi.Color3f, bool]:
+    """Per world shape: GGX ``α`` and specular reflectance ``k_s`` (Dr.Jit tables indexed
+    by the G-buffer's shape index), and whether any virtual shape is glossy."""
+    alpha = np.ones(max(len(world.shapes), 1), np.float32)
+    ks = np.zeros((max(len(world.shapes), 1), 3), np.float32)
+    for i, s in enumerate(world.shapes):
+        p = s.material.params
+        if s.material.type == "phong":
+            alpha[i] = math.sqrt(2.0 / (float(p["exponent"]) + 2.0))
+            ks[i] = p["ks"]
+        elif s.material.type == "roughconductor":
+            alpha[i], ks[i] = float(p["alpha"]), p["reflectance"]
+        elif s.material.type == "mirror":
+            alpha[i], ks[i] = MIRROR_ALPHA, p["reflectance"]
+    glossy = any(np.any(ks[i]) for i, s in enumerate(world.shapes) if s.is_virtual)
+    return mi.Float(alpha), mi.Color3f(ks[:, 0], ks[:, 1], ks[:, 2]), glossy
+
+
+def ambient_sh(world: World, lights: LightSet, order: int, env: np.ndarray | None
+               ) -> np.ndarray:
+    """Radiance SH ``(n, 3)`` of the light that is not in the reduced lights, to ``order``:
+    the reduction's remainder for ``order <= 2``, above that the environment's SH minus the
+    SH of the directional lights extracted from it (the lights plus the remainder partition
+    the map, :mod:`arlight.light.extract`)."""
+    if order <= 2 or env is None:
+        out = np.zeros((n_coeffs(order), 3))
+        k = min(n_coeffs(order), 9)
+        out[:k] = lights.ambient_sh[:k]
+        return out
+    names = {lt.name or f"light{i}" for i, lt in enumerate(world.lights)
+             if lt.type in ("envmap", "sh", "constant")}
+    out = project_equirect(np.asarray(env, np.float64), order)
+    for lt in lights.lights:
+        if lt.kind == "directional" and lt.source in names:
+            out -= directional_light_coeffs(-np.asarray(lt.axis), lt.intensity, order)
+    return out
+
+
+@dataclass
+class IBLData:
+    """What ``prepare_world`` keeps (see the module docstring)."""
+
+    world: World
+    views: SceneViews
+    lights: LightSet
+    ambient: np.ndarray
+    env: MipEnvironment | None
+    occluder: mi.Scene | None
+    field: OcclusionField | None
+    alpha: mi.Float
+    ks: mi.Color3f
+    glossy: bool
+    ao_distance: float
+
+
+def prepare(world: World, options: Options) -> IBLData:
+    """Mitsuba views, reduced lights, ambient SH, the mip-mapped environment, the virtual
+    occluder and its occlusion field."""
+    views = build_views(world)
+    lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
+    env_img = environment_map(world)
+    env = MipEnvironment.build(env_img) if env_img is not None else None
+    occluder = virtual_scene(world)
+    field = field_from_options(world, options) if occluder is not None else None
+    alpha, ks, glossy = specular_tables(world)
+    ao = options.ao_distance
+    if ao <= 0.0:
+        b = virtual_bounds(world, views.mixed) if world.has_virtual else None
+        ao = float(np.linalg.norm(b[1] - b[0])) if b is not None else math.inf
+    return IBLData(world, views, lights, ambient_sh(world, lights, options.sh_order, env_img),
+                   env, occluder, field, alpha, ks, glossy, ao)
+
+
+def _np3(v) -> np.ndarray:
+    return np.stack([np.asarray(c, np.float64) for c in (v.x, v.y, v.z)], 1)
+
+
+def ambient_irradiance(data: IBLData, n: mi.Vector3f, order: int) -> mi.Color3f:
+    """SH irradiance of the ambient light at unit normals ``n`` (W/m², ≥ 0): order ≤ 2 as
+    Dr.Jit polynomial (:func:`arlight.realtime.shading.ambient_irradiance_dr`), higher
+    orders through :func:`arlight.sphere.sh.irradiance`."""
+    if order <= 2:
+        sh9 = np.zeros((9, 3))
+        sh9[:len(data.ambient)] = data.ambient[:9]
+        return dr.maximum(ambient_irradiance_dr(LightSet([], sh9), n), 0.0)
+    e = np.maximum(irradiance(data.ambient, _np3(n), max_order=order), 0.0).astype(np.float32)
+    return mi.Color3f(e[:, 0], e[:, 1], e[:, 2])
+
+
+def shade_virtual(data: IBLData, gb: GBuffer, options: Options, seed: int = 0
+                  ) -> tuple[mi.Color3f, mi.UInt32]:
+    """Radiance (W/(sr·m²)) of the virtual lanes and their lane indices."""
+    idx = dr.compress(gb.virtual)
+    if dr.width(idx) == 0:
+        return dr.zeros(mi.Color3f, 0), idx
+    p = dr.gather(mi.Point3f, gb.position, idx)
+    n = dr.gather(mi.Vector3f, gb.normal, idx)
+    e_dir = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
+    ao = ambient_occlusion(data.occluder, p, n, options.ao_rays, data.ao_distance, seed)
+    albedo = dr.gather(mi.Color3f, gb.albedo, idx)
+    out = albedo * (1.0 / math.pi) * (e_dir + ao * ambient_irradiance(data, n,
+                                                                        options.sh_order))
+    if data.env is not None and data.glossy:
+        shape = dr.gather(mi.Int32, gb.shape, idx)
+        out += specular_fis(data.env, n, dr.gather(mi.Vector3f, gb.to_camera, idx),
+                            dr.gather(mi.Float, data.alpha, shape),
+                            dr.gather(mi.Color3f, data.ks, shape), options.samples)
+    dr.eval(out)
+    return out, idx
+
+
+def shade_real(data, gb: GBuffer, frame: np.ndarray) -> mi.Color3f:
+    """Delta ``B (f − 1)`` on the real lanes (zero elsewhere), ``f`` from
+    :func:`arlight.realtime.oof.shadow_factor`."""
+    real = gb.valid & ~gb.virtual
+    f = shadow_factor(data.views.mixed, data.views.real, data.occluder, data.lights,
+                      data.field, gb.position, gb.normal, real)
+    b = dr.gather(mi.Color3f, mi.Float(np.asarray(frame, np.float32).reshape(-1)), gb.pixel)
+    delta = dr.select(real, b * (f - 1.0), mi.Color3f(0.0))
+    dr.eval(delta)
+    return delta
+
+
+def render_layers(data, view: FrameView, options: Options, settings: RenderSettings,
+                  timer: StageTimer, shade) -> Layers:
+    """G-buffer, ``shade(data, gb, options, seed) -> (radiance, lanes)`` on the virtual
+    lanes, the AR-OOF darkening on the real ones, assembly (shared by ``ibl`` and ``prt``;
+    ``data`` needs ``views``, ``lights``, ``occluder``, ``field`` and ``world``)."""
+    with timer.stage("gbuffer"):
+        gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp, settings.seed)
+    with timer.stage("shade_virtual"):
+        rad, lanes = shade(data, gb, options, settings.seed)
+    with timer.stage("shade_real"):
+        width = dr.width(gb.position)
+        delta = (shade_real(data, gb, view.frame) if data.occluder is not None
+                 else dr.zeros(mi.Color3f, width))
+    with timer.stage("assemble"):
+        mixed = dr.zeros(mi.Color3f, width)
+        if dr.width(lanes):
+            dr.scatter(mixed, rad, lanes)
+        stats = {"lights": float(len(data.lights.lights)),
+                 "virtual_lanes": float(dr.width(lanes))}
+        layers = assemble(gb, view.frame, mixed, delta, stats)
+    if not data.world.has_virtual:
+        assert not np.any(layers.delta), "delta must vanish without virtual objects"
+    return layers
+
+
+class IBLMethod(BaseMethod):
+    """Dynamic IBL pipeline with AR object occlusion fields (Franke §4.2, §5.2)."""
+
+    spec = SPEC
+
+    def prepare_world(self, world: World, options: Options, settings: RenderSettings
+                      ) -> IBLData:
+        return prepare(world, options)
+
+    def render_view(self, data: IBLData, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        return render_layers(data, view, options, settings, timer, shade_virtual)
+
+
+__all__ = ["IBLData", "IBLMethod", "OPTIONS", "SPEC", "ambient_irradiance", "ambient_sh",
+           "prepare", "render_layers",
+           "shade_real", "shade_virtual", "specular_tables"]
