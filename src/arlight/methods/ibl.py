@@ -177,8 +177,8 @@ def ambient_irradiance(data: IBLData, n: mi.Vector3f, order: int) -> mi.Color3f:
     return mi.Color3f(e[:, 0], e[:, 1], e[:, 2])
 
 
-def shade_virtual(data: IBLData, gb: GBuffer, options: Options, seed: int = 0
-                  ) -> tuple[mi.Color3f, mi.UInt32]:
+def shade_virtual(data: IBLData, gb: GBuffer, view: FrameView, options: Options,
+                  seed: int = 0) -> tuple[mi.Color3f, mi.UInt32]:
     """Radiance (W/(sr·m²)) of the virtual lanes and their lane indices."""
     idx = dr.compress(gb.virtual)
     if dr.width(idx) == 0:
@@ -213,13 +213,13 @@ def shade_real(data, gb: GBuffer, frame: np.ndarray) -> mi.Color3f:
 
 def render_layers(data, view: FrameView, options: Options, settings: RenderSettings,
                   timer: StageTimer, shade) -> Layers:
-    """G-buffer, ``shade(data, gb, options, seed) -> (radiance, lanes)`` on the virtual
+    """G-buffer, ``shade(data, gb, view, options, seed) -> (radiance, lanes)`` on the virtual
     lanes, the AR-OOF darkening on the real ones, assembly (shared by ``ibl`` and ``prt``;
     ``data`` needs ``views``, ``lights``, ``occluder``, ``field`` and ``world``)."""
     with timer.stage("gbuffer"):
         gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp, settings.seed)
     with timer.stage("shade_virtual"):
-        rad, lanes = shade(data, gb, options, settings.seed)
+        rad, lanes = shade(data, gb, view, options, settings.seed)
     with timer.stage("shade_real"):
         width = dr.width(gb.position)
         delta = (shade_real(data, gb, view.frame) if data.occluder is not None
