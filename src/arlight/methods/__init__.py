@@ -51,6 +51,7 @@ BUILTINS: dict[str, str] = {
     "dlpv": "arlight.methods.dlpv:DLPVMethod", "dir": "arlight.methods.dir:DIRMethod",
     "probeless": "arlight.methods.probeless:ProbelessMethod",
     "dvct": "arlight.methods.dvct:DVCTMethod",
+    "ibl": "arlight.methods.ibl:IBLMethod", "prt": "arlight.methods.prt:PRTMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 
