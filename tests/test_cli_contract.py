@@ -299,8 +299,58 @@ def _build(root: Path) -> list[Case]:
         f.write_text(data)
         cases.append(Case(f"light-show-{name}", ["light", "show", str(f), "-o",
                           str(root / "show.png")], [f.name]))
+    cases += _insert_cases(root)
     for i, c in enumerate(cases):
         c.id = f"{i:03d}:{c.id}"
+    return cases
+
+
+def _insert_cases(root: Path) -> list[Case]:
+    """``arlight insert`` with one bad input each (the rest valid): no marker in the photo,
+    too few ChArUco corners, a calibration for another resolution, the object below the
+    board, unreadable or missing light files, a bad marker, calibration, mesh or rig."""
+    import cv2
+
+    board = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02,
+                                   cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250))
+    page = np.full((480, 640), 200, np.uint8)
+    page[30:450, 170:470] = board.generateImage((300, 420), marginSize=0)
+    write_png(root / "ins_photo.png", np.repeat(page[..., None], 3, axis=2))
+    corner = np.full((480, 640), 200, np.uint8)
+    corner[20:170, 20:170] = page[30:180, 170:320]  # two markers, one corner
+    write_png(root / "ins_corner.png", np.repeat(corner[..., None], 3, axis=2))
+    write_png(root / "ins_grey.png", np.full((480, 640, 3), 128, np.uint8))
+    cal = {"K": [[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]], "size": [640, 480]}
+    (root / "ins_cal.json").write_text(json.dumps(cal))
+    (root / "ins_cal_big.json").write_text(json.dumps({**cal, "size": [1280, 960]}))
+    (root / "ins_light_bad.json").write_text("{broken")
+    (root / "ins_rig.toml").write_text("[[sun]]\ndirection = [0, 0, 0]\nirradiance = 1\n")
+    (root / "ins_tet.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                                      "f 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    good = {"photo": str(root / "ins_photo.png"), "--calib": str(root / "ins_cal.json"),
+            "--marker": "charuco:5x7:0.04:0.02:DICT_6X6_250", "--light": "sun:0,1,0:2:0.2",
+            "--object": str(root / "ins_tet.obj"), "--at": "0.1,0,0.14", "--scale": "0.02"}
+    bad = [("no-marker", {"photo": str(root / "ins_grey.png")}, "marker"),
+           ("few-corners", {"photo": str(root / "ins_corner.png")}, "corners"),
+           ("calib-size", {"--calib": str(root / "ins_cal_big.json")}, "ins_cal_big.json"),
+           ("calib-garbage", {"--calib": str(root / "cal_bad.yml")}, "cal_bad.yml"),
+           ("below-plane", {"--at": "0.1,-0.05,0.14"}, "--at"),
+           ("light-unreadable", {"--light": str(root / "ins_light_bad.json")},
+            "ins_light_bad.json"),
+           ("light-missing", {"--light": str(root / "nolight.hdr")}, "nolight.hdr"),
+           ("light-rig", {"--light": str(root / "ins_rig.toml")}, "ins_rig.toml"),
+           ("marker-dict", {"--marker": "charuco:5x7:0.04:0.02:DICT_NOPE"}, "DICT_NOPE"),
+           ("marker-form", {"--marker": "charuco:5:0.04"}, "--marker"),
+           ("object-missing", {"--object": str(root / "nomesh.obj")}, "nomesh.obj"),
+           ("scale-nan", {"--scale": "nan"}, "--scale")]
+    cases = []
+    for name, change, needle in bad:
+        args = {**good, **change}
+        prev = _previous_output(root, f"prev_insert_{name}".replace("-", "_"))
+        argv = ["insert", args.pop("photo")]
+        for k, v in args.items():
+            argv += [k, v]
+        cases.append(Case(f"insert-{name}", [*argv, "-o", str(prev)], [needle], keep=prev))
     return cases
 
 
