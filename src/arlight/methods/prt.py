@@ -49,7 +49,7 @@ from arlight.realtime.prt_transfer import (
     vertex_values,
 )
 from arlight.realtime.shading import emitted_intensity
-from arlight.scene.model import FrameView, World
+from arlight.scene.model import FrameView, MeshData, Shape, World
 from arlight.sphere.sh import directional_light_coeffs, n_coeffs, project_equirect, rotate
 from arlight.timing import StageTimer
 
@@ -65,6 +65,8 @@ OPTIONS: dict[str, Field] = {
     "cache": Field("bool", True, "cache precomputed transfer on disk (<cache>/prt/<hash>.npz)"),
     **OOF_OPTIONS,
     **REDUCTION_OPTIONS,
+    "area_grid": Field("int", 3, "cosine point lights per side of an area light (3 × 3: a "
+                       "soft shadow; bunny-box +0.45 dB over 1)", "", min=1, max=16),
     "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
                          max=64),
 }
@@ -143,6 +145,33 @@ class PRTData:
         return [vertex_values(o.transfer, self.light, o.rotation, order) for o in self.objects]
 
 
+def object_mesh(shape: Shape, loaded: mi.Shape | None) -> tuple[MeshData, np.ndarray]:
+    """The object-space mesh of a virtual shape and the faces ``(F, 3)`` of the Mitsuba mesh
+    it was loaded as (the hits' ``prim_index`` and barycentrics refer to those). Mesh files
+    keep their object-space data; ``box`` and ``rectangle`` primitives (Mitsuba meshes) are
+    read back from the loaded mesh and taken into object space by ``to_world⁻¹``; analytic
+    spheres and disks have no vertices: InputError."""
+    if not isinstance(loaded, mi.Mesh):
+        raise InputError(f"prt needs triangle meshes; virtual shape {shape.name!r} is an "
+                         f"analytic {shape.type} (use a mesh file, or the ibl method)",
+                         field=f"shapes.{shape.name}")
+    params = mi.traverse(loaded)
+    faces = np.asarray(params["faces"], np.int64).reshape(-1, 3)
+    if shape.mesh is not None:
+        return shape.mesh, faces
+    m = np.asarray(shape.to_world, np.float64)
+    inv = np.linalg.inv(m)
+    v = np.asarray(params["vertex_positions"], np.float64).reshape(-1, 3)
+    v = v @ inv[:3, :3].T + inv[:3, 3]
+    n = np.asarray(params["vertex_normals"], np.float64).reshape(-1, 3)
+    normals = None
+    if len(n) == len(v):
+        n = n @ m[:3, :3]  # normals transform with the inverse transpose of to_world⁻¹
+        normals = (n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+    return MeshData(v.astype(np.float32), faces.astype(np.uint32), None,
+                    None if normals is None else normals.astype(np.float32)), faces
+
+
 def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PRTData:
     """Transfer (cached), light SH, reduced lights and occlusion field of ``world``."""
     from arlight.synthetic import default_cache_dir
@@ -151,14 +180,11 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     objects = []
     cache = (cache_dir or default_cache_dir()) if options.cache else None
+    loaded = {sh.id(): sh for sh in views.mixed.scene.shapes()}
     for i, s in enumerate(world.shapes):
         if not s.is_virtual:
             continue
-        if s.mesh is None:
-            raise InputError(f"prt needs triangle meshes; virtual shape {s.name!r} is a "
-                             f"{s.type} (use a mesh file, or the ibl method)",
-                             field=f"shapes.{s.name}")
-        mesh = s.mesh
+        mesh, faces = object_mesh(s, loaded.get(str(i)))
         try:
             rot = rotation_part(s.to_world)
             tr = cached_transfer(mesh, cache, options.order, options.directions,
@@ -168,9 +194,6 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
                                  shadowed=options.shadowed)
         except ValueError as exc:
             raise InputError(str(exc), field=f"shapes.{s.name}") from exc
-        faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
-        if np.linalg.det(np.asarray(s.to_world, np.float64)[:3, :3]) < 0:
-            faces = faces[:, ::-1]
         objects.append(PRTObject(i, tr, rot, faces))
     occluder = virtual_scene(world)
     field = field_from_options(world, options) if occluder is not None else None
@@ -238,5 +261,6 @@ class PRTMethod(BaseMethod):
         return layers
 
 
-__all__ = ["OPTIONS", "PRTData", "PRTMethod", "PRTObject", "SPEC", "light_sh", "prepare",
+__all__ = ["OPTIONS", "PRTData", "PRTMethod", "PRTObject", "SPEC", "light_sh", "object_mesh",
+           "prepare",
            "shade_virtual"]
