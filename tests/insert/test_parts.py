@@ -97,23 +97,23 @@ def test_light_tables_rotate_like_an_envmap(tmp_path):
 
 
 def test_plane_irradiance_matches_mitsuba(tmp_path):
-    """π·L/E of a white plane rendered by Mitsuba (:mod:`arlight.synthetic`) under a rotated
-    HDR panorama plus a spot light is 1 within 3 %: the irradiance model behind the albedo
-    (cosine-weighted hemisphere of the map, the spot's I·cos/r²) is Mitsuba's. Rejects a
-    missing cosine (E of the map 2× too large), the lower hemisphere counted, a spot without
-    its 1/r²."""
+    """π·L/E of a grey plane (albedo 0.5) rendered by Mitsuba (:mod:`arlight.synthetic`)
+    under a rotated HDR panorama plus a spot light is 0.5 within 3 %: the irradiance model
+    behind the albedo (cosine-weighted upper hemisphere of the map, the spot's I·cos/r²) is
+    Mitsuba's. Rejects the map's irradiance off by 2×, the lower hemisphere counted in, a
+    spot without its 1/r²."""
     lights = [{"type": "envmap", "file": DEMO + "lebombo_512x256.hdr", "rotation_deg": 37.0},
               {"type": "spot", "position": [0.1, 0.6, 0.0], "target": [0, 0, 0],
                "intensity": [0.3, 0.3, 0.3], "cutoff_deg": 60.0, "beam_width_deg": 50.0}]
     d = {"camera": {"resolution": [16, 12], "fov_y_deg": 30,
                     "look_at": {"origin": [0, 0.8, 0.5], "target": [0, 0, 0]}},
-         "shapes": [plane_shape((-1, -1), (1, 1), {"type": "diffuse", "albedo": [1, 1, 1]})],
+         "shapes": [plane_shape((-1, -1), (1, 1), {"type": "diffuse", "albedo": [0.5] * 3})],
          "lights": lights}
     scene = parse_scene(d, tmp_path)
     photo = synthesize(scene, spp=256, batches=16, cache_dir=tmp_path)
     region = PlaneRegion((-1, -1), (1, 1), (5, 5), (6, 6))  # no target in view
     est = estimate_albedo(photo.frame, scene.camera, scene.lights, region, mode="median")
-    np.testing.assert_allclose(est.median, 1.0, rtol=0.03)
+    np.testing.assert_allclose(est.median, 0.5, rtol=0.03)
     assert plane_irradiance(scene.lights, np.zeros((1, 3))).shape == (1, 3)
 
 
