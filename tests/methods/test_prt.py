@@ -179,3 +179,45 @@ def test_shadow_on_the_floor_and_lit_bunny():
     assert m.sum() > 50 and np.all(layers.mixed[m] > 0.0)
     assert np.all(layers.delta[layers.mask == 0] <= 0.0)
     assert layers.delta.min() < -0.02
+
+
+def test_inter_reflection_adds_light_inside_a_concavity_only():
+    """One bounce (albedo 0.8) raises the transfer's l = 0 coefficient at vertices that see
+    the object (inside the bunny's creases) and leaves fully open vertices (nothing to
+    reflect) unchanged, never exceeding the unshadowed transfer; rejects a bounce that adds
+    light everywhere (missing hit mask) or subtracts it (sign)."""
+    from arlight.scene.mesh import read_mesh
+
+    raw = read_mesh(BUNNY)
+    mesh = MeshData(raw.vertices.astype(np.float32), raw.faces.astype(np.uint32))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t0 = precompute(mesh, directions=256).transfer[:, 0]
+        t1 = precompute(mesh, directions=256, bounces=1, albedo=[0.8] * 3).transfer[:, 0]
+        free = precompute(mesh, directions=256, shadowed=False).transfer[:, 0]
+    gain = t1 - t0
+    occluded = t0 < free  # any hit above the horizon lowers t_0; none: bitwise equal
+    assert np.all(gain >= -1e-6)
+    assert gain[occluded].mean() > 1e-3
+    assert np.allclose(gain[~occluded], 0.0, atol=1e-6)
+    assert np.all(t1 <= free + 1e-3)
+
+
+def test_moving_the_object_reuses_the_cached_transfer():
+    """A per-frame object transform re-renders from the memory/disk cache (no
+    precomputation: ``prt_seconds_per_vertex == 0``) and turns the shading with it; rejects a
+    cache key that includes the pose."""
+    import math
+
+    scene = make(bunny_scene())
+    method = get_method("prt")
+    settings = RenderSettings(options=SMALL)
+    state = method.prepare(scene.world, settings)
+    a = math.radians(40.0)
+    turn = np.array([[math.cos(a), 0, math.sin(a), 0], [0, 1, 0, 0],
+                     [-math.sin(a), 0, math.cos(a), 0], [0, 0, 0, 1.0]])
+    view = scene.view
+    moved = type(view)(**{**view.__dict__, "object_transforms": {"bunny": turn}})
+    layers = method.render(state, moved, settings)
+    assert layers.stats["prt_seconds_per_vertex"] == 0.0
+    assert not np.array_equal(layers.mixed, method.render(state, view, settings).mixed)

@@ -188,8 +188,8 @@ def precompute(mesh: MeshData, order: int = 2, directions: int = 512, bounces: i
             occ = np.asarray(valid, bool).reshape(-1, K)
             hit_prim[rows] = np.where(occ, np.asarray(pi.prim_index, np.int64).reshape(-1, K),
                                       -1)
-            hit_uv[rows] = np.stack([np.asarray(pi.prim_uv.x), np.asarray(pi.prim_uv.y)],
-                                    -1).reshape(-1, K, 2)
+            uv = np.stack([np.asarray(pi.prim_uv.x), np.asarray(pi.prim_uv.y)], -1)
+            hit_uv[rows] = np.where(occ[..., None], uv.reshape(-1, K, 2), 0.0)  # misses: NaN
         else:
             occ = np.asarray(scene.ray_test(ray), bool).reshape(-1, K)
         t[rows] = (cos[rows] * ~occ) @ y
