@@ -92,7 +92,8 @@ def insert_command(
     h, w = image.shape[:2]
     est = estimate(w, h, spp, paths=2, layers=14)
     check_estimate(est, f"rendering {w}×{h} at {spp} spp", force)
-    check_output_dir(out, INSERT_FILES, int(est.output_bytes), (photo, calib, obj))
+    inputs = [photo, calib, obj] + ([Path(light)] if Path(light).is_file() else [])
+    check_output_dir(out, INSERT_FILES, int(est.output_bytes), inputs)
     settings = RenderSettings(spp=spp, seed=seed, progress=True)
     fn.spec.parse_options(settings.options)
     result, layers = run_insert(req, out, method, settings)
