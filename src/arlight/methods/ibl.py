@@ -52,6 +52,7 @@ from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
     field_from_options,
+    np3,
     shadow_factor,
     virtual_scene,
 )
@@ -163,10 +164,6 @@ def prepare(world: World, options: Options) -> IBLData:
                    env, occluder, field, alpha, ks, glossy, ao)
 
 
-def _np3(v) -> np.ndarray:
-    return np.stack([np.asarray(c, np.float64) for c in (v.x, v.y, v.z)], 1)
-
-
 def ambient_irradiance(data: IBLData, n: mi.Vector3f, order: int) -> mi.Color3f:
     """SH irradiance of the ambient light at unit normals ``n`` (W/m², ≥ 0): order ≤ 2 as
     Dr.Jit polynomial (:func:`arlight.realtime.shading.ambient_irradiance_dr`), higher
@@ -175,7 +172,7 @@ def ambient_irradiance(data: IBLData, n: mi.Vector3f, order: int) -> mi.Color3f:
         sh9 = np.zeros((9, 3))
         sh9[:len(data.ambient)] = data.ambient[:9]
         return dr.maximum(ambient_irradiance_dr(LightSet([], sh9), n), 0.0)
-    e = np.maximum(irradiance(data.ambient, _np3(n), max_order=order), 0.0).astype(np.float32)
+    e = np.maximum(irradiance(data.ambient, np3(n), max_order=order), 0.0).astype(np.float32)
     return mi.Color3f(e[:, 0], e[:, 1], e[:, 2])
 
 

@@ -38,6 +38,7 @@ from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.ibl import render_layers
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
+from arlight.realtime.ibl_shading import rot_y
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.oof import OOF_OPTIONS, OcclusionField, field_from_options, virtual_scene
@@ -81,12 +82,6 @@ SPEC = MethodSpec(
 )
 
 
-def _rot_y(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
 def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1) -> np.ndarray:
     """Radiance SH ``((order+1)², 3)`` of all the world's light as seen from ``centre``
     (module docstring). Environment maps are projected, then rotated (exact), so turning a
@@ -96,7 +91,7 @@ def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1) -
         if lt.type in ("envmap", "sh"):
             sh = project_equirect(np.asarray(lt.radiance_map, np.float64)[..., :3], order)
             sh *= float(lt.params.get("scale", 1.0))
-            out += rotate(sh, _rot_y(float(lt.params.get("rotation_deg", 0.0))))
+            out += rotate(sh, rot_y(float(lt.params.get("rotation_deg", 0.0))))
         elif lt.type == "constant":
             out[0] += np.asarray(lt.params["radiance"], np.float64) * math.sqrt(4 * math.pi)
     local = World([], [lt for lt in world.lights if lt.type not in ("envmap", "sh",

@@ -41,7 +41,9 @@ ENV_HEIGHT = 128
 """Rows of the equirect map the mip chain starts from (width twice that)."""
 
 
-def _rot_y(deg: float) -> np.ndarray:
+def rot_y(deg: float) -> np.ndarray:
+    """Rotation about +Y by ``deg`` degrees (Mitsuba's ``rotate`` and the envmap's
+    ``rotation_deg``; :mod:`arlight.realtime.light_reduction` uses the same matrix)."""
     a = math.radians(deg)
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
@@ -59,7 +61,7 @@ def environment_map(world: World, height: int = ENV_HEIGHT) -> np.ndarray | None
             img = img * float(lt.params.get("scale", 1.0))
             rot = float(lt.params.get("rotation_deg", 0.0))
             if rot:
-                img = rotate_equirect(img, _rot_y(rot))
+                img = rotate_equirect(img, rot_y(rot))
         elif lt.type == "constant":
             img = np.broadcast_to(np.asarray(lt.params["radiance"], np.float32),
                                   (height, 2 * height, 3))
@@ -250,4 +252,4 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
 
 
 __all__ = ["ENV_HEIGHT", "MipEnvironment", "ambient_occlusion", "environment_map",
-           "ggx_d", "hammersley", "local_frame", "smith_g1", "specular_fis"]
+           "ggx_d", "hammersley", "local_frame", "rot_y", "smith_g1", "specular_fis"]

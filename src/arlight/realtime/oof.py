@@ -217,7 +217,7 @@ class OcclusionField:
         n = np.asarray(n, np.float32)
         e = self.occluded_irradiance(light_sh, mi.Point3f(p[:, 0], p[:, 1], p[:, 2]),
                                      mi.Vector3f(n[:, 0], n[:, 1], n[:, 2]), order)
-        return _np3(e)
+        return np3(e)
 
 
 FEW_NORMALS = 16
@@ -255,7 +255,8 @@ def octahedral_index(n: mi.Vector3f, grid: int) -> mi.UInt32:
     return b * grid + a
 
 
-def _np3(v) -> np.ndarray:
+def np3(v) -> np.ndarray:
+    """A Dr.Jit 3-vector array as NumPy ``(N, 3)`` float64."""
     return np.stack([np.asarray(c, np.float64) for c in (v.x, v.y, v.z)], 1)
 
 
@@ -396,6 +397,6 @@ def shadow_factor(mixed: SceneView, real: SceneView, occluder: mi.Scene | None,
 
 
 __all__ = ["OOF_OPTIONS", "OcclusionField", "RAY_CHUNK", "build_field", "cosine_transfer",
-           "field_for_world", "field_from_options", "occlusion_rays", "octahedral_index",
+           "field_for_world", "field_from_options", "np3", "occlusion_rays", "octahedral_index",
            "octahedral_normals", "shadow_factor",
            "shell_samples", "virtual_scene"]
