@@ -342,7 +342,8 @@ def _insert_cases(root: Path) -> list[Case]:
            ("marker-dict", {"--marker": "charuco:5x7:0.04:0.02:DICT_NOPE"}, "DICT_NOPE"),
            ("marker-form", {"--marker": "charuco:5:0.04"}, "--marker"),
            ("object-missing", {"--object": str(root / "nomesh.obj")}, "nomesh.obj"),
-           ("scale-nan", {"--scale": "nan"}, "--scale")]
+           ("scale-nan", {"--scale": "nan"}, "--scale"),
+           ("method-option", {"--option": "bogus=1"}, "bogus")]
     cases = []
     for name, change, needle in bad:
         args = {**good, **change}

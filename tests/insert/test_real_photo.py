@@ -8,7 +8,7 @@ from pathlib import Path
 
 import arlight
 from arlight.cli import main
-from arlight.scene.load import load_scene
+from arlight.scene.load import load_scene, read_render_table
 
 PHOTOS = Path(arlight.__file__).parent / "data" / "photos" / "charuco_tabletop"
 BUNNY = Path(arlight.__file__).parent / "data" / "demo" / "bunny.ply"
@@ -19,7 +19,8 @@ def test_insert_on_the_bundled_charuco_photo(tmp_path):
     calibration, the camera above the board looking down at it, the bunny standing on the
     plane, and an output set whose scene file loads back. Rejects: a pose with the board
     frame's z (into the table) taken for up (camera below the board), an object placed by
-    its origin (the bunny's base is not at its origin), a scene file that does not load.
+    its origin (the bunny's base is not at its origin), a scene file that does not load or
+    forgets how it was rendered.
     (Ignoring this lens's distortion changes the error only from 0.20 to 0.21 px: the board
     fills the well-calibrated centre of the picture.)"""
     out = tmp_path / "out"
@@ -33,6 +34,7 @@ def test_insert_on_the_bundled_charuco_photo(tmp_path):
     assert report["corners"] == 24
     assert report["reprojection_error_px"] < 1.0
     scene = load_scene(out / "scene.toml")
+    assert read_render_table(out / "scene.toml")["spp"] == 1  # re-renders the same way
     cam = scene.camera
     assert cam.position[1] > 0.1  # above the board
     assert cam.world_from_camera[1, 2] < -0.5  # looking down

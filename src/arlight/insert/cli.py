@@ -61,6 +61,8 @@ def insert_command(
                                      max=MAX_SPP)] = 64,
     seed: Annotated[int, typer.Option("--seed", help="random seed", min=0,
                                       max=MAX_SEED)] = 0,
+    option: Annotated[list[str] | None, typer.Option("--option", help="method option "
+                      "key=value (repeatable; `arlight methods NAME` lists them)")] = None,
     force: Annotated[bool, typer.Option("--force", help="run beyond the memory/time "
                                         "bounds")] = False,
 ) -> None:
@@ -75,6 +77,7 @@ def insert_command(
     from arlight.insert.proxy import parse_box
     from arlight.io.images import is_hdr_path, read_hdr, read_ldr
     from arlight.methods import RenderSettings, get_method
+    from arlight.methods.spec import parse_option_pairs
     from arlight.outputs_atomic import check_output_dir
 
     if albedo not in ("texture", "median"):
@@ -87,6 +90,9 @@ def insert_command(
                         plane_size=_floats(plane_size, 2, "--plane-size"),  # type: ignore[arg-type]
                         boxes=[parse_box(b) for b in box or []], albedo_mode=albedo)
     fn = get_method(method)
+    settings = RenderSettings(spp=spp, seed=seed, progress=True,
+                              options=parse_option_pairs(option or []))
+    fn.spec.parse_options(settings.options)  # a bad option fails before any work
     prepare_inputs(req)
     image = read_hdr(photo) if is_hdr_path(photo) else read_ldr(photo)
     h, w = image.shape[:2]
@@ -94,8 +100,6 @@ def insert_command(
     check_estimate(est, f"rendering {w}×{h} at {spp} spp", force)
     inputs = [photo, calib, obj] + ([Path(light)] if Path(light).is_file() else [])
     check_output_dir(out, INSERT_FILES, int(est.output_bytes), inputs)
-    settings = RenderSettings(spp=spp, seed=seed, progress=True)
-    fn.spec.parse_options(settings.options)
     result, layers = run_insert(req, out, method, settings)
     r = result.registration
     typer.echo(f"pose: {r.corners} corners, reprojection error {r.reprojection_px:.3f} px "

@@ -262,7 +262,9 @@ def run_insert(req: InsertRequest, out: str | Path, method: str = "reference",
     ``scene.toml`` (+ ``scene.frame.png``/``.exr``, ``albedo.png``), ``registration.json``
     and ``render/`` (the layers, ``composite.png``, ``stats.json``).
 
-    Returns the :class:`InsertResult` and the method's layers."""
+    The scene file gets a ``[render]`` table with ``method`` and ``settings``, so
+    ``arlight render OUT/scene.toml`` renders it the same way. Returns the
+    :class:`InsertResult` and the method's layers."""
     from arlight.methods import RenderSettings, get_method
     from arlight.outputs_atomic import StagedOutput
 
@@ -272,6 +274,10 @@ def run_insert(req: InsertRequest, out: str | Path, method: str = "reference",
     prepare_inputs(req)  # bad inputs fail before the output folder is touched
     with StagedOutput(out, "insert", INSERT_FILES) as tmp:
         result = build_scene(req, tmp)
+        # the scene file re-renders the way it was rendered (`arlight render` reads this)
+        result.scene.raw["render"] = {"method": method, "spp": settings.spp,
+                                      "max_depth": settings.max_depth, "seed": settings.seed,
+                                      "options": dict(settings.options)}
         layers = fn(result.scene, settings)
         write_insert(result, layers, out, tmp)
     return result, layers
