@@ -55,6 +55,20 @@ def run(scene, **opts):
     return get_method("dlpv")(scene, RenderSettings(options={**SMALL, **opts}))
 
 
+def test_a_light_that_does_not_see_the_virtual_object():
+    """A spot light aimed away from the cube gives it no RSM texels (an empty change between
+    R_ρ and R_µ): the frame renders, the cube is lit by the other light only, and the spot
+    adds no delta of its own. Rejects injecting empty texel sets (Dr.Jit cannot broadcast a
+    0-wide array; an environment-only insert with dlpv crashed on it)."""
+    d = box_scene()
+    spot = {"type": "spot", "position": [1.2, 1.0, 0.0], "target": [2.2, 0.0, 0.0],
+            "intensity": 3.0, "cutoff_deg": 20.0}
+    with_spot = run(make({**d, "lights": d["lights"] + [spot]}))
+    without = run(make(d))
+    assert np.isfinite(with_spot.composite).all()
+    np.testing.assert_allclose(with_spot.delta, without.delta, atol=1e-5)
+
+
 @pytest.mark.parametrize("light", ["point", "area"])
 def test_no_virtual_object_returns_the_frame_exactly(light):
     """No virtual object → composite == frame bit for bit, delta == 0, mask == 0; rejects any

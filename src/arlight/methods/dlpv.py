@@ -149,6 +149,8 @@ def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
     half = 0.5 * vol.grid.cell
     masks = []
     for pair in pairs:
+        if dr.width(pair.changed) == 0:  # this light does not see the virtual objects
+            continue
         for r, sign in ((pair.rho_changed(), 1.0), (pair.mu_changed, -1.0)):
             if indirect:
                 masks.append(inject(vol, r.position, r.normal, r.flux_out * sign, r.valid,
