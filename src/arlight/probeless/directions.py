@@ -19,24 +19,13 @@ from functools import cached_property
 import numpy as np
 
 from arlight.sphere import sh as SH
+from arlight.sphere.points import fibonacci_sphere
 
 N_DIRECTIONS = 81
 """Visibility ray directions per sample point (Gruber §3.2)."""
 SH_ORDER = 3
 """SH order L of the transfer and the light: 4 bands, ``(L+1)² = 16`` coefficients."""
 N_COEFFS = SH.n_coeffs(SH_ORDER)
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """``n`` spherical Fibonacci unit directions ``(n, 3)`` (equal-area, +Y is the pole)."""
-    if n < 1:
-        raise ValueError(f"need at least one direction, got {n}")
-    i = np.arange(n, dtype=np.float64)
-    y = 1.0 - (2.0 * i + 1.0) / n
-    r = np.sqrt(np.clip(1.0 - y * y, 0.0, None))
-    golden = np.pi * (3.0 - np.sqrt(5.0))
-    phi = golden * i
-    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=1)
 
 
 @dataclass(frozen=True)

@@ -43,11 +43,11 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView, describe_shape, load_scene
-from arlight.probeless.directions import fibonacci_sphere
 from arlight.realtime.light_reduction import LightSet
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, on_active
 from arlight.scene.model import World
 from arlight.scene.schema import Field
+from arlight.sphere.points import fibonacci_sphere
 from arlight.sphere.sh import (
     band_of_each_coeff,
     clamped_cosine_band,

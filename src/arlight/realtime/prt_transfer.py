@@ -37,10 +37,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.probeless.directions import fibonacci_sphere
 from arlight.realtime.oof import RAY_CHUNK
 from arlight.scene.mesh import vertex_normals
 from arlight.scene.model import MeshData
+from arlight.sphere.points import fibonacci_sphere
 from arlight.sphere.sh import n_coeffs, rotate, sh_basis
 
 VERSION = 1
