@@ -11,6 +11,11 @@ from tests.mutations import mutation_session, pytest_addoption  # noqa: F401 (--
 LOOK = {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}
 
 
+
+def parsed_with_constant_frame(d: dict, value: float = 0.3):
+    """The AR scene of the scene dict ``d`` with a constant camera frame of ``value``."""
+    return with_constant_frame(parse_scene(d), value)
+
 def diffuse(albedo) -> dict:
     return {"type": "diffuse", "albedo": albedo}
 

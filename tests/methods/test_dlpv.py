@@ -20,6 +20,7 @@ from arlight.methods.dlpv import (
 from arlight.realtime.sh_volume import SHVolume, propagate
 from arlight.scene.load import parse_scene
 from tests.conftest import LOOK
+from tests.conftest import parsed_with_constant_frame as make
 
 SMALL = {"volume_size": 16, "steps": 8, "rsm_size": 64}
 
@@ -43,12 +44,6 @@ def box_scene(virtual: bool = True, light: str = "point", w: int = 40, h: int = 
                        {"type": "constant", "radiance": 0.1}]}[light]
     return {"camera": {"resolution": [w, h], "fov_y_deg": 45, "look_at": LOOK},
             "shapes": shapes, "lights": lights}
-
-
-def make(d: dict, value: float = 0.3):
-    scene = parse_scene(d)
-    return scene.with_frame(np.full((scene.camera.height, scene.camera.width, 3), value,
-                                    np.float32))
 
 
 def run(scene, **opts):

@@ -13,8 +13,8 @@ import pytest
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.realtime.ibl_shading import MipEnvironment, hammersley, specular_fis
-from arlight.scene.load import parse_scene
 from tests.conftest import LOOK, diffuse, env_mirror_scene
+from tests.conftest import parsed_with_constant_frame as make
 
 SMALL = {"oof_shells": 8, "oof_directions": 256, "ao_rays": 8, "samples": 16}
 
@@ -31,12 +31,6 @@ def env_sphere_scene(material: dict, w: int = 32, h: int = 24, floor: bool = Fal
     d["camera"] = {"resolution": [w, h], "fov_y_deg": 25,
                    "look_at": {"origin": [0.0, 0.6, 2.2], "target": [0.0, 0.3, 0.0]}}
     return d
-
-
-def make(d: dict, value: float = 0.3):
-    scene = parse_scene(d)
-    return scene.with_frame(np.full((scene.camera.height, scene.camera.width, 3), value,
-                                    np.float32))
 
 
 def run(scene, **opts):

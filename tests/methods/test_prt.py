@@ -12,10 +12,10 @@ from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.prt import prepare
 from arlight.realtime.prt_transfer import cached_transfer, check_mesh, precompute, vertex_values
-from arlight.scene.load import parse_scene
 from arlight.scene.model import MeshData
 from arlight.sphere.sh import Y00
 from tests.conftest import diffuse, env_mirror_scene
+from tests.conftest import parsed_with_constant_frame as make
 
 SMALL = {"oof_shells": 8, "oof_directions": 256, "directions": 256}
 BUNNY = "src/arlight/data/scenes/meshes/bunny.ply"
@@ -42,12 +42,6 @@ def bunny_scene(w: int = 48, h: int = 36, rotate_deg: float = 0.0, env_deg: floa
     d["camera"] = {"resolution": [w, h], "fov_y_deg": 30,
                    "look_at": {"origin": [0.0, 0.5, 1.8], "target": [0.0, 0.3, 0.0]}}
     return d
-
-
-def make(d: dict, value: float = 0.3):
-    scene = parse_scene(d)
-    return scene.with_frame(np.full((scene.camera.height, scene.camera.width, 3), value,
-                                    np.float32))
 
 
 def run(scene, **opts):
