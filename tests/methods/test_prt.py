@@ -218,3 +218,62 @@ def test_moving_the_object_reuses_the_cached_transfer():
     layers = method.render(state, moved, settings)
     assert layers.stats["prt_seconds_per_vertex"] == 0.0
     assert not np.array_equal(layers.mixed, method.render(state, view, settings).mixed)
+
+
+def sphere_obj(path, rings: int = 24, segments: int = 48) -> str:
+    """A unit UV sphere with exact vertex normals as an OBJ file (prt needs a mesh)."""
+    th = np.linspace(0.0, np.pi, rings + 1)[1:-1]
+    ph = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    ring = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], -1)
+    v = np.concatenate([[[0.0, 1.0, 0.0]], ring.reshape(-1, 3), [[0.0, -1.0, 0.0]]])
+    j = np.arange(segments)
+    k = (j + 1) % segments
+    faces = [np.stack([np.zeros(segments, int), 1 + k, 1 + j], 1)]
+    for i in range(rings - 2):
+        a, b = 1 + i * segments + j, 1 + i * segments + k
+        c, d = a + segments, b + segments
+        faces += [np.stack([a, b, d], 1), np.stack([a, d, c], 1)]
+    last = len(v) - 1
+    base = 1 + (rings - 2) * segments
+    faces.append(np.stack([np.full(segments, last), base + j, base + k], 1))
+    lines = [f"v {x:.7f} {y:.7f} {z:.7f}\nvn {x:.7f} {y:.7f} {z:.7f}" for x, y, z in v]
+    lines += [" ".join(["f"] + [f"{q + 1}//{q + 1}" for q in f]) for f in np.concatenate(faces)]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def test_glossy_sphere_matches_ibl_ggx_and_glossy_off_does_not(tmp_path):
+    """Convex roughconductor sphere (α 0.3) under the demo HDR map: prt's SoG glossy term
+    (Eqs. 4.25–4.26) against ibl's GGX filtered importance sampling (40 samples): mean
+    absolute relative difference of the virtual pixels ≤ 10 % (measured 4.7 %), while
+    ``glossy = false`` is over 30 % off; rejects a SoG lookup around the wrong direction
+    (normal or view instead of the mirror direction), a missing F0, a self-shadowing factor
+    that darkens an unoccluded convex object, and the diffuse-only shading."""
+    from scipy.ndimage import binary_erosion
+
+    d = env_mirror_scene(32, 24)
+    d["shapes"] = [{"name": "ball", "role": "virtual", "type": "mesh",
+                    "file": sphere_obj(tmp_path / "sphere.obj"),
+                    "transform": {"scale": 0.3, "translate": [0.0, 0.35, 0.0]},
+                    "material": {"type": "roughconductor", "alpha": 0.3,
+                                 "reflectance": [0.9, 0.8, 0.7]}}]
+    d["camera"] = {"resolution": [32, 24], "fov_y_deg": 25,
+                   "look_at": {"origin": [0.0, 0.6, 2.2], "target": [0.0, 0.3, 0.0]}}
+    scene = make(d)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the grazing view's fit residual
+        on = run(scene)
+    off = run(scene, glossy=False)
+    ref = get_method("ibl")(scene, RenderSettings(options={
+        "oof_shells": 8, "oof_directions": 256, "ao_rays": 8, "samples": 40}))
+    m = binary_erosion((on.mask > 0.999) & (ref.mask > 0.999))
+    assert m.sum() > 60
+
+    def diff(x):
+        return float(np.mean(np.abs(x.mixed[m] - ref.mixed[m]) / np.maximum(ref.mixed[m],
+                                                                              1e-6)))
+
+    e_on, e_off = diff(on), diff(off)
+    print(f"mean abs rel difference to ibl: glossy {e_on:.4f}, diffuse only {e_off:.4f}")
+    assert e_on <= 0.10 and e_off > 0.3 and e_off > 3 * e_on

@@ -12,9 +12,17 @@
   ``l_obj = rotate(l, Rᵀ)``) and dotted with every vertex's transfer (Eq. 2.37); the virtual
   pixels interpolate those vertex values with the barycentrics of their primary hit and
   multiply by the G-buffer albedo; real pixels get ``ibl``'s multiplicative shadow factor.
+* **glossy** (option ``glossy``, default on; thesis §4.3 "PRT for low-frequency
+  self-shadowing × SoG for the material"): ``phong`` and ``roughconductor`` virtual pixels
+  add ``F0 · V · Σ_k w_k 2πσ_k² L̄_{σ_k}(ω_r ⊕ µ_k e_1)`` (Eqs. 4.25–4.26,
+  :mod:`arlight.realtime.sog`: K = 3 Gaussians fitted per α at N = 16 view angles, F0 the
+  specular reflectance and α as ``ibl`` takes them, ``L̄`` the environment's mip chain that
+  ``ibl`` uses, at the level whose texel solid angle is ``2πσ_k²``); ``V`` =
+  ``clip(Σ_rgb s / Σ_rgb u, 0, 1)``, the ratio of the pixel's shadowed PRT value ``s`` to the
+  unshadowed SH irradiance ``u = E(n)/π`` of the same light at its normal. The glossy term
+  reflects the distant (environment) light only, as in ``ibl``.
 
-Diffuse only: ``phong`` and ``roughconductor`` are shaded with their diffuse part (the thesis
-pairs PRT with Sum-of-Gaussians glossy materials, not implemented here). Moving the object
+Moving the object
 (``view.object_transforms``) re-uses the cached transfer: only the light rotation changes.
 Stats: ``time_gbuffer``, ``time_shade_virtual`` (the per-frame PRT shading),
 ``time_shade_real``, ``time_assemble``; ``prt_vertices``, ``prt_seconds_per_vertex`` (the
@@ -35,10 +43,10 @@ from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
-from arlight.methods.ibl import render_layers
+from arlight.methods.ibl import render_layers, specular_tables
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
-from arlight.realtime.ibl_shading import rot_y
+from arlight.realtime.ibl_shading import MipEnvironment, environment_map, rot_y
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.oof import OOF_OPTIONS, OcclusionField, field_from_options, virtual_scene
@@ -49,9 +57,16 @@ from arlight.realtime.prt_transfer import (
     rotation_part,
     vertex_values,
 )
-from arlight.realtime.shading import emitted_intensity
+from arlight.realtime.shading import ambient_irradiance_dr, emitted_intensity
+from arlight.realtime.sog import SoGTables
 from arlight.scene.model import FrameView, MeshData, Shape, World
-from arlight.sphere.sh import directional_light_coeffs, n_coeffs, project_equirect, rotate
+from arlight.sphere.sh import (
+    directional_light_coeffs,
+    irradiance,
+    n_coeffs,
+    project_equirect,
+    rotate,
+)
 from arlight.timing import StageTimer
 
 OPTIONS: dict[str, Field] = {
@@ -63,6 +78,8 @@ OPTIONS: dict[str, Field] = {
                      max=8),
     "shadowed": Field("bool", True, "trace self-occlusion (false: unshadowed transfer, i.e. "
                       "SH irradiance)"),
+    "glossy": Field("bool", True, "Sum-of-Gaussians glossy reflection of the environment "
+                    "for phong / roughconductor (Eqs. 4.25–4.26; false: diffuse part only)"),
     "cache": Field("bool", True, "cache precomputed transfer on disk (<cache>/prt/<hash>.npz)"),
     **OOF_OPTIONS,
     **REDUCTION_OPTIONS,
@@ -134,6 +151,9 @@ class PRTData:
     field: OcclusionField | None
     face_offset: mi.UInt32
     faces: mi.UInt32
+    env: MipEnvironment | None = None
+    sog: SoGTables | None = None
+    ks: mi.Color3f | None = None
 
     def vertex_values(self, order: int | None = None) -> list[np.ndarray]:
         """Per object ``Σ_k t_k l_k`` per vertex ``(V, 3)`` this frame."""
@@ -168,7 +188,8 @@ def object_mesh(shape: Shape, loaded: mi.Shape | None) -> tuple[MeshData, np.nda
 
 
 def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PRTData:
-    """Transfer (cached), light SH, reduced lights and occlusion field of ``world``."""
+    """Transfer (cached), light SH, reduced lights and occlusion field of ``world``; with
+    ``glossy`` the mip-mapped environment and the SoG tables (:func:`glossy_tables`)."""
     from arlight.synthetic import default_cache_dir
 
     views = build_views(world)
@@ -206,15 +227,55 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
         b = occluder.bbox()
         centre = (np.array([b.min.x, b.min.y, b.min.z]) + np.array([b.max.x, b.max.y,
                                                                     b.max.z])) / 2.0
+    env, sog, ks = glossy_tables(world) if options.glossy else (None, None, None)
     return PRTData(world, views, lights, light_sh(world, options.order, centre,
                                                   options.area_grid),
-                   objects, occluder, field, mi.UInt32(offs), mi.UInt32(faces))
+                   objects, occluder, field, mi.UInt32(offs), mi.UInt32(faces), env, sog, ks)
+
+
+def glossy_tables(world: World) -> tuple[MipEnvironment | None, SoGTables | None,
+                                         mi.Color3f | None]:
+    """The mip-mapped environment (as ``ibl`` builds it), the per-shape SoG tables and the
+    specular reflectance ``F0`` per shape (``ibl.specular_tables``: phong ``α = √(2/(n+2))``,
+    ``ks``; roughconductor ``alpha``, ``reflectance``); all None without a distant light or
+    a glossy virtual shape."""
+    env_img = environment_map(world)
+    alpha, ks, glossy = specular_tables(world)
+    if env_img is None or not glossy:
+        return None, None, None
+    a, k = np.asarray(alpha, np.float64), np.asarray(ks, np.float64).reshape(-1, 3)
+    alphas = [float(a[i]) if s.is_virtual and np.any(k[i]) else None
+              for i, s in enumerate(world.shapes)]
+    return MipEnvironment.build(env_img), SoGTables.build(alphas), ks
+
+
+def unshadowed(light: np.ndarray, n: mi.Vector3f, order: int) -> mi.Color3f:
+    """``E(n)/π``: the unshadowed diffuse transfer of radiance SH ``light`` (truncated to
+    ``order``) at unit world normals ``n`` (W/(sr·m²) per unit albedo)."""
+    if order <= 2:
+        sh9 = np.zeros((9, 3))
+        sh9[:min(9, len(light))] = light[:9]
+        return ambient_irradiance_dr(LightSet([], sh9), n) * (1.0 / math.pi)
+    e = irradiance(light, np.stack([np.asarray(c, np.float64) for c in (n.x, n.y, n.z)], 1),
+                   max_order=order) / math.pi
+    return mi.Color3f(*[mi.Float(e[:, c].astype(np.float32)) for c in range(3)])
+
+
+def self_shadowing(shadowed: mi.Color3f, free: mi.Color3f) -> mi.Float:
+    """Low-frequency self-shadowing factor of the glossy term: the ratio of the shadowed
+    (PRT) to the unshadowed diffuse transfer at the pixel, summed over RGB, clamped to
+    [0, 1] (1 where the unshadowed value vanishes)."""
+    num = shadowed.x + shadowed.y + shadowed.z
+    den = free.x + free.y + free.z
+    return dr.select(den > 1e-8, dr.clip(num / dr.maximum(den, 1e-8), 0.0, 1.0), 1.0)
 
 
 def shade_virtual(data: PRTData, gb: GBuffer, view: FrameView, options: Options,
                   seed: int = 0) -> tuple[mi.Color3f, mi.UInt32]:
-    """Radiance of the virtual lanes: vertex values (light rotated into each object's frame)
-    interpolated with the barycentrics of the lanes' primary hits, times the albedo."""
+    """Radiance (W/(sr·m²)) of the virtual lanes: vertex values (light rotated into each
+    object's frame) interpolated with the barycentrics of the lanes' primary hits, times the
+    albedo; plus, with ``glossy``, the SoG specular term times the self-shadowing factor
+    (module docstring)."""
     idx = dr.compress(gb.virtual)
     if dr.width(idx) == 0 or not data.objects:
         return dr.zeros(mi.Color3f, 0), dr.zeros(mi.UInt32, 0)
@@ -232,7 +293,15 @@ def shade_virtual(data: PRTData, gb: GBuffer, view: FrameView, options: Options,
     for c, w in enumerate((1.0 - b1 - b2, b1, b2)):
         vid = dr.gather(mi.UInt32, data.faces, tri * 3 + c)
         out += w * dr.gather(mi.Color3f, table, vid)
-    out = dr.maximum(out, 0.0) * dr.gather(mi.Color3f, gb.albedo, idx)
+    rad = dr.maximum(out, 0.0) * dr.gather(mi.Color3f, gb.albedo, idx)
+    if data.sog is not None and data.env is not None and options.glossy:
+        n = dr.gather(mi.Vector3f, gb.normal, idx)
+        shape_idx = dr.gather(mi.Int32, gb.shape, idx)
+        vis = self_shadowing(out, unshadowed(data.light, n, options.order))
+        spec = data.sog.radiance(data.env, shape_idx, n, dr.gather(mi.Vector3f, gb.to_camera,
+                                                                   idx))
+        rad += spec * dr.gather(mi.Color3f, data.ks, shape_idx) * vis
+    out = rad
     dr.eval(out)
     return out, idx
 
@@ -256,6 +325,5 @@ class PRTMethod(BaseMethod):
         return layers
 
 
-__all__ = ["OPTIONS", "PRTData", "PRTMethod", "PRTObject", "SPEC", "light_sh", "object_mesh",
-           "prepare",
-           "shade_virtual"]
+__all__ = ["OPTIONS", "PRTData", "PRTMethod", "PRTObject", "SPEC", "glossy_tables", "light_sh",
+           "object_mesh", "prepare", "self_shadowing", "shade_virtual", "unshadowed"]
