@@ -128,6 +128,27 @@ def test_rsm_pair_equals_two_casts():
         assert differ.any() == virtual
 
 
+@pytest.mark.parametrize("material,albedo", [
+    ({"type": "diffuse", "albedo": 0.4}, 0.4),
+    ({"type": "phong", "kd": 0.5, "ks": 0.3, "exponent": 20}, 0.5),
+    ({"type": "roughconductor", "alpha": 0.3, "reflectance": [0.9, 0.6, 0.3]}, 0.0),
+    ({"type": "glass", "ior": 1.5}, 0.0),
+])
+def test_gbuffer_albedo_is_the_diffuse_lobe(material, albedo):
+    """The G-buffer (and RSM) albedo is the diffuse lobe's reflectance only. Rejects Mitsuba's
+    default ``eval_diffuse_reflectance`` (the whole BRDF at normal incidence: 3.5 for this
+    Phong, 2.4 for the rough conductor), which made every real-time method treat glossy
+    surfaces as brighter-than-white diffuse ones."""
+    d = {"camera": {"resolution": [8, 6], "fov_y_deg": 30,
+                    "look_at": {"origin": [0, 0, 3], "target": [0, 0, 0]}},
+         "shapes": [{"name": "p", "role": "real", "type": "rectangle", "size": [5, 5],
+                     "normal": [0, 0, 1], "material": material}],
+         "lights": [{"type": "point", "position": [0, 0, 2], "intensity": 1.0}]}
+    scene = parse_scene(d)
+    gb = render_gbuffer(build_views(scene.world).mixed, scene.camera)
+    np.testing.assert_allclose(resolve(gb, gb.albedo), albedo, atol=1e-6)
+
+
 def test_gbuffer_roles_and_albedo():
     """The G-buffer's albedo is the hit material's reflectance and its roles match the
     mask of virtual coverage; rejects reading the albedo of the wrong shape."""

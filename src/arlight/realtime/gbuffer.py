@@ -63,10 +63,13 @@ class GBuffer:
 
 
 def surface_albedo(si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Color3f:
-    """Diffuse reflectance of the BSDF at ``si`` (0 where inactive)."""
+    """Diffuse reflectance of the BSDF at ``si``: 0 where inactive and for BSDFs without a
+    diffuse lobe (metals, glass, mirrors — Mitsuba's default ``eval_diffuse_reflectance``
+    evaluates the whole BRDF at normal incidence, ~2.4 for a rough conductor)."""
     bsdf = si.bsdf()
-    alb = bsdf.eval_diffuse_reflectance(si, active)
-    return dr.select(active, mi.Color3f(alb), mi.Color3f(0.0))
+    diffuse = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.DiffuseReflection)
+    alb = bsdf.eval_diffuse_reflectance(si, diffuse)
+    return dr.select(diffuse, mi.Color3f(alb), mi.Color3f(0.0))
 
 
 def facing(n: mi.Vector3f, towards: mi.Vector3f) -> mi.Vector3f:
