@@ -14,7 +14,8 @@ machines are noisy, absolute times are not comparable across runs).
 Issue 10 adds two sections:
 
 * ``## Light estimation II: main light per panorama (issue 10)``: on each panorama of
-  ``../shared/assets/hdri`` and the bundled Grace probe, the main light of
+  the bundled panoramas (``src/arlight/data/light/panoramas``, the demo's lebombo, the Grace
+  probe), the main light of
   ``LightEstimate.from_envmap`` (``regions``, and the former ``median_cut`` default) against
   the *dominant highlight region*, found here independently: pixels above 4x the mean
   luminance, 8-connected with ``scipy.ndimage.label``, joined across the seam and at the
@@ -23,8 +24,8 @@ Issue 10 adds two sections:
   its size the radius of the cap with the same mean cosine. "Compact" = radius <= 10 deg;
   acceptance there: direction within 2 deg, energy >= 90 % of the region's.
 * ``## Light estimation II: 4k end-to-end (issue 10)``: ``python -m arlight.light.cli
-  estimate`` on a 4096x2048 EXR (rooitou_park upsampled), in subprocesses, today's code vs
-  the code before issue 10 (a ``git worktree`` of ``--old-rev``), interleaved; wall time and
+  estimate`` on a 4096x2048 EXR (the bundled rooitou_park upsampled), in subprocesses, today's
+  code vs the code before issue 10 (a ``git worktree`` of ``--old-rev``), interleaved; wall time and
   the process's own peak RSS (``VmHWM``). The fixed overhead is the same command on a 256x128
   map.
 
@@ -56,7 +57,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## Light estimation (issue 5)"
 SECTION_MAIN = "## Light estimation II: main light per panorama (issue 10)"
 SECTION_E2E = "## Light estimation II: 4k end-to-end (issue 10)"
-HDRI = ROOT.parent / "shared" / "assets" / "hdri"
+HDRI = ROOT / "src/arlight/data/light/panoramas"
+DEMO_MAP = ROOT / "src/arlight/data/demo/lebombo_512x256.hdr"
 GRACE = ROOT / "src/arlight/data/light/grace_latlong_256x128.hdr"
 OLD_REV = "ae58ea7"  # the last commit before issue 10's light estimation work
 COMPACT_DEG = 10.0
@@ -175,8 +177,7 @@ def panorama_table() -> tuple[list[str], bool]:
     from arlight.light.estimate import LightEstimate
 
     files = sorted(p for p in HDRI.glob("*") if p.suffix.lower() in (".hdr", ".exr"))
-    if GRACE.name not in {p.name for p in files}:
-        files.append(GRACE)
+    files += [DEMO_MAP, GRACE]
     rows, ok = [], True
     for f in files:
         img = read_linear(f)
@@ -244,7 +245,7 @@ def end_to_end(repeats: int, old_rev: str) -> list[str]:
                         old_rev], check=True, capture_output=True)
         try:
             big = tmp / "rooitou_4k.exr"
-            write_exr(big, resize_equirect(read_linear(HDRI / "rooitou_park_1k.hdr"), 2048))
+            write_exr(big, resize_equirect(read_linear(HDRI / "rooitou_park_512x256.hdr"), 2048))
             map_mb = 2048 * 4096 * 3 * 4 / 2**20
             stats = {}
             for name, src in (("old", old / "src"), ("new", None)):

@@ -5,8 +5,8 @@ sphere; one albedo) rendered by Mitsuba's path tracer (direct light) under an an
 with RGB + depth + poses, reconstructed with the TSDF (2 m, 268³), then every variant runs
 the sequence on the reconstruction. Lights: an SH cap light (16 coefficients, Gruber's
 "circular area light falling off from centre to border"), and real HDR maps rotated 45° per
-frame (``studio_small_03`` and ``rooitou_park`` from ``../shared/assets/hdri`` when present,
-and the bundled ``lebombo``, whose ground reflects 81 % as much as the sky: its dominant
+frame (the bundled ``studio_small_03`` and ``rooitou_park`` panoramas, 512×256, and the
+demo's ``lebombo``, whose ground reflects 81 % as much as the sky: its dominant
 direction depends on light the floor hides). Static and moving camera, a virtual sphere and
 box inserted; mean ± std of ``dot(d_est, d_true)`` over frames, the relative SH error, the
 upper-hemisphere radiance error, the environment-map error (median |ΔL| / mean L on a
@@ -44,14 +44,13 @@ GRUBER = {"static": {"RM": 0.9488, "REG4": 0.9399, "REG8": 0.9393, "ART1": 0.957
                      "ART4": 0.9475, "ART8": 0.9521},
           "moving": {"RM": 0.9616, "REG4": 0.9606, "REG8": 0.9626, "ART1": 0.9621,
                      "ART4": 0.9559, "ART8": 0.9624}}
-SHARED_HDRI = Path(__file__).resolve().parents[2] / "shared" / "assets" / "hdri"
+PANORAMAS = Path(__file__).resolve().parents[1] / "src/arlight/data/light/panoramas"
 
 
 def accuracy(n: int) -> str:
     lights: dict[str, tuple[str, Path | None]] = {"SH cap light": ("sh", None)}
-    for name in ("studio_small_03_1k.hdr", "rooitou_park_1k.hdr"):
-        if (SHARED_HDRI / name).is_file():
-            lights[f"HDR {name.split('_1k')[0]}"] = ("hdr", SHARED_HDRI / name)
+    for name in ("studio_small_03", "rooitou_park"):
+        lights[f"HDR {name}"] = ("hdr", PANORAMAS / f"{name}_512x256.hdr")
     lights["HDR lebombo (bundled)"] = ("hdr", None)
     res = table1(n=n, lights=lights, virtual=virtual_objects())
     names = list(VARIANTS)

@@ -9,8 +9,8 @@ import pytest
 from arlight.probeless.experiment import score_sequence
 from arlight.probeless.synthetic import render_sequence
 
-STUDIO = Path(__file__).resolve().parents[3] / "shared" / "assets" / "hdri" / \
-    "studio_small_03_1k.hdr"
+STUDIO = (Path(__file__).resolve().parents[2] / "src" / "arlight" / "data" / "light"
+          / "panoramas" / "studio_small_03_512x256.hdr")
 
 
 @pytest.mark.slow
@@ -28,7 +28,6 @@ def test_sh_light_dominant_direction(moving, floor):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not STUDIO.is_file(), reason="shared HDR assets not present")
 def test_real_hdr_map_dominant_direction():
     """A real HDR map (studio, lamps 54° up) rotated per frame: mean dot ≥ 0.94 (ART4)."""
     frames = render_sequence("hdr", n=8, moving=True, width=160, height=120, spp=64,

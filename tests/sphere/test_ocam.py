@@ -13,8 +13,7 @@ from arlight.sphere.fisheye import FisheyeCamera, OcamCamera, load_camera
 
 DATA = Path(__file__).resolve().parents[2] / "src" / "arlight" / "data" / "light"
 CALIB = DATA / "ocamcalib_fisheye_calib_results.txt"
-PHOTO = (Path(__file__).resolve().parents[3] / "shared" / "assets" / "photos"
-         / "fisheye_ocamcalib" / "test_fisheye.jpg")
+PHOTO = DATA / "ocamcalib_fisheye.jpg"
 
 
 @pytest.fixture
@@ -146,7 +145,6 @@ def test_opencv_models_still_load(tmp_path):
     assert load_camera(f).fov_deg == 170 and load_camera(f, 150).fov_deg == 150
 
 
-@pytest.mark.skipif(not PHOTO.is_file(), reason="shared fisheye photo not present")
 def test_real_photo_end_to_end(tmp_path):
     """The real OCamCalib photo with its calibration: `arlight light estimate` succeeds,
     warns about its clipped whites, and reports the observed fraction of the sphere as

@@ -1,8 +1,8 @@
 """``probeless``: light estimated from the frame itself, SH differential rendering (Gruber 2014).
 
 Gruber, Langlotz, Sen, Höllerer, Schmalstieg, "Efficient and Robust Radiance Transfer for
-Probeless Photorealistic Augmented Reality", IEEE VR 2014 (digest:
-``../shared/research/gruber-2014-digest.md``). No light probe and no scene lights: the light
+Probeless Photorealistic Augmented Reality", IEEE VR 2014 (equation numbers E3, E5, E7 as in
+``docs/methods/probeless.md``). No light probe and no scene lights: the light
 is the 16-coefficient SH that best explains how the real proxy (a reconstruction) is shaded in
 the camera frame (E5), using the proxy's short-range radiance transfer (E3: 81 world-fixed
 directions, visibility up to 10 cm). The same transfer, with the virtual objects added, renders

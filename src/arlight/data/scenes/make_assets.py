@@ -26,6 +26,10 @@ import trimesh
 
 HERE = Path(__file__).resolve().parent
 
+PANORAMAS = ("rooitou_park", "studio_small_03", "st_fagans_interior", "empty_warehouse_01",
+             "potsdamer_platz")
+"""Poly Haven panoramas bundled for light estimation (benchmarks and tests)."""
+
 MESHES = {  # output name: (source file, target faces, rotation to +Y up (axis, deg) or None)
     "bunny.ply": ("meshes/bunny.ply", 2500, None),
     "dragon.ply": ("meshes/dragon_vrip_res3.ply", 4000, None),
@@ -133,16 +137,31 @@ def main(assets: Path | None) -> None:
             m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(deg), axis))
         save(normalise(m), name)
 
-    # Outdoor environment: Poly Haven "rooitou_park" (CC0) 1024×512 → 256×128 by 4×4 box
-    # averaging (preserves the mean radiance and the sun's total power).
     from arlight.io.images import read_hdr, write_exr
 
-    env = read_hdr(assets / "hdri/rooitou_park_1k.hdr").astype(np.float64)
-    h, w, _ = env.shape
-    small = env.reshape(h // 4, 4, w // 4, 4, 3).mean(axis=(1, 3))
+    # Outdoor environment: Poly Haven "rooitou_park" (CC0) 1024×512 → 256×128 by 4×4 box
+    # averaging (preserves the mean radiance and the sun's total power).
+    small = box_downsample(read_hdr(assets / "hdri/rooitou_park_1k.hdr"), 4)
     write_exr(HERE / "outdoor-env" / "rooitou_park_256x128.exr", small.astype(np.float32))
     print("rooitou_park_256x128.exr", small.shape, float(small.max()))
 
+    # Light-estimation panoramas (arlight/data/light/panoramas/, Poly Haven, CC0): 1024×512 →
+    # 512×256 by 2×2 box averaging, written as Radiance RGBE by Mitsuba.
+    import mitsuba as mi
+
+    out = HERE.parent / "light" / "panoramas"
+    out.mkdir(exist_ok=True)
+    for name in PANORAMAS:
+        half = box_downsample(read_hdr(assets / f"hdri/{name}_1k.hdr"), 2)
+        mi.Bitmap(half.astype(np.float32)).write(str(out / f"{name}_512x256.hdr"))
+        print(f"{name}_512x256.hdr", half.shape, float(half.max()))
+
+
+def box_downsample(image: np.ndarray, k: int) -> np.ndarray:
+    """``k × k`` box average of an ``(H, W, 3)`` image (H, W multiples of k), float64: the
+    mean radiance, and so every source's total power on the sphere, is kept."""
+    h, w, c = image.shape
+    return np.asarray(image, np.float64).reshape(h // k, k, w // k, k, c).mean(axis=(1, 3))
 
 if __name__ == "__main__":
     if len(sys.argv) > 2:
