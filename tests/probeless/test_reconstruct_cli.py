@@ -126,3 +126,20 @@ def test_reader_names_file_and_field(tmp_path, frames):
     with pytest.raises(InputError) as exc:
         read_sequence(folder, log)
     assert exc.value.field == "poses" and "traj.log" in str(exc.value)
+
+
+def test_raw_sensor_depth_is_scaled_and_must_be_one_channel(tmp_path):
+    """A 16-bit PNG of sensor units is read unconverted and divided by the units per metre
+    (1500 mm → 1.5 m); a three-channel image given as depth is an error naming the file.
+    Rejects reading it through the colour path (normalised to [0, 1] or gamma-decoded) and
+    taking one channel of a colour image as depth."""
+    from arlight.io.images import read_depth
+
+    depth = tmp_path / "d.png"
+    cv2.imwrite(str(depth), np.full((4, 5), 1500, np.uint16))
+    assert np.array_equal(read_depth(depth, 1000.0), np.full((4, 5), 1.5, np.float32))
+    colour = tmp_path / "c.png"
+    cv2.imwrite(str(colour), np.zeros((4, 5, 3), np.uint8))
+    with pytest.raises(InputError, match="one channel") as e:
+        read_depth(colour, 1000.0)
+    assert e.value.file == str(colour)

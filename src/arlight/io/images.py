@@ -150,18 +150,29 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
     return Path(path)
 
 
-def read_depth(path: str | Path) -> np.ndarray:
+def read_depth(path: str | Path, units_per_metre: float | None = None) -> np.ndarray:
     """Read a depth image as float32 ``(H, W)``: metres along the camera's +z axis.
 
     ``.npy`` files hold a 2-D float array; image files (EXR, PFM, ...) are read through
     Mitsuba's Bitmap and their first channel is used (a single-channel ``Y``/``Z`` EXR is the
-    usual form). NaN and 0 mark unknown depth; negative or infinite values are errors.
+    usual form). With ``units_per_metre`` the file holds raw sensor values instead (16-bit PNG
+    of an RGB-D camera: 1000 = millimetres, TUM 5000), read unconverted by OpenCV and divided.
+    NaN and 0 mark unknown depth; negative or infinite values are errors.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", file=str(path))
     try:
-        if path.suffix.lower() == ".npy":
+        if units_per_metre is not None:
+            import cv2
+
+            raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if raw is None:
+                raise ValueError("OpenCV cannot read it")
+            if raw.ndim != 2:  # a sensor's depth has one channel; three is a colour image
+                raise ValueError(f"raw depth must be one channel, got shape {raw.shape}")
+            arr = raw.astype(np.float32) / np.float32(units_per_metre)
+        elif path.suffix.lower() == ".npy":
             arr = np.load(path, allow_pickle=False)
         else:
             mi = _bitmap_module()

@@ -76,18 +76,6 @@ def _images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT)
 
 
-def _read_depth(path: Path, scale: float) -> np.ndarray:
-    import cv2
-
-    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if d is None:
-        raise InputError("cannot read the depth image", file=str(path), field="depth")
-    if d.ndim != 2:
-        raise InputError(f"depth must be one channel, got shape {d.shape}", file=str(path),
-                         field="depth")
-    return (d.astype(np.float32) / np.float32(scale))
-
-
 def parse_intrinsics(text: str | None, folder: Path) -> tuple[float, float, float, float]:
     """``fx,fy,cx,cy`` from the option, else ``RGBD_DIR/intrinsics.json``."""
     if text is not None:
@@ -119,7 +107,7 @@ def read_sequence(folder: str | Path, poses: str | Path | None,
                   intrinsics: str | None = None, depth_scale: float = 1000.0,
                   max_frames: int | None = None) -> list[RGBDFrame]:
     """Read and check every frame of an RGB-D folder (see the module docstring)."""
-    from arlight.io.images import read_linear
+    from arlight.io.images import read_depth, read_linear
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -148,7 +136,7 @@ def read_sequence(folder: str | Path, poses: str | Path | None,
     frames = []
     for i in range(n):
         col = read_linear(colours[i])
-        dep = _read_depth(depths[i], depth_scale)
+        dep = read_depth(depths[i], depth_scale)
         if col.shape[:2] != dep.shape:
             raise InputError(f"depth is {dep.shape[1]}×{dep.shape[0]} but colour "
                              f"{colours[i].name} is {col.shape[1]}×{col.shape[0]}",
