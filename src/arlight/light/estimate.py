@@ -316,12 +316,17 @@ class LightEstimate:
         return self.ambient_sh(order) + SH.directional_light_coeffs(
             self.main_direction, self.main_irradiance, order)
 
+    def explicit_lights(self) -> list[ExtractedLight]:
+        """The main light followed by the extra lights (the main one may have zero
+        irradiance: an estimate whose light is all in the SH)."""
+        return [ExtractedLight(self.main_direction, self.main_irradiance), *self.lights]
+
     def irradiance(self, normals: np.ndarray) -> np.ndarray:
         """Irradiance (W/m^2) at unit normals: 9-coefficient SH of the ambient part plus the
         explicit lights with their exact clamped cosine."""
         n = np.asarray(normals, np.float64).reshape(-1, 3)
         E = SH.irradiance(self.sh, n)
-        for lt in [ExtractedLight(self.main_direction, self.main_irradiance), *self.lights]:
+        for lt in self.explicit_lights():
             E += np.clip(n @ lt.direction, 0, None)[:, None] * lt.irradiance[None]
         return E
 
@@ -345,9 +350,7 @@ class LightEstimate:
                      "scale": float(envmap_scale), "rotation_deg": 0.0}]
         if light_type not in ("directional", "point"):
             raise ValueError(f"light_type must be 'directional' or 'point', got {light_type!r}")
-        lights = [ExtractedLight(self.main_direction, self.main_irradiance)]
-        if include_extra:
-            lights += self.lights
+        lights = self.explicit_lights() if include_extra else self.explicit_lights()[:1]
         out: list[dict] = []
         for lt in lights:
             if not np.any(lt.irradiance > 0):

@@ -9,11 +9,13 @@ sources" of Franke 2013 §4.3 (16 extracted from the fisheye image in the thesis
 * ``area`` (one-sided emitting rectangle of radiance ``L``, area ``A``, normal ``n``): a
   ``g × g`` grid of **cosine points** at the patch centres, each with radiant intensity
   ``I(ω) = L · A/g² · <n, ω>+`` (W/sr), the far field of a Lambertian patch;
-* ``envmap`` / ``sh`` / ``constant``: the part above ``threshold_factor`` × the mean luminance
-  (:func:`arlight.light.extract.split_highlights`) becomes ``env_lights`` directional lights
-  by median cut (Debevec 2005, :func:`arlight.light.extract.median_cut`); the remainder is
-  projected onto 9 SH coefficients per channel (order 2) and kept as **ambient** light
-  (:attr:`LightSet.ambient_sh`, radiance). A constant environment is all ambient.
+* ``envmap`` / ``sh`` / ``constant``: the light estimate of the map
+  (:meth:`arlight.light.estimate.LightEstimate.from_envmap`, the same one ``arlight light
+  estimate`` makes): each connected region above ``threshold_factor`` × the mean luminance
+  is one directional light with all of its energy (a sun is one light, not fragments), at
+  most ``env_lights`` of them; the remainder is projected onto 9 SH coefficients per channel
+  (order 2) and kept as **ambient** light (:attr:`LightSet.ambient_sh`, radiance). A
+  constant environment is all ambient.
 
 Energy is kept: the cosine points of an area light emit its total power ``π L A``; the
 directional lights plus the ambient SH integrate to the map's irradiance.
@@ -29,13 +31,13 @@ import numpy as np
 from arlight.errors import InputError
 from arlight.scene.model import World
 from arlight.scene.schema import Field
-from arlight.sphere.sh import LUMINANCE, project_equirect, rotate
+from arlight.sphere.sh import LUMINANCE, rotate
 
 KINDS = ("point", "cosine", "spot", "directional")
 
 OPTIONS: dict[str, Field] = {
     "env_lights": Field("int", 4, "directional lights extracted from an environment map's "
-                        "highlights (median cut); the rest is SH ambient", "", min=0, max=256),
+                        "highlight regions (at most); the rest is SH ambient", "", min=0, max=256),
     "area_grid": Field("int", 1, "cosine point lights per side of an area light", "", min=1,
                        max=16),
 }
@@ -126,21 +128,17 @@ def _area(name: str, p: dict, grid: int) -> list[ReducedLight]:
 
 def _environment(name: str, image: np.ndarray, rotation_deg: float, env_lights: int,
                  threshold_factor: float) -> tuple[list[ReducedLight], np.ndarray]:
-    from arlight.light.extract import auto_threshold, median_cut, split_highlights
+    from arlight.light.estimate import LightEstimate
+    from arlight.light.extract import auto_threshold
 
     img = np.asarray(image, np.float64)[..., :3]
     rot = _rot_y(rotation_deg)
-    lights = []
-    rest = img
-    if env_lights > 0:
-        bright, rest = split_highlights(img, auto_threshold(img, threshold_factor))
-        if float(bright.sum()) > 0.0:
-            for x in median_cut(bright, env_lights):
-                if float(np.max(x.irradiance)) <= 0.0:
-                    continue
-                lights.append(ReducedLight("directional", np.zeros(3), -(rot @ x.direction),
-                                           x.irradiance.copy(), source=name))
-    sh = project_equirect(np.asarray(rest, np.float64), 2)
+    est = LightEstimate.from_envmap(img, n_lights=env_lights, sh_order=2, keep_map=False,
+                                    threshold=auto_threshold(img, threshold_factor))
+    lights = [ReducedLight("directional", np.zeros(3), -(rot @ x.direction),
+                           np.asarray(x.irradiance, np.float64).copy(), source=name)
+              for x in est.explicit_lights() if float(np.max(x.irradiance)) > 0.0]
+    sh = est.sh
     if abs(rotation_deg) > 0.0:
         sh = rotate(sh, rot)
     return lights, np.asarray(sh, np.float64).reshape(9, 3)
