@@ -169,3 +169,16 @@ def test_higher_sh_order_is_supported_and_close_to_order_two():
     m = a.mask > 0.999
     rel = np.abs(a.mixed[m] - b.mixed[m]).mean() / a.mixed[m].mean()
     assert rel < 0.05
+
+
+@pytest.mark.parametrize("name", ["bunny-box", "outdoor-env", "mirror-dragon"])
+def test_quality_against_ground_truth(name):
+    """Graded against Mitsuba's ground truth like the other real-time methods: the composite
+    beats the untouched frame overall and on the virtual pixels (measured MSE ratios
+    0.40–0.69 overall, 0.18–0.65 virtual) and the relit ring is not clearly worse than the
+    frame (0.60–1.09). Rejects an unlit or black object, shadows of the wrong sign, an AR-OOF
+    that brightens."""
+    from tests.methods.test_dlpv import suite_quality
+
+    r = suite_quality("ibl", name)
+    assert r["all"] < 0.97 and r["virtual"] < 0.7 and r["ring"] < 1.15, r

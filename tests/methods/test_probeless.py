@@ -83,3 +83,15 @@ def test_virtual_box_darkens_only_where_transfer_changes(scenes):
     assert np.allclose(layers.mixed[virt], full[virt], rtol=1e-5, atol=1e-6)
     assert np.array_equal(layers.mask, virt.astype(np.float32))
     assert layers.stats["light_rank"] == 16
+
+
+def test_quality_against_ground_truth():
+    """On bunny-box (the proxy carries sensor depth), with the light estimated from the frame
+    alone, the composite beats the untouched frame against Mitsuba's ground truth overall and
+    on the virtual pixels (measured MSE ratios 0.42 and 0.12) and the relit ring is not
+    clearly worse than the frame (0.95). Rejects an estimate of the wrong sign or scale, an
+    unlit object, a delta that brightens shadows."""
+    from tests.methods.test_dlpv import suite_quality
+
+    r = suite_quality("probeless", "bunny-box")
+    assert r["all"] < 0.97 and r["virtual"] < 0.6 and r["ring"] < 1.15, r
