@@ -77,6 +77,9 @@ class TracerOptions:
         mirror_lower_hemisphere: with ``miss_only``, directions below the horizon read the
             map at the mirrored direction (Kán §5.3, fisheye maps cover only the upper half).
         reproject: camera-image reprojection through virtual specular objects (Kán §5.2).
+        first_emission_depth: vertices at smaller depths collect no emitted radiance (0: all
+            do; 1: paths started at an irradiance-cache record gather indirect light only,
+            the direct light being the camera's, Kán §4.2 / :mod:`arlight.methods.dic`).
     """
 
     max_depth: int = 8
@@ -84,6 +87,7 @@ class TracerOptions:
     env_mode: str = "mis"
     mirror_lower_hemisphere: bool = False
     reproject: bool = True
+    first_emission_depth: int = 0
 
 
 @dataclass
@@ -364,6 +368,8 @@ class OnePassTracer:
         if self.miss_only:
             mis = dr.select(self._is_env(ds.emitter), 1.0, mis)
         le = st.beta * mis * ds.emitter.eval(si, active)
+        if self.opts.first_emission_depth > 0:
+            le = dr.select(depth >= self.opts.first_emission_depth, le, 0.0)
         lm = add(lm, le, to_mixed)
         lr = add(lr, le, to_real)
 
