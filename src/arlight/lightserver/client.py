@@ -1,0 +1,297 @@
+"""The client side: subscribe to a light server and keep the latest light state.
+
+:class:`LightClient` runs one receiver thread that owns its sockets (a SUB socket on the
+server's publish endpoint, a DEALER socket on its snapshot endpoint). Every message is
+decoded and validated completely (:func:`arlight.lightserver.wire.decode`) before the
+client's state — one immutable :class:`~arlight.nearfield.NearFieldLight` — is replaced by a
+single reference assignment, so a renderer that reads :attr:`LightClient.latest` once per
+frame never sees a half-applied update. Bad messages are counted and dropped.
+
+Ordering, gaps and restarts:
+
+- Updates with a sequence at or below the current one (same server epoch) are stale and
+  dropped; a jump counts the skipped updates as ``gaps`` (the latest state is what matters).
+- A heartbeat announcing a newer sequence than the client holds (an update was dropped by a
+  high-water mark or conflation) triggers a snapshot request: the client ends on the latest
+  state even when it missed the update itself.
+- A new epoch (the server restarted) is accepted from its first message.
+- No message for ``heartbeat_timeout`` seconds: the server is taken as lost; the client
+  closes and reopens both sockets and asks for a snapshot, again every ``heartbeat_timeout``
+  until the server answers (``reconnects`` counts the attempts). It never raises on this.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+import zmq
+
+from arlight.errors import ArlightError, InputError
+from arlight.lightserver import transport, wire
+from arlight.nearfield.state import NearFieldLight
+
+HISTORY = 100_000
+"""Latencies kept (the latest ones)."""
+
+
+@dataclass
+class ClientStats:
+    """Counters of a client (read a copy with :meth:`LightClient.stats`).
+
+    ``latencies`` are publication → receipt seconds of the updates received on the
+    subscription (header ``sent`` to the moment the decoded state was swapped in; the
+    server and client clocks must agree, as on one machine).
+    """
+
+    received: int = 0
+    applied: int = 0
+    from_snapshot: int = 0
+    heartbeats: int = 0
+    stale: int = 0
+    gaps: int = 0
+    restarts: int = 0
+    reconnects: int = 0
+    snapshot_requests: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    bytes_received: int = 0
+    latencies: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
+    last_version_seen: int | None = None
+
+    @property
+    def rejected_total(self) -> int:
+        """Messages dropped as invalid (all reasons)."""
+        return sum(self.rejected.values())
+
+
+class LightClient:
+    """Subscribe to a light server; :attr:`latest` is the newest valid state.
+
+    Args:
+        connect: the server's publish endpoint, e.g. ``tcp://127.0.0.1:5556``.
+        snapshot: its snapshot endpoint (default: ``connect``'s port + 1).
+        heartbeat_timeout: seconds without any message before the server counts as lost
+            and the client reconnects (the server sends a heartbeat every 0.25 s by default).
+        conflate: keep only the newest message in the receive queue (ZMQ_CONFLATE; for a
+            client that reads slower than the server publishes).
+        rcvhwm: receive queue length in messages (without ``conflate``).
+        context: a ZeroMQ context to share (many clients in one process); default: own.
+    """
+
+    def __init__(self, connect: str, snapshot: str | None = None, *,
+                 heartbeat_timeout: float = 1.0, conflate: bool = False, rcvhwm: int = 64,
+                 context: zmq.Context | None = None):
+        self.connect = transport.check_endpoint(connect, "--connect", bind=False)
+        self.snapshot = transport.check_endpoint(
+            snapshot or transport.next_port_endpoint(connect), "--snapshot", bind=False)
+        if heartbeat_timeout <= 0:
+            raise InputError("must be > 0 seconds", field="heartbeat_timeout")
+        self.heartbeat_timeout = float(heartbeat_timeout)
+        self.conflate = conflate
+        self.rcvhwm = int(rcvhwm)
+        self._own_ctx = context is None
+        self._ctx = context or zmq.Context()
+        self._latest: NearFieldLight | None = None
+        self._epoch: int | None = None
+        self._stats = ClientStats()
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+        """An unexpected error that ended the receiver thread (None while healthy)."""
+
+    # -- public API ----------------------------------------------------------------------
+
+    @property
+    def latest(self) -> NearFieldLight | None:
+        """The newest valid light state (None before the first); read it once per frame."""
+        return self._latest
+
+    @property
+    def epoch(self) -> int | None:
+        """The epoch of the server the current state came from."""
+        return self._epoch
+
+    def start(self) -> LightClient:
+        """Start the receiver thread; returns self."""
+        self._thread = threading.Thread(target=self._run, name="lightclient", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Stop the receiver thread and release the sockets."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        if self._own_ctx:
+            self._ctx.destroy(linger=0)
+
+    def __enter__(self) -> LightClient:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def stats(self) -> ClientStats:
+        """A copy of the counters."""
+        with self._lock:
+            s = ClientStats(**{k: getattr(self._stats, k) for k in (
+                "received", "applied", "from_snapshot", "heartbeats", "stale", "gaps",
+                "restarts", "reconnects", "snapshot_requests", "bytes_received",
+                "last_version_seen")})
+            s.rejected = Counter(self._stats.rejected)
+            s.latencies = deque(self._stats.latencies, maxlen=HISTORY)
+        return s
+
+    def wait_for(self, sequence: int = 1, timeout: float = 5.0,
+                 epoch: int | None = None) -> NearFieldLight:
+        """Block until a state with at least ``sequence`` (of ``epoch``, if given) is held.
+
+        Raises :class:`WireVersionError` when nothing valid came but messages of another wire
+        version did, and :class:`ArlightError` on timeout.
+        """
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while True:
+                cur = self._latest
+                if cur is not None and cur.sequence >= sequence and (
+                        epoch is None or self._epoch == epoch):
+                    return cur
+                if cur is None and self._stats.rejected.get("version"):
+                    raise wire.WireVersionError(self._stats.last_version_seen or -1)
+                if self.error is not None:
+                    raise ArlightError(f"light client stopped: {self.error}")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    have = "no state" if cur is None else f"update {cur.sequence}"
+                    raise ArlightError(f"no light update {sequence} from {self.connect} "
+                                       f"within {timeout:g} s (have {have})")
+                self._changed.wait(min(left, 0.05))
+
+    # -- receiver thread -----------------------------------------------------------------
+
+    def _open(self) -> tuple[zmq.Socket, zmq.Socket]:
+        sub = self._ctx.socket(zmq.SUB)
+        sub.setsockopt(zmq.LINGER, 0)
+        if self.conflate:
+            sub.setsockopt(zmq.CONFLATE, 1)
+        else:
+            sub.setsockopt(zmq.RCVHWM, self.rcvhwm)
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        transport.connect(sub, self.connect, "--connect")
+        snap = self._ctx.socket(zmq.DEALER)
+        snap.setsockopt(zmq.LINGER, 0)
+        snap.setsockopt(zmq.SNDHWM, 1)
+        transport.connect(snap, self.snapshot, "--snapshot")
+        return sub, snap
+
+    def _request_snapshot(self, snap: zmq.Socket) -> None:
+        try:
+            snap.send(transport.SNAPSHOT_REQUEST, flags=zmq.NOBLOCK)
+            with self._lock:
+                self._stats.snapshot_requests += 1
+        except zmq.Again:  # one request is already queued
+            pass
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException as exc:  # noqa: BLE001 - surfaced by wait_for / .error
+            self.error = exc
+
+    def _loop(self) -> None:
+        sub, snap = self._open()
+        self._request_snapshot(snap)
+        poller = zmq.Poller()
+        poller.register(sub, zmq.POLLIN)
+        poller.register(snap, zmq.POLLIN)
+        last_heard = time.monotonic()
+        snap_asked = 0.0
+        try:
+            while not self._stop.is_set():
+                events = dict(poller.poll(50))
+                for sock in (sub, snap):
+                    if sock not in events:
+                        continue
+                    while True:  # drain what is queued
+                        try:
+                            msg = sock.recv(flags=zmq.NOBLOCK, copy=True)
+                        except zmq.Again:
+                            break
+                        last_heard = time.monotonic()
+                        if self._handle(msg, from_snapshot=sock is snap) and (
+                                time.monotonic() - snap_asked > 0.1):
+                            self._request_snapshot(snap)
+                            snap_asked = time.monotonic()
+                if time.monotonic() - last_heard > self.heartbeat_timeout:
+                    poller.unregister(sub)
+                    poller.unregister(snap)
+                    sub.close(linger=0)
+                    snap.close(linger=0)
+                    sub, snap = self._open()
+                    poller.register(sub, zmq.POLLIN)
+                    poller.register(snap, zmq.POLLIN)
+                    self._request_snapshot(snap)
+                    last_heard = time.monotonic()
+                    with self._lock:
+                        self._stats.reconnects += 1
+        finally:
+            sub.close(linger=0)
+            snap.close(linger=0)
+
+    def _handle(self, msg: bytes, *, from_snapshot: bool) -> bool:
+        """Decode and apply one message; True when a snapshot should be requested."""
+        with self._lock:
+            self._stats.received += 1
+            self._stats.bytes_received += len(msg)
+        try:
+            header, light = wire.decode(msg)
+        except wire.WireVersionError as exc:
+            with self._lock:
+                self._stats.rejected["version"] += 1
+                self._stats.last_version_seen = exc.version
+                self._changed.notify_all()
+            return False
+        except wire.WireError as exc:
+            reason = _reason(str(exc))
+            with self._lock:
+                self._stats.rejected[reason] += 1
+            return False
+        with self._changed:
+            st = self._stats
+            new_epoch = self._epoch is None or header.epoch != self._epoch
+            cur = 0 if new_epoch or self._latest is None else self._latest.sequence
+            if light is None:  # heartbeat (or an empty snapshot)
+                if not from_snapshot:
+                    st.heartbeats += 1
+                return header.sequence > cur
+            if not new_epoch and header.sequence <= cur:
+                if not from_snapshot:  # an older snapshot reply is no disorder
+                    st.stale += 1
+                return False
+            if new_epoch and self._epoch is not None:
+                st.restarts += 1
+            elif not new_epoch and header.sequence > cur + 1 and cur > 0:
+                st.gaps += header.sequence - cur - 1
+            self._latest = light  # the atomic swap: a complete, validated, immutable state
+            self._epoch = header.epoch
+            st.applied += 1
+            if from_snapshot:
+                st.from_snapshot += 1
+            else:
+                st.latencies.append(time.time() - header.sent)
+            self._changed.notify_all()
+        return False
+
+
+def _reason(message: str) -> str:
+    """A short counter key for a rejected message."""
+    for key in ("truncated", "magic", "corrupted", "kind", "claims", "needs", "finite",
+                "heartbeat", ">= 0", "unit"):
+        if key in message:
+            return {"needs": "length", "claims": "counts", ">= 0": "negative",
+                    "unit": "normal"}.get(key, key)
+    return "invalid"
