@@ -1,0 +1,108 @@
+"""Building a :class:`~arlight.sequence.job.SequenceJob` from a scene file, frames and poses.
+
+Where the camera poses come from (``--poses``):
+
+* a **poses text file** or a **keyframes TOML** file (:mod:`arlight.sequence.poses`),
+  interpolated (slerp) where the frame indices are sparse;
+* ``scene``: the scene file's camera pose for every frame (a fixed camera: a turntable);
+* ``marker``: the camera registered on a printed ChArUco board or ArUco marker in every frame
+  (:func:`arlight.insert.registration.register`, with ``--calib`` and ``--marker``); the
+  frames are undistorted, the intrinsics are the calibration's. The scene's world frame is
+  then the board frame, as in an ``arlight insert`` scene.
+
+Object transforms (``--objects``) come from an object poses file or the
+``[[objects.NAME]]`` keyframes of a TOML file. Everything is validated here, before the
+output folder is touched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from arlight.errors import InputError
+from arlight.methods import RenderSettings, get_method
+from arlight.scene.camera import Camera
+from arlight.scene.model import ARScene
+from arlight.sequence.frames import FrameSource
+from arlight.sequence.job import SequenceJob
+from arlight.sequence.poses import camera_poses, object_transforms
+
+
+def fit_camera(camera: Camera, size: tuple[int, int], where: str) -> Camera:
+    """The scene camera for frames of ``size`` (w, h): unchanged when equal, scaled
+    (:meth:`Camera.resized`) when the aspect ratio agrees within 0.5 %, else an error."""
+    w, h = size
+    if (w, h) == (camera.width, camera.height):
+        return camera
+    if abs((w / h) / (camera.width / camera.height) - 1) > 0.005:
+        raise InputError(f"frames are {w}×{h} but the scene camera is {camera.width}×"
+                         f"{camera.height} (another aspect ratio)", file=where,
+                         field="--frames")
+    return camera.resized(w, h)
+
+
+def marker_poses(source: FrameSource, calib_path: str | Path, marker: str,
+                 camera: Camera) -> tuple[Camera, list[np.ndarray], object]:
+    """Camera (calibrated intrinsics, the scene camera's transfer) and per-frame poses
+    registered on the marker; InputError naming the first frame where it is not found."""
+    from arlight.insert.registration import load_calibration, parse_marker, register
+
+    calib = load_calibration(calib_path)
+    spec = parse_marker(marker)
+    w, h = source.size
+    calib.check_size(w, h, str(source.path))
+    poses = []
+    for fr in source:
+        if fr.codes is not None:
+            codes = fr.codes if fr.codes.dtype == np.uint8 else (fr.codes >> 8).astype(np.uint8)
+        else:
+            assert fr.radiance is not None
+            codes = camera.transfer.to_display(fr.radiance)
+        poses.append(register(codes, calib, spec, f"{source.path} frame {fr.index} "
+                              f"({fr.name})").world_from_camera)
+    K = calib.K
+    cam = replace(camera, width=w, height=h, fx=float(K[0, 0]), fy=float(K[1, 1]),
+                  cx=float(K[0, 2]) + 0.5, cy=float(K[1, 2]) + 0.5)
+    return cam, poses, calib
+
+
+def build_job(scene: ARScene, source: FrameSource, method: str, settings: RenderSettings,
+              poses: str | Path = "scene", objects: str | Path | None = None,
+              axes: str = "opencv", calib: str | Path | None = None,
+              marker: str | None = None, fps: float | None = None, vary_seed: bool = False,
+              layers: bool = False, threads: int | None = None) -> SequenceJob:
+    """A job for ``scene`` (its world and camera) over the frames of ``source``.
+
+    Raises :class:`InputError` for an unknown method or option, a pose file whose frame count
+    differs from the frames', unknown object names, or a marker missing from a frame."""
+    fn = get_method(method)
+    fn.spec.parse_options(settings.options)
+    where = str(scene.source) if scene.source else "<scene>"
+    camera = fit_camera(scene.camera, source.size, where)
+    n = source.count
+    calibration = None
+    if str(poses) == "marker":
+        if calib is None or marker is None:
+            raise InputError("--poses marker needs --calib and --marker", field="--poses")
+        camera, pose_list, calibration = marker_poses(source, calib, marker, camera)
+    elif str(poses) == "scene":
+        pose_list = [camera.world_from_camera.copy() for _ in range(n)]
+    else:
+        pose_list = camera_poses(poses, n, axes)
+    names = {s.name: s for s in scene.shapes}
+    obj = [{} for _ in range(n)] if objects is None else object_transforms(objects, n, names)
+    world = scene.world
+    reason = fn.spec.unsupported_reason(world, None)
+    if reason:
+        raise InputError(reason, file=where, field="method")
+    rate = fps if fps else (source.fps or 24.0)
+    return SequenceJob(world=world, camera=camera, poses=pose_list, objects=obj,
+                       method=method, settings=settings, vary_seed=vary_seed, layers=layers,
+                       fps=rate, calibration=calibration, threads=threads,
+                       frames_fingerprint=source.fingerprint)
+
+
+__all__ = ["build_job", "fit_camera", "marker_poses"]

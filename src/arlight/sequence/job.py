@@ -1,0 +1,250 @@
+"""A sequence job: one world, one method, many views — and the rendering of one frame.
+
+:class:`SequenceJob` holds everything a frame needs except the frame's pixels: the world,
+the base camera (intrinsics, lens, transfer), the per-frame camera poses and object
+transforms, the method and its settings. It is plain picklable data, so a Ray worker on
+another machine receives it once (``ray.put``) and renders any frame of it.
+
+:func:`render_frame` is the only place a frame is rendered, in the sequential loop and in
+Ray workers alike: the method is prepared **once per process and job**
+(``method.prepare(world)``, kept in a module cache) and every frame is
+``method.render(state, view)`` — interactive methods keep their scene-level state across
+frames, and object motion goes through the method's ``pose()``. Every frame uses the same
+seed (Kán's fixed per-frame random sequence, thesis §4.4: a static scene renders bitwise
+identically frame after frame, so path-traced sequences do not flicker from noise alone);
+``vary_seed`` gives each frame its own seed instead (for comparison).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from arlight.methods import RenderSettings
+from arlight.scene.camera import Camera
+from arlight.scene.model import FrameView, World
+from arlight.sequence.frames import InputFrame
+
+SEED_STRIDE = 0x9E3779B1
+"""Frame ``i`` of a ``vary_seed`` job renders with seed ``seed + i·stride`` (mod 2³²)."""
+
+
+@dataclass
+class SequenceJob:
+    """What every frame of a sequence shares.
+
+    Attributes:
+        world: the static world (proxy, virtual objects in rest pose, lights).
+        camera: the camera of every frame before its pose (intrinsics for the frames'
+            size, lens, transfer function).
+        poses: ``world_from_camera`` (4×4, OpenCV axes) of each frame.
+        objects: per frame, shape name → 4×4 world-space transform (may be empty dicts).
+        method: registered method name.
+        settings: render settings (``progress`` is ignored).
+        vary_seed: give frame ``i`` seed ``seed + i·SEED_STRIDE`` instead of the same seed.
+        layers: also return the float layers (mixed, delta, mask, composite) of each frame.
+        fps: frames per second of the output video (and the views' timestamps).
+        calibration: a :class:`arlight.insert.registration.Calibration` whose distortion is
+            removed from every frame (marker-tracked sequences), or None.
+        threads: Dr.Jit threads per process (None: Dr.Jit's default, all cores).
+        frames_fingerprint: identifies the input frames (for resuming).
+        test_hook: folder of the fault-injection test (see :func:`_test_hook`), or None.
+    """
+
+    world: World
+    camera: Camera
+    poses: list[np.ndarray]
+    objects: list[dict[str, np.ndarray]]
+    method: str
+    settings: RenderSettings
+    vary_seed: bool = False
+    layers: bool = False
+    fps: float = 24.0
+    calibration: Any = None
+    threads: int | None = None
+    frames_fingerprint: str = ""
+    test_hook: str | None = None
+    parts: dict[str, str] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        if len(self.objects) != len(self.poses):
+            raise ValueError("objects and poses must have one entry per frame")
+        self.parts = self._part_hashes()
+
+    @property
+    def count(self) -> int:
+        return len(self.poses)
+
+    def _part_hashes(self) -> dict[str, str]:
+        """A hash per input of the job; equal hashes ⇒ equal frames (resume check)."""
+
+        def h(*items: Any) -> str:
+            d = hashlib.sha256()
+            for x in items:
+                if isinstance(x, np.ndarray):
+                    d.update(np.ascontiguousarray(x, np.float64).tobytes())
+                else:
+                    d.update(json.dumps(x, sort_keys=True, default=str).encode())
+            return d.hexdigest()[:16]
+
+        cam = self.camera
+        s = self.settings
+        calib = self.calibration
+        return {
+            "scene": h(self.world.raw),
+            "camera": h([cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
+                         cam.aperture_radius, cam.focus_distance, cam.aperture_shape,
+                         repr(cam.transfer)],
+                        *([] if calib is None else [calib.K, calib.dist])),
+            "poses": h(*self.poses),
+            "objects": h(*[x for o in self.objects for k in sorted(o) for x in (k, o[k])]),
+            "method": h(self.method, s.options),
+            "settings": h(s.spp, s.max_depth, s.rr_depth, s.seed, s.spp_per_pass,
+                          self.vary_seed),
+            "frames": self.frames_fingerprint,
+            "layers": h(self.layers),
+        }
+
+    @property
+    def key(self) -> str:
+        """The job's identity (hash of :attr:`parts`)."""
+        return hashlib.sha256(json.dumps(self.parts, sort_keys=True).encode()).hexdigest()[:24]
+
+    def frame_settings(self, index: int) -> RenderSettings:
+        if not self.vary_seed:
+            return replace(self.settings, progress=False)
+        return replace(self.settings, progress=False,
+                       seed=(self.settings.seed + index * SEED_STRIDE) & 0xFFFFFFFF)
+
+    def view(self, frame: InputFrame, depth: np.ndarray | None = None) -> FrameView:
+        """The view of ``frame``: its pose, object transforms, background (linear radiance,
+        undistorted with :attr:`calibration`), optional depth and timestamp ``i / fps``."""
+        i = frame.index
+        cam = replace(self.camera, world_from_camera=np.asarray(self.poses[i], np.float64))
+        codes = frame.codes
+        if codes is not None:
+            if self.calibration is not None:
+                from arlight.insert.registration import undistort
+
+                codes = undistort(codes, self.calibration)
+            radiance = cam.transfer.to_radiance(codes).astype(np.float32)
+        else:
+            assert frame.radiance is not None
+            radiance = frame.radiance
+            if self.calibration is not None:
+                from arlight.insert.registration import undistort
+
+                radiance = undistort(radiance, self.calibration)
+        return FrameView(camera=cam, frame=np.asarray(radiance, np.float32), frame_codes=codes,
+                         depth=depth, object_transforms=dict(self.objects[i]),
+                         timestamp=i / self.fps if self.fps > 0 else None)
+
+
+@dataclass
+class FrameResult:
+    """What rendering one frame returns (small: it travels back from Ray workers).
+
+    Attributes:
+        index: frame index.
+        display: the composite as display code values ``(H, W, 3)`` (uint8, or uint16 when
+            the input frame was 16-bit), through the camera's transfer function.
+        layers: float32 layers (``composite``, ``mixed``, ``delta``, ``mask``) when the job
+            asks for them, else empty.
+        stats: the method's stats (``seconds``, ``time_<stage>``, counters) plus
+            ``prepare_seconds`` (0 when this process had the method prepared already) and
+            ``pid``/``host`` of the process that rendered it.
+    """
+
+    index: int
+    display: np.ndarray
+    layers: dict[str, np.ndarray]
+    stats: dict[str, Any]
+
+
+_PREPARED: dict[str, tuple[Any, Any]] = {}
+"""Job key → (method, prepared state) of this process (one job at a time)."""
+
+
+def configure_threads(threads: int | None) -> None:
+    """Limit Dr.Jit's worker threads in this process (Ray workers share a machine)."""
+    if threads:
+        import drjit as dr
+
+        from arlight.backend.variant import ensure_variant
+
+        ensure_variant()
+        if dr.thread_count() != threads:
+            dr.set_thread_count(int(threads))
+
+
+def prepared(job: SequenceJob) -> tuple[Any, Any, float]:
+    """(method, state, seconds spent preparing now) — prepared once per process and job."""
+    from arlight.methods import get_method
+
+    hit = _PREPARED.get(job.key)
+    if hit is not None:
+        return hit[0], hit[1], 0.0
+    _PREPARED.clear()  # one job per process: release the previous job's state
+    configure_threads(job.threads)
+    t0 = time.perf_counter()
+    method = get_method(job.method)
+    state = method.prepare(job.world, job.frame_settings(0))
+    _PREPARED[job.key] = (method, state)
+    return method, state, time.perf_counter() - t0
+
+
+def _test_hook(job: SequenceJob, index: int) -> None:
+    """Fault-injection for tests: with ``job.test_hook = DIR`` and a file ``DIR/frame``
+    holding a frame index, the first attempt at that frame records its process id in
+    ``DIR/pid`` and sleeps (the test kills the process; Ray retries the task, and the
+    retry, seeing ``DIR/killed``, goes on). ``ARLIGHT_TEST_FRAME_DELAY`` (seconds) slows
+    every frame down (interruption tests)."""
+    delay = float(os.environ.get("ARLIGHT_TEST_FRAME_DELAY", "0") or 0)
+    if delay:
+        time.sleep(delay)
+    if not job.test_hook:
+        return
+    from pathlib import Path
+
+    d = Path(job.test_hook)
+    try:
+        target = int((d / "frame").read_text())
+    except (OSError, ValueError):
+        return
+    with open(d / "attempts", "a") as fh:
+        fh.write(f"{index} {os.getpid()}\n")
+    if index == target and not (d / "killed").exists():
+        (d / "pid").write_text(str(os.getpid()))
+        time.sleep(120)
+
+
+def render_frame(job: SequenceJob, frame: InputFrame,
+                 depth: np.ndarray | None = None) -> FrameResult:
+    """Render frame ``frame.index`` of ``job`` (the method prepared once per process)."""
+    import socket
+
+    _test_hook(job, frame.index)
+    method, state, prep = prepared(job)
+    view = job.view(frame, depth)
+    layers = method.render(state, view, job.frame_settings(frame.index))
+    cam = view.camera
+    # the bit depth of the input frame (as arlight.output.display_dtype)
+    dtype = np.uint16 if view.frame_codes is not None and \
+        view.frame_codes.dtype == np.uint16 else np.uint8
+    display = cam.transfer.to_display(layers.composite, dtype)
+    out_layers = {}
+    if job.layers:
+        out_layers = {"composite": layers.composite, "mixed": layers.mixed,
+                      "delta": layers.delta, "mask": layers.mask}
+    stats = {k: v for k, v in layers.stats.items() if isinstance(v, int | float)}
+    stats.update(prepare_seconds=prep, pid=os.getpid(), host=socket.gethostname())
+    return FrameResult(frame.index, display, out_layers, stats)
+
+
+__all__ = ["FrameResult", "SequenceJob", "configure_threads", "prepared", "render_frame"]
