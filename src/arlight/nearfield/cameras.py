@@ -1,0 +1,167 @@
+"""The rig of HDR fisheye cameras that observe the room (Rohmer §3.1).
+
+A :class:`RigCamera` is a calibrated fisheye model (:class:`~arlight.sphere.fisheye.
+FisheyeCamera` — equidistant or Kannala-Brandt — or OCamCalib's
+:class:`~arlight.sphere.fisheye.OcamCamera`), whose ``world_from_camera`` rotation is its
+orientation, plus its centre in the world. ``cams.toml``::
+
+    [[cameras]]
+    name = "front"
+    position = [0.0, 1.0, 0.9]        # m, world
+    look = [0.0, 0.0, -1.0]           # optical axis, world
+    up = [0.0, 1.0, 0.0]              # image up, world
+    calibration = "front_calib.txt"   # OCamCalib calib_results.txt, OpenCV .yml/.xml, JSON
+    # or, for an ideal lens:  equidistant = { size = [256, 256], fov_deg = 180.0 }
+    image = "front.exr"               # optional: the HDR image (``arlight light atlas``)
+
+:func:`auto_rig` places cameras for a world that has no rig (synthetic capture): one 180°
+equidistant camera per axis direction, a quarter of the way from the centre of the real
+geometry's bounding box towards each face of the box, looking outwards.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from arlight.errors import InputError
+from arlight.sphere.fisheye import FisheyeCamera, OcamCamera, load_camera
+
+Model = FisheyeCamera | OcamCamera
+
+
+@dataclass
+class RigCamera:
+    """One fisheye camera of the rig.
+
+    Attributes:
+        name: label used in errors and stats.
+        model: intrinsics and orientation (``world_from_camera``: OpenCV axes, z = optical
+            axis).
+        position: (3,) centre of projection, m (world).
+        image: path of its HDR image, if the rig file names one.
+    """
+
+    name: str
+    model: Model
+    position: np.ndarray
+    image: Path | None = None
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit main direction d_i in the world (Rohmer's α is measured from it)."""
+        return self.model.world_from_camera[:, 2].copy()
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.model.size
+
+
+def look_rotation(look, up) -> np.ndarray:
+    """``world_from_camera`` (OpenCV axes: x right, y down, z forward) of a camera looking
+    along ``look`` with image-up ``up`` (both world; need not be unit or orthogonal)."""
+    z = np.asarray(look, np.float64)
+    z = z / np.linalg.norm(z)
+    u = np.asarray(up, np.float64)
+    y = -(u - (u @ z) * z)
+    ny = np.linalg.norm(y)
+    if ny < 1e-9:
+        raise ValueError("up is parallel to look")
+    y /= ny
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def _vec3(entry: dict, key: str, where: str, file: str) -> np.ndarray:
+    v = entry.get(key)
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise InputError(f"expected 3 finite numbers, got {v!r}", file=file,
+                         field=f"{where}.{key}")
+    return a
+
+
+def load_rig(path: str | Path) -> list[RigCamera]:
+    """Read ``cams.toml`` (module docstring); relative paths are relative to the file.
+
+    Raises:
+        InputError: unreadable file, no cameras, a camera without calibration (neither
+            ``calibration`` nor ``equidistant``), bad vectors, a calibration that fails to
+            load; each names the file and field.
+    """
+    path = Path(path)
+    file = str(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise InputError("camera rig file not found", file=file) from exc
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"cannot read the camera rig ({exc})", file=file) from exc
+    entries = data.get("cameras")
+    if not isinstance(entries, list) or not entries:
+        raise InputError("expected at least one [[cameras]] table", file=file,
+                         field="cameras")
+    rig, names = [], set()
+    for k, e in enumerate(entries):
+        where = f"cameras[{k}]"
+        if not isinstance(e, dict):
+            raise InputError("expected a table", file=file, field=where)
+        name = str(e.get("name", f"cam{k}"))
+        if name in names:
+            raise InputError(f"duplicate camera name {name!r}", file=file,
+                             field=f"{where}.name")
+        names.add(name)
+        pos = _vec3(e, "position", where, file)
+        look = _vec3(e, "look", where, file)
+        up = _vec3(e, "up", where, file) if "up" in e else np.array([0.0, 1.0, 0.0])
+        try:
+            rot = look_rotation(look, up)
+        except ValueError as exc:
+            raise InputError(str(exc), file=file, field=f"{where}.up") from exc
+        model: Model
+        if "calibration" in e:
+            calib = (path.parent / str(e["calibration"])).resolve()
+            model = load_camera(calib, e.get("fov_deg"))
+        elif "equidistant" in e:
+            q = e["equidistant"]
+            try:
+                size = (int(q["size"][0]), int(q["size"][1]))
+                model = FisheyeCamera.equidistant(size, float(q.get("fov_deg", 180.0)))
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                raise InputError(f"expected {{ size = [w, h], fov_deg = … }} ({exc})",
+                                 file=file, field=f"{where}.equidistant") from exc
+        else:
+            raise InputError("uncalibrated fisheye: give `calibration = \"file\"` "
+                             "(OCamCalib / OpenCV / JSON) or `equidistant = { size = [w, h],"
+                             " fov_deg = 180 }`", file=file, field=f"{where}.calibration")
+        model.world_from_camera = rot
+        image = (path.parent / str(e["image"])).resolve() if "image" in e else None
+        rig.append(RigCamera(name, model, pos, image))
+    return rig
+
+
+def auto_rig(bounds_min: np.ndarray, bounds_max: np.ndarray, size: int = 256,
+             fov_deg: float = 180.0) -> list[RigCamera]:
+    """Six outward-looking equidistant fisheyes inside a bounding box (module docstring)."""
+    lo, hi = np.asarray(bounds_min, np.float64), np.asarray(bounds_max, np.float64)
+    c, half = (lo + hi) / 2, (hi - lo) / 2
+    rig = []
+    for axis, label in enumerate("xyz"):
+        for sign in (1.0, -1.0):
+            look = np.zeros(3)
+            look[axis] = sign
+            up = np.array([0.0, 0.0, 1.0]) if axis == 1 else np.array([0.0, 1.0, 0.0])
+            pos = c + look * half * 0.25
+            model = FisheyeCamera.equidistant((size, size), fov_deg,
+                                              world_from_camera=look_rotation(look, up))
+            rig.append(RigCamera(f"{'+' if sign > 0 else '-'}{label}", model, pos))
+    return rig
+
+
+__all__ = ["Model", "RigCamera", "auto_rig", "load_rig", "look_rotation"]

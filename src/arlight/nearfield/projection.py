@@ -1,0 +1,113 @@
+"""Projecting the fisheye cameras into the radiance atlas and merging them (Rohmer §4.1).
+
+Per covered texel ``x`` (normal ``n``) and camera ``i`` (centre ``c_i``, main direction
+``d_i``): the texel is seen when the segment ``c_i``–``x`` crosses no proxy geometry (the
+exact form of Rohmer's depth-map test), ``x`` faces the camera and lies in the lens's field
+of view. Its weight is
+
+    w_i = cos α_i · cos β_i,   cos α_i = ⟨d_i, x̂ − c_i⟩⁺,   cos β_i = ⟨n, c_i − x̂⟩⁺
+
+(clamped: the fisheye border is low resolution, steep views are unreliable) and the merged
+radiance is ``Σ w_i L_i / Σ w_i`` with ``L_i`` the camera's HDR image sampled bilinearly at
+the projected pixel. Texels no camera sees get 0 (Rohmer §8: they "lose light").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from arlight.errors import InputError
+from arlight.nearfield.atlas import AtlasGeometry
+from arlight.nearfield.cameras import RigCamera
+from arlight.nearfield.raytrace import segment_visible
+
+
+def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Bilinear samples ``(N, C)`` of ``image (H, W, C)`` at pixel coordinates ``xy (N, 2)``
+    (pixel centres at +0.5; clamped to the border)."""
+    h, w = image.shape[:2]
+    x = np.clip(xy[:, 0] - 0.5, 0.0, w - 1.0)
+    y = np.clip(xy[:, 1] - 0.5, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2 if w > 1 else 0)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2 if h > 1 else 0)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x1])
+            + fy * ((1 - fx) * image[y1, x0] + fx * image[y1, x1]))
+
+
+@dataclass
+class CameraProjection:
+    """One camera's contribution on the covered texels (flat, in ``covered`` order).
+
+    Attributes:
+        weight: (N,) w_i (0 where unseen).
+        radiance: (N, 3) sampled radiance, W/(sr·m²) (0 where unseen).
+    """
+
+    weight: np.ndarray
+    radiance: np.ndarray
+
+
+def camera_weights(geom: AtlasGeometry, cam: RigCamera, proxy) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
+    """``(w (N,), pixel (N, 2))`` of ``cam`` over the covered texels (module docstring);
+    ``proxy`` is the Mitsuba scene of the proxy mesh (visibility)."""
+    mask = geom.covered
+    x = geom.position[mask]
+    n = geom.normal[mask]
+    v = x - cam.position
+    dist = np.linalg.norm(v, axis=1)
+    u = v / np.maximum(dist, 1e-30)[:, None]
+    cos_a = np.clip(u @ cam.axis, 0.0, 1.0)
+    cos_b = np.clip(-np.einsum("ni,ni->n", u, n), 0.0, 1.0)
+    w = cos_a * cos_b
+    pix, inside = cam.model.project(u)
+    w = np.where(inside & (dist > 1e-6), w, 0.0)
+    todo = np.flatnonzero(w > 0)
+    if len(todo):
+        seen = segment_visible(proxy, np.broadcast_to(cam.position, (len(todo), 3)),
+                               x[todo])
+        w[todo[~seen]] = 0.0
+    return w, pix
+
+
+def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
+                   proxy) -> CameraProjection:
+    """Weights and sampled radiance of one camera (module docstring).
+
+    Raises:
+        InputError: the image does not match the camera's size, holds non-finite or
+            negative values, or the camera sees no texel of the proxy.
+    """
+    img = np.asarray(image, np.float32)
+    w_px, h_px = cam.size
+    if img.ndim != 3 or img.shape[:2] != (h_px, w_px) or img.shape[2] < 3:
+        raise InputError(f"image of shape {img.shape} does not match the calibration's "
+                         f"{w_px}×{h_px} (RGB)", field=f"cameras.{cam.name}.image")
+    if not np.all(np.isfinite(img)) or np.any(img < 0):
+        raise InputError("HDR image holds negative or non-finite values",
+                         field=f"cameras.{cam.name}.image")
+    w, pix = camera_weights(geom, cam, proxy)
+    if not np.any(w > 0):
+        raise InputError("the camera sees nothing of the proxy (no texel in its field of "
+                         "view faces it unoccluded); check its position and look direction",
+                         field=f"cameras.{cam.name}")
+    rad = np.zeros((len(w), 3))
+    seen = w > 0
+    rad[seen] = bilinear(img[..., :3].astype(np.float64), pix[seen])
+    return CameraProjection(w, rad)
+
+
+def merge(projections: list[CameraProjection]) -> tuple[np.ndarray, np.ndarray]:
+    """``(radiance (N, 3), weight sum (N,))``: the w-weighted mean over cameras (0 where no
+    camera sees the texel)."""
+    ws = np.sum([p.weight for p in projections], axis=0)
+    acc = np.sum([p.weight[:, None] * p.radiance for p in projections], axis=0)
+    rad = np.where(ws[:, None] > 0, acc / np.maximum(ws, 1e-300)[:, None], 0.0)
+    return rad, ws
+
+
+__all__ = ["CameraProjection", "bilinear", "camera_weights", "merge", "project_camera"]
