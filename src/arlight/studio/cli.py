@@ -1,0 +1,70 @@
+"""``arlight studio SCENE``: serve the live AR composite of a scene in the browser."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def _resolution(text: str | None) -> tuple[int, int] | None:
+    from arlight.errors import InputError
+
+    if text is None:
+        return None
+    w, sep, h = text.lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = (0, 0)
+    if not sep or min(size) < 1 or max(size) > 8192:
+        raise InputError(f"expected WIDTHxHEIGHT (e.g. 320x240), got {text!r}",
+                         field="--resolution")
+    return size
+
+
+def studio_command(
+    scene: Annotated[Path, typer.Argument(help="AR scene file with a frame and at least one "
+                                          "virtual shape")],
+    port: Annotated[int, typer.Option("--port", help="TCP port (0: any free port)",
+                                      min=0, max=65535)] = 8000,
+    host: Annotated[str, typer.Option("--host", help="address to bind; the default serves "
+                                      "this machine only")] = "127.0.0.1",
+    resolution: Annotated[str | None, typer.Option("--resolution", help="studio frame size "
+                          "WIDTHxHEIGHT, an integer fraction of the scene's (e.g. 320x240); "
+                          "default: the scene's")] = None,
+    method: Annotated[str | None, typer.Option("--method", "-m", help="first method (an "
+                      "interactive one; default: the scene's render table, else dir)")] = None,
+    save_dir: Annotated[Path | None, typer.Option("--save-dir", help="folder the save "
+                        "button writes to (default: the scene's folder)")] = None,
+    ground_truth: Annotated[Path | None, typer.Option("--ground-truth", help="ground-truth "
+                            "EXR for the error layer (default: ground_truth.exr beside the "
+                            "scene, if any)")] = None,
+    image_format: Annotated[str, typer.Option("--format", help="frame encoding: jpeg, png "
+                                              "or webp")] = "jpeg",
+    quality: Annotated[int, typer.Option("--quality", help="JPEG/WebP quality",
+                                         min=1, max=100)] = 85,
+) -> None:
+    """Live AR composite in the browser: drag the virtual object, switch methods.
+
+    Serves http://HOST:PORT/ — drag the object on the real surface (its shadow and bounce
+    light follow), rotate and scale it, switch between the interactive methods (progressive
+    ones refine while idle), change the exposure and the layer, save the scene. See
+    docs/studio.md.
+    """
+    from rich.console import Console
+
+    from arlight.studio.engine import Engine, StudioConfig
+    from arlight.studio.server import serve
+
+    config = StudioConfig(scene=scene, resolution=_resolution(resolution), method=method,
+                          save_dir=save_dir, ground_truth=ground_truth,
+                          image_format=image_format.lower(), quality=quality)
+    engine = Engine(config)
+    console = Console(stderr=True)
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        console.print(f"[yellow]warning:[/] binding {host}: anyone who can reach this "
+                      "address can use the studio and write files into its save folder")
+    console.print("preparing the scene…")
+    serve(engine, host, port, print_fn=console.print)

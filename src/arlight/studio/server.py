@@ -1,0 +1,240 @@
+"""The studio's web server (aiohttp): one page, its static files, one WebSocket per tab.
+
+* ``GET /`` — the page; ``GET /static/<file>`` — only the files of
+  :data:`STATIC_FILES` (a fixed list: no path from a request ever reaches the file system);
+* ``GET /ws`` — the WebSocket of :mod:`arlight.studio.protocol`.
+
+Each connection has its own :class:`~arlight.studio.engine.Session`. Outgoing messages go
+through an :class:`Outbox`: JSON replies in order, frames latest-wins (a slow client gets
+the newest frame, never a backlog). A malformed message is answered with an ``error``
+message and the connection stays open; an exception in one connection never reaches
+another. The server binds 127.0.0.1 unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+from importlib import resources
+from typing import Any
+
+from aiohttp import WSMsgType, web
+
+from arlight.errors import ArlightError
+from arlight.studio import protocol
+from arlight.studio.engine import Engine, Session
+
+log = logging.getLogger("arlight.studio")
+
+STATIC_FILES = {"studio.js": "text/javascript", "studio.css": "text/css"}
+"""The static files served (from ``arlight/studio/static``), with their content types."""
+
+ENGINE_KEY = web.AppKey("engine", Engine)
+
+
+def _static(name: str) -> bytes:
+    return resources.files("arlight.studio").joinpath("static", name).read_bytes()
+
+
+class Outbox:
+    """A connection's outgoing messages: JSON in order, frames latest-wins.
+
+    ``post`` may be called from any thread (the render worker); the sender coroutine
+    awaits :meth:`next`.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop = loop
+        self.json: collections.deque[dict[str, Any]] = collections.deque()
+        self.frame: bytes | None = None
+        self.event = asyncio.Event()
+        self.dropped = 0  # frames replaced before they were sent
+
+    def post(self, kind: str, payload: Any) -> None:
+        """Thread-safe: queue ``payload`` (``kind`` "json" or "frame")."""
+        try:
+            self.loop.call_soon_threadsafe(self._put, kind, payload)
+        except RuntimeError:  # the loop is closed: the connection is gone
+            pass
+
+    def _put(self, kind: str, payload: Any) -> None:
+        if kind == "frame":
+            if self.frame is not None:
+                self.dropped += 1
+            self.frame = payload
+        else:
+            self.json.append(payload)
+        self.event.set()
+
+    async def next(self) -> tuple[str, Any]:
+        while not self.json and self.frame is None:
+            self.event.clear()
+            await self.event.wait()
+        if self.json:
+            return "json", self.json.popleft()
+        frame, self.frame = self.frame, None
+        return "frame", frame
+
+
+async def _sender(ws: web.WebSocketResponse, box: Outbox) -> None:
+    while not ws.closed:
+        kind, payload = await box.next()
+        if kind == "json":
+            await ws.send_json(payload)
+        else:
+            await ws.send_bytes(payload)
+
+
+async def index(request: web.Request) -> web.Response:
+    return web.Response(body=_static("index.html"), content_type="text/html",
+                        headers={"Cache-Control": "no-store"})
+
+
+async def static(request: web.Request) -> web.Response:
+    name = request.match_info["name"]
+    if name not in STATIC_FILES:
+        raise web.HTTPNotFound()
+    return web.Response(body=_static(name), content_type=STATIC_FILES[name],
+                        headers={"Cache-Control": "no-store"})
+
+
+async def websocket(request: web.Request) -> web.WebSocketResponse:
+    engine: Engine = request.app[ENGINE_KEY]
+    ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=1 << 20)
+    await ws.prepare(request)
+    box = Outbox(asyncio.get_running_loop())
+    session = engine.open_session(box.post)
+    box.post("json", engine.info())
+    sender = asyncio.create_task(_sender(ws, box))
+    try:
+        async for msg in ws:
+            if msg.type == WSMsgType.TEXT:
+                reply = await _handle(engine, session, msg.data)
+            elif msg.type == WSMsgType.BINARY:
+                reply = _error("binary messages are not accepted; send JSON text")
+            else:  # ERROR (e.g. a message over max_msg_size) or CLOSE
+                break
+            if reply is not None:
+                box.post("json", reply)
+    finally:
+        engine.close_session(session)
+        sender.cancel()
+        await asyncio.gather(sender, return_exceptions=True)
+    return ws
+
+
+def _error(message: str, request: str | None = None) -> dict[str, Any]:
+    return {"type": "error", "message": message, "request": request}
+
+
+async def _handle(engine: Engine, session: Session, text: str) -> dict[str, Any] | None:
+    """Apply one text message; the reply (or an error message) for the client."""
+    kind = None
+    try:
+        msg = protocol.parse(text, engine.width, engine.height)
+        kind = msg.type
+        fut = engine.apply(session, msg)
+        if fut is None:
+            return None
+        return await asyncio.wrap_future(fut)
+    except (protocol.ProtocolError, ArlightError) as exc:
+        return _error(str(exc), kind)
+    except Exception as exc:  # noqa: BLE001 — reported to this client, logged, not raised
+        log.exception("studio: %s message failed", kind)
+        return _error(f"internal error: {type(exc).__name__}: {exc}", kind)
+
+
+def create_app(engine: Engine) -> web.Application:
+    """The aiohttp application serving ``engine`` (started and stopped with the app)."""
+    app = web.Application(client_max_size=1 << 16)
+    app[ENGINE_KEY] = engine
+    app.router.add_get("/", index)
+    app.router.add_get("/static/{name}", static)
+    app.router.add_get("/ws", websocket)
+
+    async def on_startup(app: web.Application) -> None:
+        await asyncio.get_running_loop().run_in_executor(None, engine.start)
+
+    async def on_cleanup(app: web.Application) -> None:
+        await asyncio.get_running_loop().run_in_executor(None, engine.stop)
+
+    app.on_startup.append(on_startup)
+    app.on_cleanup.append(on_cleanup)
+    return app
+
+
+def serve(engine: Engine, host: str = "127.0.0.1", port: int = 8000,
+          print_fn=print) -> None:
+    """Run the studio until interrupted."""
+
+    async def main() -> None:
+        runner = web.AppRunner(create_app(engine), handle_signals=True)
+        await runner.setup()
+        site = web.TCPSite(runner, host, port)
+        await site.start()
+        print_fn(f"arlight studio: http://{host}:{port}/  ({engine.source.name}, "
+                 f"{engine.width}×{engine.height}; Ctrl-C stops)")
+        try:
+            await asyncio.Event().wait()
+        finally:
+            await runner.cleanup()
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+
+
+class BackgroundServer:
+    """The studio on a loopback port in a background thread (tests, benchmarks, docs).
+
+    ``with BackgroundServer(engine) as srv: srv.url``; port 0 picks a free port.
+    """
+
+    def __init__(self, engine: Engine, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.engine, self.host, self.port = engine, host, port
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._runner: web.AppRunner | None = None
+        self._thread = None
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    def __enter__(self) -> BackgroundServer:
+        import threading
+
+        ready = threading.Event()
+        failure: list[BaseException] = []
+
+        def run() -> None:
+            self._loop = asyncio.new_event_loop()
+            asyncio.set_event_loop(self._loop)
+            try:
+                self._runner = web.AppRunner(create_app(self.engine), handle_signals=False)
+                self._loop.run_until_complete(self._runner.setup())
+                site = web.TCPSite(self._runner, self.host, self.port)
+                self._loop.run_until_complete(site.start())
+                self.port = site._server.sockets[0].getsockname()[1]  # type: ignore[union-attr]
+            except BaseException as exc:  # noqa: BLE001 — re-raised in __enter__
+                failure.append(exc)
+                ready.set()
+                return
+            ready.set()
+            self._loop.run_forever()
+            self._loop.run_until_complete(self._runner.cleanup())
+            self._loop.close()
+
+        self._thread = threading.Thread(target=run, name="arlight-studio-server", daemon=True)
+        self._thread.start()
+        ready.wait()
+        if failure:
+            raise failure[0]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+        if self._thread is not None:
+            self._thread.join(timeout=60)
