@@ -8,6 +8,7 @@
     arlight light ...                  light estimation (SH, env maps, probes, fisheye)
     arlight eval ...                   evaluation harness (scenes × methods → report)
     arlight insert PHOTO ...           insert a virtual object into a photo with a marker
+    arlight studio SCENE               live AR composite in the browser (drag, switch methods)
     arlight sequence SCENE ...         render an AR video (resumable, optionally on Ray)
 
 Errors in the input print one line naming the file and field and exit with status 2.
@@ -30,6 +31,7 @@ from arlight.importers.cli import import_mitsuba_command
 from arlight.insert.cli import insert_command
 from arlight.light import cli as light_cli
 from arlight.sequence.cli import sequence_command
+from arlight.studio.cli import studio_command
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="arlight: photorealistic AR — insert virtual objects into real frames "
@@ -262,6 +264,7 @@ app.add_typer(light_cli.app, name="light", help="light estimation: SH, environme
 app.command("eval")(eval_cli.eval_command)
 app.command("import-mitsuba")(import_mitsuba_command)
 app.command("insert")(insert_command)
+app.command("studio")(studio_command)
 app.command("sequence")(sequence_command)
 
 
