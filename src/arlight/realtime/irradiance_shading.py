@@ -1,0 +1,281 @@
+"""Final shading of differential irradiance caching: direct light by the one-pass rules from
+the camera plus albedo × cached indirect irradiance, read through the reprojection into the
+splat buffer (Kán thesis §4.2, §4.2.5, §3.3).
+
+Each camera sample follows a *Whitted* walk: at every vertex it collects emission (seen by
+the camera or through delta-specular bounces), and at a vertex with a smooth BSDF it adds
+
+* direct light: one next-event sample (``scene.sample_emitter_direction``, environment maps
+  importance-sampled; weight 1 — the BSDF-sampled emitter hit of MIS would be an indirect
+  record ray's first hit, which the records leave out) with the one-pass rules: a mixed
+  shadow ray and, on a path that has not touched a virtual object, a real one where the
+  mixed one is blocked (µ ⊂ ρ);
+* indirect light: ``ρ_d / π · E`` with ``E`` read from the splat buffer at the pixel the
+  vertex *projects to* (Kán §4.2.5; outside the image the buffer is tiled repetitively), so
+  depth of field, antialiasing samples, mirrors and glass read the irradiance of the points
+  they actually see; ``E_m`` for the mixed solution, ``E_m − E_d`` for the real one.
+
+and ends there; delta-specular vertices (mirrors, glass, Mitsuba's stochastic
+reflect/refract choice) continue the walk. As in the one-pass tracer
+(:mod:`arlight.methods.onepass_tracer`) a mixed walk that hits a virtual object forks: it goes
+on mixed-only, and its *real continuation* (the ray passing through the virtual object) is
+traced afterwards for the forked lanes only, in µ from their camera rays; random numbers are
+hashes of (lane key, depth, dimension), so the retraced shared prefix is bit for bit the same.
+Without a virtual object every walk is shared and ``L_m == L_r`` exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
+from arlight.realtime.gbuffer import facing, surface_albedo
+from arlight.realtime.irradiance_cache import SplatGeometry
+from arlight.scene.camera import Camera
+
+_DIMS_PER_DEPTH = 8
+_DIM_NEE, _DIM_BSDF1, _DIM_BSDF2 = 0, 2, 3
+UNLIMITED_SPECULAR = 16
+"""Longest delta-specular chain when ``max_depth = -1``."""
+WALK_COUNTERS = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
+                 "rays_real_shadow")
+
+
+def _rand1(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Float:
+    """Uniform number for (lane, depth, dimension): a TEA hash, order independent, so the
+    real continuation retraces the shared prefix with the same numbers."""
+    return mi.sample_tea_float32(key, depth * _DIMS_PER_DEPTH + dim, 6)
+
+
+def _rand2(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Point2f:
+    return mi.Point2f(_rand1(key, depth, dim), _rand1(key, depth, dim + 1))
+
+
+class SplatLookup:
+    """The splat buffer on the device, read at the camera projection of world points."""
+
+    def __init__(self, camera: Camera, e_mixed: np.ndarray, e_delta: np.ndarray):
+        self.w, self.h = camera.width, camera.height
+        m = np.ascontiguousarray(e_mixed, np.float32)
+        d = np.ascontiguousarray(e_delta, np.float32)
+        self.mixed = mi.Color3f(m[:, 0], m[:, 1], m[:, 2])
+        self.delta = mi.Color3f(d[:, 0], d[:, 1], d[:, 2])
+        cw = camera.camera_from_world()
+        self.rows = [[float(cw[r][c]) for c in range(4)] for r in range(3)]
+        self.fx, self.fy = float(camera.fx), float(camera.fy)
+        self.cx, self.cy = float(camera.cx), float(camera.cy)
+
+    def pixel(self, p: mi.Point3f) -> mi.UInt32:
+        """Pixel index of the projection of ``p``, wrapped into the image (Kán §4.2.5)."""
+        r = self.rows
+        pc = [r[i][0] * p.x + r[i][1] * p.y + r[i][2] * p.z + r[i][3] for i in range(3)]
+        z = dr.select(dr.abs(pc[2]) > 1e-9, pc[2], 1e-9)
+        u = dr.clip(self.fx * pc[0] / z + self.cx, -1e7, 1e7)
+        v = dr.clip(self.fy * pc[1] / z + self.cy, -1e7, 1e7)
+        cu, cv = dr.floor(u), dr.floor(v)
+        col = cu - self.w * dr.floor(cu / self.w)
+        row = cv - self.h * dr.floor(cv / self.h)
+        col = dr.clip(mi.Int32(col), 0, self.w - 1)
+        row = dr.clip(mi.Int32(row), 0, self.h - 1)
+        return mi.UInt32(row * self.w + col)
+
+    def lookup(self, p: mi.Point3f, active: mi.Bool) -> tuple[mi.Color3f, mi.Color3f]:
+        """``(E_m, E_d)`` (W/m²) at the projections of ``p``."""
+        idx = self.pixel(p)
+        return (dr.gather(mi.Color3f, self.mixed, idx, active),
+                dr.gather(mi.Color3f, self.delta, idx, active))
+
+
+@dataclass
+class WalkResult:
+    """Per-lane radiance of both solutions, the primary-hit mask and ray counts."""
+
+    mixed: mi.Color3f
+    real: mi.Color3f
+    mask: mi.Float
+    rays: dict[str, int]
+
+
+class CameraWalk:
+    """The camera side of DIC over the mixed (ρ) and real (µ) views."""
+
+    def __init__(self, views: SceneViews, lookup: SplatLookup, max_depth: int):
+        self.mixed, self.real = views.mixed, views.real
+        self.same_views = views.mixed is views.real
+        self.lookup = lookup
+        self.max_depth = max_depth
+        self.ctx = mi.BSDFContext()
+
+    def _limit(self, depth: mi.UInt32, extra: int) -> mi.Bool | bool:
+        """``depth + extra < max_depth`` (vertices, Mitsuba's convention)."""
+        if self.max_depth < 0:
+            return depth + extra < UNLIMITED_SPECULAR + extra
+        return depth + extra < self.max_depth
+
+    def trace(self, rays: mi.Ray3f, key: mi.UInt32) -> WalkResult:
+        n = dr.width(rays.d)
+        fork_enabled = not self.same_views
+        zero_u = dr.zeros(mi.UInt32, n)
+        state = (mi.Ray3f(rays), dr.full(mi.Color3f, 1.0, n), dr.full(mi.Bool, True, n),
+                 dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n),
+                 mi.UInt32(zero_u), dr.full(mi.Bool, False, n), mi.UInt32(zero_u),
+                 [mi.UInt32(zero_u) for _ in WALK_COUNTERS])
+
+        def cond(ray, beta, active, lm, lr, mask, depth, forked, fork_depth, cnt):
+            return active
+
+        def body(ray, beta, active, lm, lr, mask, depth, forked, fork_depth, cnt):
+            c = dict(zip(WALK_COUNTERS, cnt, strict=True))
+            c["rays_mixed_radiance"] += dr.select(active, 1, 0)
+            si = self.mixed.scene.ray_intersect(ray, mi.RayFlags.All, False, active)
+            role = self.mixed.hit_role(si)
+            mask = dr.select((depth == 0) & (role == ROLE_VIRTUAL), 1.0, mask)
+            if fork_enabled:
+                forks = active & ~forked & (role == ROLE_VIRTUAL)
+                fork_depth = dr.select(forks, depth, fork_depth)
+                forked = forked | forks
+                to_real = ~forked
+            else:
+                to_real = mi.Bool(True)
+            ray, beta, active, lm, lr = self._vertex(self.mixed, si, ray, beta, active, key,
+                                                     depth, lm, lr, to_real, True, c)
+            return (ray, beta, active, lm, lr, mask, depth + 1, forked, fork_depth,
+                    [c[k] for k in WALK_COUNTERS])
+
+        _, _, _, lm, lr, mask, _, forked, fork_depth, cnt = dr.while_loop(
+            state=state, cond=cond, body=body, label="dic_camera_mixed")
+        dr.eval(lm, lr, mask, forked, fork_depth, cnt)
+        counts = {k: int(dr.sum(v)[0]) for k, v in zip(WALK_COUNTERS, cnt, strict=True)}
+        if fork_enabled:
+            lr = self._trace_forks(rays, forked, fork_depth, key, lr, counts)
+        else:
+            lr = lm
+        return WalkResult(lm, lr, mask, counts)
+
+    def _trace_forks(self, rays: mi.Ray3f, forked: mi.Bool, fork_depth: mi.UInt32,
+                     key: mi.UInt32, lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
+        """The real continuations of the forked lanes, retraced in µ from the camera."""
+        idx = dr.compress(forked)
+        m = dr.width(idx)
+        if m == 0:
+            return lr
+        zero_u = dr.zeros(mi.UInt32, m)
+        key_b = dr.gather(mi.UInt32, key, idx)
+        start = dr.gather(mi.UInt32, fork_depth, idx)
+        state = (dr.gather(mi.Ray3f, rays, idx), dr.full(mi.Color3f, 1.0, m),
+                 dr.full(mi.Bool, True, m), dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u),
+                 mi.UInt32(zero_u), mi.UInt32(zero_u))
+
+        def cond(ray, beta, active, lr_b, depth, n_rad, n_sh):
+            return active
+
+        def body(ray, beta, active, lr_b, depth, n_rad, n_sh):
+            c = {"rays_real_shadow": n_sh}
+            n_rad += dr.select(active, 1, 0)
+            si = self.real.scene.ray_intersect(ray, mi.RayFlags.All, False, active)
+            ray, beta, active, _, lr_b = self._vertex(self.real, si, ray, beta, active, key_b,
+                                                      depth, None, lr_b, depth >= start,
+                                                      False, c)
+            return ray, beta, active, lr_b, depth + 1, n_rad, c["rays_real_shadow"]
+
+        _, _, _, lr_b, _, n_rad, n_sh = dr.while_loop(state=state, cond=cond, body=body,
+                                                     label="dic_camera_real")
+        lr = mi.Color3f(lr)
+        dr.scatter(lr, lr_b, idx)
+        dr.eval(lr, n_rad, n_sh)
+        counts["rays_real_radiance"] += int(dr.sum(n_rad)[0])
+        counts["rays_real_shadow"] += int(dr.sum(n_sh)[0])
+        return lr
+
+    def _vertex(self, view: SceneView, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
+                beta: mi.Color3f, active: mi.Bool, key: mi.UInt32, depth: mi.UInt32,
+                lm: mi.Color3f | None, lr: mi.Color3f, to_real: mi.Bool, to_mixed: bool,
+                c: dict[str, mi.UInt32]):
+        """Shade one walk vertex in ``view``; returns the advanced walk and the radiances."""
+        scene = view.scene
+        # emission: every vertex of the walk is seen by the camera or through delta bounces
+        le = beta * si.emitter(scene).eval(si, active)
+        if to_mixed:
+            lm = lm + le
+        lr = lr + dr.select(to_real, le, 0.0)
+        act = active & si.is_valid()
+        bsdf = si.bsdf()
+        smooth = act & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        # direct light: one light sample, weight 1, one-pass shadow rays
+        nee = smooth & self._limit(depth, 1)
+        ds, em_w = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False, nee)
+        nee &= ds.pdf != 0.0
+        f = bsdf.eval(self.ctx, si, si.to_local(ds.d), nee)
+        contrib = beta * f * em_w
+        nee &= dr.max(contrib) > 0
+        shadow = si.spawn_ray_to(ds.p)
+        if to_mixed:
+            c["rays_mixed_shadow"] += dr.select(nee, 1, 0)
+            vis_m = nee & ~self.mixed.scene.ray_test(shadow, nee)
+            if self.same_views:
+                vis_r = vis_m
+            else:
+                need_r = nee & ~vis_m & to_real
+                c["rays_real_shadow"] += dr.select(need_r, 1, 0)
+                vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
+            lm = lm + dr.select(vis_m, contrib, 0.0)
+        else:
+            need_r = nee & to_real
+            c["rays_real_shadow"] += dr.select(need_r, 1, 0)
+            vis_r = need_r & ~self.real.scene.ray_test(shadow, need_r)
+        lr = lr + dr.select(vis_r & to_real, contrib, 0.0)
+        # indirect light: albedo/π × the splat buffer at the reprojected pixel (§4.2.5)
+        gather = smooth & self._limit(depth, 2)
+        alb = surface_albedo(si, gather)
+        gather &= dr.max(alb) > 0
+        e_m, e_d = self.lookup.lookup(si.p, gather)
+        ind_m = beta * alb * e_m * (1.0 / math.pi)
+        ind_r = beta * alb * (e_m - e_d) * (1.0 / math.pi)
+        if to_mixed:
+            lm = lm + dr.select(gather, ind_m, 0.0)
+        lr = lr + dr.select(gather & to_real, ind_r, 0.0)
+        # delta-specular vertices continue the walk
+        bs, weight = bsdf.sample(self.ctx, si, _rand1(key, depth, _DIM_BSDF1),
+                                 _rand2(key, depth, _DIM_BSDF2), act)
+        cont = (act & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+                & self._limit(depth, 1) & (dr.max(weight) > 0))
+        ray = dr.select(cont, si.spawn_ray(si.to_world(bs.wo)), ray)
+        beta = dr.select(cont, beta * weight, beta)
+        return ray, beta, cont, lm, lr
+
+
+
+def splat_geometry(view: SceneView, camera: Camera) -> SplatGeometry:
+    """The splat buffer's surface: first hits through the pixel centres of the pinhole camera
+    (the rasteriser's G-buffer of Kán §4.2.3: position, normal, real/virtual flag)."""
+    w, h = camera.width, camera.height
+    v, u = np.mgrid[0:h, 0:w]
+    uv = np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1)
+    o, d = camera.pixel_rays(uv)
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    ray = mi.Ray3f(mi.Point3f(o32[:, 0], o32[:, 1], o32[:, 2]),
+                   mi.Vector3f(d32[:, 0], d32[:, 1], d32[:, 2]))
+    si = view.scene.ray_intersect(ray)
+    valid = si.is_valid()
+    n = facing(mi.Vector3f(si.sh_frame.n), -ray.d)
+    alb = surface_albedo(si, valid)
+    role = view.hit_role(si)
+    dr.eval(si.p, n, alb, role, valid)
+    pos = np.stack([np.asarray(c, np.float64) for c in (si.p.x, si.p.y, si.p.z)], axis=1)
+    nrm = np.stack([np.asarray(c, np.float64) for c in (n.x, n.y, n.z)], axis=1)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    ok = np.asarray(valid, bool)
+    albedo = np.stack([np.asarray(c, np.float64) for c in (alb.x, alb.y, alb.z)], axis=1)
+    pos[~ok] = 0.0
+    nrm[~ok] = 0.0
+    return SplatGeometry(pos, nrm, ok & (albedo.max(axis=1) > 0), ok,
+                         np.asarray(role, np.int64) == ROLE_VIRTUAL, w, h, albedo)
+
+
+__all__ = ["CameraWalk", "SplatLookup", "UNLIMITED_SPECULAR", "WALK_COUNTERS", "WalkResult",
+           "splat_geometry"]
