@@ -52,6 +52,7 @@ BUILTINS: dict[str, str] = {
     "probeless": "arlight.methods.probeless:ProbelessMethod",
     "dvct": "arlight.methods.dvct:DVCTMethod",
     "ibl": "arlight.methods.ibl:IBLMethod", "prt": "arlight.methods.prt:PRTMethod",
+    "dic": "arlight.methods.dic:DicMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 
