@@ -11,6 +11,8 @@ independent uniform samples.
 
 All random numbers are hashes (TEA) of (seed, pixel, sample index), so any subset of samples
 can be drawn in any order and two renders with the same seed are bitwise identical.
+:func:`rays_from_samples` builds the rays from given pixel and lens samples (the Sobol
+sampler's, :mod:`arlight.sampling.stream`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from arlight.sampling.stream import pixel_key
 from arlight.scene.camera import Camera
 
 _SALT_JITTER_X, _SALT_JITTER_Y, _SALT_SHIFT_X, _SALT_SHIFT_Y = 1, 2, 3, 4
@@ -65,11 +68,6 @@ def stratified_2d(key: mi.UInt32, k: mi.UInt32, spp: int, salt: int) -> mi.Point
                       dr.minimum(y, dr.one_minus_epsilon(mi.Float)))
 
 
-def pixel_key(pixel: mi.UInt32, seed: mi.UInt32) -> mi.UInt32:
-    """Per-pixel hash of (pixel index, seed)."""
-    return mi.sample_tea_32(pixel, seed, 4)[0]
-
-
 def generate_rays(camera: Camera, pixel: mi.UInt32, k: mi.UInt32, spp: int,
                   seed: mi.UInt32) -> mi.RayDifferential3f:
     """World-space camera rays for (pixel index, sample index) lanes.
@@ -80,6 +78,18 @@ def generate_rays(camera: Camera, pixel: mi.UInt32, k: mi.UInt32, spp: int,
     """
     key = pixel_key(pixel, seed)
     off = stratified_2d(key, k, spp, 0)
+    lens_u = None
+    if camera.aperture_radius > 0:
+        k_lens = (k * _lens_permutation(spp)) % spp
+        lens_u = stratified_2d(key, k_lens, spp, _LENS_SALT)
+    return rays_from_samples(camera, pixel, off, lens_u)
+
+
+def rays_from_samples(camera: Camera, pixel: mi.UInt32, off: mi.Point2f,
+                      lens_u: mi.Point2f | None) -> mi.RayDifferential3f:
+    """World-space camera rays through ``pixel`` at offsets ``off`` ∈ [0,1)² inside the
+    pixel, with lens samples ``lens_u`` ∈ [0,1)² (ignored for a pinhole; needed otherwise).
+    """
     col = mi.Float(pixel % camera.width)
     row = mi.Float(pixel // camera.width)
     dx = (col + off.x - camera.cx) / camera.fx
@@ -87,8 +97,7 @@ def generate_rays(camera: Camera, pixel: mi.UInt32, k: mi.UInt32, spp: int,
     d = mi.Vector3f(dx, dy, 1.0)
     o = mi.Vector3f(0.0)
     if camera.aperture_radius > 0:
-        k_lens = (k * _lens_permutation(spp)) % spp
-        u = stratified_2d(key, k_lens, spp, _LENS_SALT)
+        u = lens_u
         if camera.aperture_shape == "disk":
             lens = mi.warp.square_to_uniform_disk_concentric(u)
         else:

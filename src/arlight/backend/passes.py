@@ -7,6 +7,17 @@ neighbours (coherent rays) and the per-pixel sums are block reductions done by D
 the same kernel. A *kernel* turns the lanes' camera rays into named per-lane values
 (radiance, mask, ...); :func:`run_passes` sums them and their squares per pixel, so every
 layer comes with the standard error of its mean.
+
+**Samplers and replicas.** Given ``sampler`` (``"independent"`` or ``"sobol"``, see
+:mod:`arlight.sampling.stream`) the kernel also receives a :class:`~arlight.sampling.stream.
+LaneSampler` whose numbers depend only on (seed, pixel, sample index, dimension), and with
+``sobol`` the camera's pixel and lens samples come from it too. Sample ``k`` of a pixel
+belongs to *replica* ``r = k mod R`` as its ``j = k div R``-th sample; every replica is an
+independent randomisation (its own scrambling seeds), so with ``R ≥ 2`` the standard error
+comes from the spread of the ``R`` replica means (``R − 1`` degrees of freedom, honest for
+correlated quasi-Monte Carlo samples) rather than from the per-sample variance (which assumes
+independent samples: with low-discrepancy samples it overstates the error). Within a pass a
+pixel's lanes are laid out replica-major, so the per-replica sums are block reductions too.
 """
 
 from __future__ import annotations
@@ -19,12 +30,14 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.camera_rays import generate_rays
+from arlight.backend.camera_rays import generate_rays, rays_from_samples
+from arlight.errors import InputError
+from arlight.sampling.stream import CAMERA_LENS, CAMERA_PIXEL, SAMPLERS, LaneSampler
 from arlight.scene.camera import Camera
 
-Kernel = Callable[[mi.RayDifferential3f, mi.UInt32, mi.UInt32, int],
-                  dict[str, mi.Float | mi.Color3f]]
-"""kernel(rays, pixel_index, sampler_seed, n_lanes) -> {name: per-lane Float or Color3f}"""
+Kernel = Callable[..., dict[str, mi.Float | mi.Color3f]]
+"""kernel(rays, pixel_index, sampler_seed, n_lanes) -> {name: per-lane Float or Color3f};
+with a ``sampler``, kernel(rays, pixel_index, sampler_seed, n_lanes, lane_sampler)."""
 
 
 @dataclass
@@ -34,6 +47,7 @@ class PixelMoments:
     total: np.ndarray
     total_sq: np.ndarray
     count: int = 0
+    replica_total: np.ndarray | None = None  # (H, W, R, C) sums per replica (R >= 2)
 
     @property
     def mean(self) -> np.ndarray:
@@ -48,9 +62,27 @@ class PixelMoments:
         return np.maximum(self.total_sq - self.total * self.total / n, 0.0) / (n - 1)
 
     @property
+    def replicas(self) -> int:
+        """Independent replicas behind :attr:`stderr` (1: per-sample variance)."""
+        return 1 if self.replica_total is None else self.replica_total.shape[2]
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom of :attr:`stderr`."""
+        return (self.replicas if self.replicas > 1 else self.count) - 1
+
+    @property
     def stderr(self) -> np.ndarray:
-        """Standard error of the per-pixel mean."""
-        return np.sqrt(self.variance / max(self.count, 1))
+        """Standard error of the per-pixel mean: from the spread of the replica means when
+        there are replicas (``sqrt(Σ (m_r − m)² / (R (R − 1)))``), else from the per-sample
+        variance."""
+        r = self.replicas
+        if r < 2:
+            return np.sqrt(self.variance / max(self.count, 1))
+        assert self.replica_total is not None
+        means = self.replica_total / max(self.count // r, 1)
+        dev = means - self.mean[:, :, None, :]
+        return np.sqrt(np.sum(dev * dev, axis=2) / (r * (r - 1)))
 
 
 @dataclass
@@ -69,9 +101,18 @@ def _to_image(x, height: int, width: int) -> np.ndarray:
     return a.reshape(height, width, a.shape[-1])
 
 
+def effective_replicas(spp: int, replicas: int) -> int:
+    """The largest divisor of ``spp`` not above ``replicas`` (replicas hold equal counts)."""
+    r = max(1, min(replicas, spp))
+    while spp % r:
+        r -= 1
+    return r
+
+
 def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                spp_per_pass: int | None = None, progress: str | None = None,
-               max_lanes: int = 2_000_000) -> PassResult:
+               max_lanes: int = 2_000_000, sampler: str | None = None,
+               replicas: int = 1) -> PassResult:
     """Evaluate ``kernel`` on ``spp`` camera samples per pixel and accumulate moments.
 
     Args:
@@ -81,35 +122,68 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
         seed: master seed; the same seed gives bitwise identical results.
         spp_per_pass: samples per pass (default: as many as fit in ``max_lanes``).
         progress: label for a progress bar (None: silent).
+        sampler: None (the kernel draws its own numbers from the pass seed), or
+            ``"independent"`` / ``"sobol"``: the kernel gets a per-lane sampler as a fifth
+            argument (see the module docstring).
+        replicas: independent randomisations the standard errors come from (the largest
+            divisor of ``spp`` not above it is used; 1: per-sample variance).
     """
+    if sampler is not None and sampler not in SAMPLERS:
+        raise InputError(f"unknown sampler {sampler!r} (expected one of {SAMPLERS})",
+                         field="sampler")
+    if replicas < 1:
+        raise InputError(f"must be >= 1, got {replicas}", field="replicas")
     w, h = camera.width, camera.height
     n_pix = w * h
+    n_rep = effective_replicas(spp, replicas)
     per_pass = spp_per_pass or max(1, min(spp, max_lanes // n_pix))
+    per_pass = max(n_rep, per_pass // n_rep * n_rep)
     result = PassResult()
     start = time.perf_counter()
     bar = _progress(progress, spp)
     try:
         k0 = 0
         while k0 < spp:
-            n = min(per_pass, spp - k0)
+            n = min(per_pass, spp - k0)  # a multiple of n_rep, as are spp and per_pass
+            m = n // n_rep  # samples per replica in this pass
             lanes = n * n_pix
             idx = dr.arange(mi.UInt32, lanes)
             pixel = idx // n
-            k = idx % n + dr.opaque(mi.UInt32, k0)
-            rays = generate_rays(camera, pixel, k, spp, dr.opaque(mi.UInt32, seed))
+            t = idx % n  # replica-major within the pixel: replica r = t // m
+            replica = t // m
+            j = t % m + dr.opaque(mi.UInt32, k0 // n_rep)  # sample index within the replica
+            k = j * n_rep + replica  # sample index within the pixel
+            seed_u = dr.opaque(mi.UInt32, seed)
             pass_seed = dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + k0 * 0x85EBCA77) & 0xFFFFFFFF)
-            outputs = kernel(rays, pixel, pass_seed, lanes)
+            if sampler is None:
+                rays = generate_rays(camera, pixel, k, spp, seed_u)
+                outputs = kernel(rays, pixel, pass_seed, lanes)
+            else:
+                stream = LaneSampler.for_samples(sampler, pixel, replica, j, seed_u)
+                if sampler == "sobol":
+                    lens = stream.next_2d(CAMERA_LENS) if camera.aperture_radius > 0 else None
+                    rays = rays_from_samples(camera, pixel, stream.next_2d(CAMERA_PIXEL), lens)
+                else:
+                    rays = generate_rays(camera, pixel, k, spp, seed_u)
+                outputs = kernel(rays, pixel, pass_seed, lanes, stream)
             dr.eval(outputs)  # one render kernel; the reductions below read its results
-            sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n))
+            sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n),
+                           dr.block_sum(v, m) if n_rep > 1 else None)
                     for name, v in outputs.items()}
             dr.eval(sums)
-            for name, (total, total_sq) in sums.items():
+            for name, (total, total_sq, rep) in sums.items():
                 mom = result.moments.get(name)
                 if mom is None:
                     shape = (h, w, 1 if isinstance(total, mi.Float) else 3)
                     mom = result.moments[name] = PixelMoments(np.zeros(shape), np.zeros(shape))
+                    if n_rep > 1:
+                        mom.replica_total = np.zeros((h, w, n_rep, shape[2]))
                 mom.total += _to_image(total, h, w)
                 mom.total_sq += _to_image(total_sq, h, w)
+                if rep is not None:
+                    assert mom.replica_total is not None
+                    shape_r = mom.replica_total.shape
+                    mom.replica_total += _to_image(rep, h, w * n_rep).reshape(shape_r)
                 mom.count += n
             result.lanes += lanes
             k0 += n

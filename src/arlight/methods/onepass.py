@@ -10,9 +10,10 @@ Options (``RenderSettings.options``, declared in :data:`OPTIONS`; ``arlight meth
 prints them): ``env_mode`` (``mis`` | ``miss_only``), ``mirror_lower_hemisphere``,
 ``reproject``, ``mode`` (``onepass`` | ``twopass``: the same tracer run separately on the mixed
 and the real view, with the same random numbers — the baseline of the equivalence test and
-of the ray counts), ``caustics`` (``none`` | ``photons``: differential caustic photon
-mapping, :mod:`arlight.methods.photons`) with ``photons``, ``photon_radius`` (m),
-``ppm_iterations``, ``ppm_alpha``.
+of the ray counts), ``sampler`` (``sobol`` | ``independent``) and ``replicas`` (the
+standard errors' independent randomisations, :mod:`arlight.backend.passes`), ``caustics``
+(``none`` | ``photons``: differential caustic photon mapping, :mod:`arlight.methods.photons`)
+with ``photons``, ``photon_radius`` (m), ``ppm_iterations``, ``ppm_alpha``.
 
 Stats: ``seconds``, ``samples``, ``spp``, ``samples_per_second`` and ray counts per ray type
 (``rays_mixed_radiance``, ``rays_real_radiance``, ``rays_mixed_shadow``,
@@ -43,7 +44,7 @@ from arlight.methods.base import (
     differential_samples,
     layers_from_passes,
 )
-from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions, lane_keys
+from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions
 from arlight.methods.photons import (
     PhotonMap,
     PhotonSettings,
@@ -68,6 +69,14 @@ OPTIONS: dict[str, Field] = {
     "mode": Field("choice", "onepass", "`onepass`: Kán's four ray types in one pass; "
                   "`twopass`: the same tracer on each view separately (baseline)",
                   choices=("onepass", "twopass")),
+    "sampler": Field("choice", "sobol", "`sobol`: shuffled Owen-scrambled Sobol points "
+                     "(Burley 2020) for the pixel, lens, light, BSDF and roulette dimensions; "
+                     "`independent`: hashed uniform numbers (docs/methods/onepass.md#sampling)",
+                     choices=("sobol", "independent")),
+    "replicas": Field("int", 16, "independent randomisations whose spread gives the standard "
+                      "errors (the largest divisor of spp not above it; 1: per-sample "
+                      "variance, which overstates the error of Sobol samples)", min=1,
+                      max=4096),
     "caustics": Field("choice", "none", "`photons`: caustic photon map from point/spot lights "
                       "through glass and mirrors, differential (Kán §4.1.2, "
                       "docs/methods/photons.md); `none`: path tracing only",
@@ -162,8 +171,7 @@ class OnePassMethod(BaseMethod):
                 pmap, pmap_real = build_indices(maps, ps.radii(), views)
             photon_stats["photon_radius"] = ps.radius
 
-        def kernel(rays, pixel, seed, lanes):
-            key = lane_keys(lanes, seed)
+        def kernel(rays, pixel, seed, lanes, key):
             r = mi.Ray3f(rays)
             if mode == "onepass":
                 res = tracer.trace_onepass(r, key)
@@ -182,7 +190,7 @@ class OnePassMethod(BaseMethod):
                 for k, v in p.items():
                     counts[k] += v
             if pmap is not None:  # caustics L S+ D: density estimation after the camera walk
-                cm, cr = gather_caustics(views, pmap, r, key, settings.max_depth,
+                cm, cr = gather_caustics(views, pmap, r, key.sample_key(), settings.max_depth,
                                          tracer.reproj, pmap_real)
                 lm, lr = lm + cm, lr + cr
             return differential_samples(lm, lr, m, background(pixel))
@@ -190,9 +198,12 @@ class OnePassMethod(BaseMethod):
         with timer.stage("trace"):
             res = run_passes(view.camera, settings.spp, kernel, seed=settings.seed,
                              spp_per_pass=settings.spp_per_pass,
-                             progress="onepass" if settings.progress else None)
+                             progress="onepass" if settings.progress else None,
+                             sampler=options.sampler, replicas=options.replicas)
         with timer.stage("assemble"):
             stats = ray_stats(counts, res.lanes)
+            stats["stderr_replicas"] = float(res.moments["mixed"].replicas)
+            stats["stderr_dof"] = float(res.moments["mixed"].dof)
             stats.update(photon_stats)
             if mode == "onepass":
                 prof = tracer.profile

@@ -24,7 +24,8 @@ Each lane (one camera sample) owns at most two paths, traced in two phases:
   Hit rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
 
 The continuation is not a bounce: it takes over the mixed path's depth. Random numbers are
-hashes of (lane key, depth, dimension), not a sequential stream, so the shared prefix, the
+functions of (lane sampler, depth, dimension) — TEA hashes or shuffled Owen-scrambled Sobol
+points (:mod:`arlight.sampling.stream`) — not a sequential stream, so the shared prefix, the
 mixed suffix and the real suffix (phase 2 gathers the lane's key) use exactly the numbers a
 separate render of ρ and of µ would use at the same depth: one-pass equals two-pass *sample
 by sample* (``mode="twopass"`` runs phase 1 once per view, for the equivalence test and for
@@ -56,6 +57,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
+from arlight.sampling.stream import LaneSampler
 from arlight.scene.camera import Camera
 
 RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
@@ -124,13 +126,18 @@ def lane_keys(lanes: int, seed: mi.UInt32) -> mi.UInt32:
     return mi.sample_tea_32(dr.arange(mi.UInt32, lanes), seed, 4)[0]
 
 
-def _rand1(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Float:
-    """Uniform number for (lane, depth, dimension): TEA hash, order independent."""
-    return mi.sample_tea_float32(key, depth * _DIMS_PER_DEPTH + dim, 6)
+def as_sampler(key: mi.UInt32 | LaneSampler) -> LaneSampler:
+    """Per-lane keys (TEA-hashed ``independent`` numbers) or a sampler, as a sampler."""
+    return key if isinstance(key, LaneSampler) else LaneSampler.independent(key)
 
 
-def _rand2(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Point2f:
-    return mi.Point2f(_rand1(key, depth, dim), _rand1(key, depth, dim + 1))
+def _rand1(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Float:
+    """Uniform number for (lane, depth, dimension): order independent (hash or Sobol)."""
+    return key.next_1d(depth * _DIMS_PER_DEPTH + dim)
+
+
+def _rand2(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Point2f:
+    return key.next_2d(depth * _DIMS_PER_DEPTH + dim)
 
 
 @dataclass
@@ -201,16 +208,18 @@ class OnePassTracer:
                         "phase2_seconds": 0.0}
 
     # ------------------------------------------------------------------ public
-    def trace_onepass(self, rays: mi.Ray3f, key: mi.UInt32) -> TraceResult:
-        """``L_m``, ``L_r`` and the mask in one pass (hit rules 1–4)."""
-        return self._trace(self.mixed, rays, key, onepass=True)
+    def trace_onepass(self, rays: mi.Ray3f, key: mi.UInt32 | LaneSampler) -> TraceResult:
+        """``L_m``, ``L_r`` and the mask in one pass (hit rules 1–4). ``key``: per-lane keys
+        (independent numbers) or a :class:`~arlight.sampling.stream.LaneSampler`."""
+        return self._trace(self.mixed, rays, as_sampler(key), onepass=True)
 
-    def trace_view(self, view: SceneView, rays: mi.Ray3f, key: mi.UInt32) -> TraceResult:
+    def trace_view(self, view: SceneView, rays: mi.Ray3f,
+                   key: mi.UInt32 | LaneSampler) -> TraceResult:
         """Radiance of one view alone (the two-pass baseline: same code, same numbers)."""
-        return self._trace(view, rays, key, onepass=False)
+        return self._trace(view, rays, as_sampler(key), onepass=False)
 
     # ----------------------------------------------------------------- helpers
-    def _trace(self, view: SceneView, rays: mi.Ray3f, key: mi.UInt32,
+    def _trace(self, view: SceneView, rays: mi.Ray3f, key: LaneSampler,
                onepass: bool) -> TraceResult:
         n = dr.width(rays.d)
         t0 = time.perf_counter()
@@ -263,7 +272,7 @@ class OnePassTracer:
         return TraceResult(lm, lr, mask, counts)
 
     def _trace_forks(self, rays: mi.Ray3f, forked: mi.Bool, fork_depth: mi.UInt32,
-                     key: mi.UInt32, lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
+                     key: LaneSampler, lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
         """Phase 2: the real continuations of the forked lanes only (hit rules 2–3).
 
         Compacts the forked lanes and traces them in µ from their camera rays. Random numbers
@@ -282,7 +291,7 @@ class OnePassTracer:
         if m == 0:
             return lr
         zero_u = dr.zeros(mi.UInt32, m)
-        key_b = dr.gather(mi.UInt32, key, idx)
+        key_b = key.gather(idx)
         start_depth = dr.gather(mi.UInt32, fork_depth, idx)
         state = (_Path.start(dr.gather(mi.Ray3f, rays, idx), True),
                  dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u), mi.UInt32(zero_u),
@@ -325,7 +334,7 @@ class OnePassTracer:
         return lm - dr.select(vis_r, contrib, 0.0)
 
     def _vertex(self, view: SceneView, st: _Path, si: mi.SurfaceInteraction3f, role: mi.Int32,
-                key: mi.UInt32, depth: mi.UInt32, lm: mi.Color3f | None, lr: mi.Color3f, *,
+                key: LaneSampler, depth: mi.UInt32, lm: mi.Color3f | None, lr: mi.Color3f, *,
                 to_real: mi.Bool | bool, to_mixed: bool, c: dict[str, mi.UInt32],
                 shadow_kind: str | None = None) -> tuple[mi.Color3f | None, mi.Color3f]:
         """Shade one path vertex in ``view`` and advance the path state in place.
