@@ -30,6 +30,7 @@ from arlight.evaluate import cli as eval_cli
 from arlight.importers.cli import import_mitsuba_command
 from arlight.insert.cli import insert_command
 from arlight.light import cli as light_cli
+from arlight.lightserver.cli import client_command, serve_light_command
 from arlight.sequence.cli import sequence_command
 from arlight.studio.cli import studio_command
 
@@ -264,6 +265,8 @@ app.add_typer(light_cli.app, name="light", help="light estimation: SH, environme
 app.command("eval")(eval_cli.eval_command)
 app.command("import-mitsuba")(import_mitsuba_command)
 app.command("insert")(insert_command)
+app.command("serve-light")(serve_light_command)
+app.command("client")(client_command)
 app.command("studio")(studio_command)
 app.command("sequence")(sequence_command)
 

@@ -1,0 +1,429 @@
+"""Benchmark: one light server, many clients, on loopback (issue 18; Rohmer §4–5).
+
+Set-up (the machine has 2 cores shared with other work): the server is one process
+(:class:`arlight.lightserver.LightServer` replaying states precomputed by the producer, at a
+fixed rate, so the transport is measured, not the producer). The N clients are real
+:class:`arlight.lightserver.LightClient` objects (each its own SUB + DEALER sockets and
+receiver thread, decoding and validating every message) spread over at most 4 receiver
+processes, e.g. 64 clients = 4 processes × 16 clients. They only decode; the rendering
+client (``arlight client``) is a separate, single process and is not part of this load.
+
+Measured per N = 1, 4, 16, 64: updates/s published and the slowest client's received rate,
+bytes per update, publication → receipt latency p50/p99 over all clients (header ``sent``
+to the swapped-in state, one clock), updates a client never saw (``gaps``) and stale /
+out-of-order ones, whether every client ends on the server's last state, server CPU (user +
+system time of the server process over its publishing wall time; 100 % = one core).
+
+Faults (long versions of tests/lightserver):
+
+* restart: the server process is killed with SIGKILL mid-stream and restarted 1 s later on
+  the same ports (new epoch); 16 clients; time from the restart to each client's first new
+  state, reconnects, final states.
+* malformed: a hostile publisher sends 75 % damaged messages (bit flips, truncations, wrong
+  version, random bytes, NaNs with a valid CRC) among valid ones to 16 clients.
+* slow: one receiver process (4 of 16 clients) is frozen with SIGSTOP for 3 s mid-stream,
+  and a raw SUB socket never reads at all; the other clients' latency and the server's
+  publish times are compared with the unfrozen run.
+
+Usage: ``python benchmarks/bench_lightserver.py [--write] [--seconds 8] [--rate 20]
+[--clients 1,4,16,64] [--skip-faults]`` (``--write`` updates the section of RESULTS.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import multiprocessing as mp
+import os
+import signal
+import socket
+import time
+
+import numpy as np
+from results import cpu_pressure, publish
+
+SECTION = "## Light server: one server, many clients (issue 18)"
+MAX_PROCS = 4
+
+
+def free_port() -> int:
+    """A port that was free a moment ago (the OS's choice)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def endpoints() -> tuple[str, str]:
+    return f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
+
+
+def make_states(vals: int, n_obj: int, frames: int = 64):
+    from arlight.lightserver import SyntheticMovingLight
+
+    objs = np.array([[0.3 * i, 0.1, 0.0] for i in range(n_obj)])
+    src = SyntheticMovingLight(vals=vals, objects=objs)
+    return [src(i) for i in range(frames)]
+
+
+# -- processes -------------------------------------------------------------------------------
+
+def server_proc(pub, snap, rate, count, vals, n_obj, epoch, out):
+    from arlight.lightserver import LightServer, ReplayProducer
+
+    producer = ReplayProducer(make_states(vals, n_obj))
+    server = LightServer(producer, bind=pub, snapshot_bind=snap, rate_hz=rate, count=count,
+                         epoch=epoch)
+    time.sleep(0.5)  # subscribers (re)connect first (ZeroMQ retries every 0.1 s)
+    t0, c0 = time.time(), os.times()
+    server.run()
+    c1, t1 = os.times(), time.time()
+    s = server.stats()
+    out.put({"epoch": epoch, "published": s.published, "bytes": s.bytes_last,
+             "cpu": (c1.user + c1.system - c0.user - c0.system) / max(t1 - t0, 1e-9),
+             "wall": t1 - t0, "publish_ms": np.array(s.publish_seconds) * 1e3,
+             "heartbeats": s.heartbeats, "snapshots": s.snapshots})
+
+
+def receiver_proc(pub, snap, n_clients, stop, out, sample_epochs=False, timeout=0.5):
+    import zmq
+
+    from arlight.lightserver import LightClient
+
+    ctx = zmq.Context()
+    clients = [LightClient(pub, snap, heartbeat_timeout=timeout, context=ctx).start()
+               for _ in range(n_clients)]
+    epoch_seen = [dict() for _ in clients]  # epoch -> first time seen
+    while not stop.wait(0.02 if sample_epochs else 0.2):
+        if sample_epochs:
+            now = time.time()
+            for c, seen in zip(clients, epoch_seen, strict=True):
+                if c.epoch is not None and c.epoch not in seen:
+                    seen[c.epoch] = now
+    rows = []
+    for c, seen in zip(clients, epoch_seen, strict=True):
+        st = c.stats()
+        cur = c.latest
+        rows.append({"seq": cur.sequence if cur else 0, "epoch": c.epoch,
+                     "applied": st.applied, "gaps": st.gaps, "stale": st.stale,
+                     "rejected": dict(st.rejected), "reconnects": st.reconnects,
+                     "restarts": st.restarts, "snapshot_applied": st.from_snapshot,
+                     "lat_ms": np.array(st.latencies) * 1e3, "error": repr(c.error)
+                     if c.error else None, "epoch_seen": seen,
+                     "light": cur})
+    for c in clients:
+        c.close()
+    ctx.destroy(linger=0)
+    out.put((os.getpid(), rows))
+
+
+def collect(out, ps, timeout=60.0):
+    rows = {}
+    for _ in ps:
+        pid, r = out.get(timeout=timeout)
+        rows[pid] = r
+    for p in ps:
+        p.join(10)
+    return rows
+
+
+# -- load ------------------------------------------------------------------------------------
+
+def run_load(n, rate, seconds, vals, n_obj):
+    ctx = mp.get_context("spawn")
+    pub, snap = endpoints()
+    stop, out, sout = ctx.Event(), ctx.Queue(), ctx.Queue()
+    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out))
+          for k in _split(n)]
+    for p in ps:
+        p.start()
+    time.sleep(1.5)  # receivers up (they would also catch up by snapshot)
+    count = int(rate * seconds)
+    server = ctx.Process(target=server_proc, args=(pub, snap, rate, count, vals, n_obj, 1, sout))
+    server.start()
+    s = sout.get(timeout=seconds * 4 + 60)
+    server.join(10)
+    time.sleep(0.5)
+    stop.set()
+    rows = [r for rs in collect(out, ps).values() for r in rs]
+    return summarise(n, s, rows, count)
+
+
+def _split(n):
+    procs = min(n, MAX_PROCS)
+    return [n // procs + (i < n % procs) for i in range(procs)]
+
+
+def summarise(n, s, rows, count):
+    lat = np.concatenate([r["lat_ms"] for r in rows]) if rows else np.zeros(0)
+    rates = [r["applied"] / s["wall"] for r in rows]
+    return {"n": n, "published": s["published"], "rate": s["published"] / s["wall"],
+            "min_client_rate": min(rates), "bytes": s["bytes"],
+            "p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+            "max": float(lat.max()), "gaps": sum(r["gaps"] for r in rows),
+            "stale": sum(r["stale"] for r in rows),
+            "final_ok": sum(r["seq"] == count for r in rows), "cpu": 100 * s["cpu"],
+            "errors": sum(r["error"] is not None for r in rows),
+            "publish_p99": float(np.percentile(s["publish_ms"], 99))}
+
+
+# -- faults ----------------------------------------------------------------------------------
+
+def fault_restart(rate, vals, n_obj, n=16):
+    ctx = mp.get_context("spawn")
+    pub, snap = endpoints()
+    stop, out, sout = ctx.Event(), ctx.Queue(), ctx.Queue()
+    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out),
+                      kwargs={"sample_epochs": True}) for k in _split(n)]
+    for p in ps:
+        p.start()
+    time.sleep(1.5)
+    a = ctx.Process(target=server_proc, args=(pub, snap, rate, None, vals, n_obj, 1, sout))
+    a.start()
+    time.sleep(4.0)
+    os.kill(a.pid, signal.SIGKILL)
+    a.join(5)
+    killed = time.time()
+    time.sleep(1.0)
+    count = int(rate * 3)
+    b = ctx.Process(target=server_proc, args=(pub, snap, rate, count, vals, n_obj, 2, sout))
+    restarted = time.time()
+    b.start()
+    sb = sout.get(timeout=60)
+    b.join(10)
+    time.sleep(0.5)
+    stop.set()
+    rows = [r for rs in collect(out, ps).values() for r in rs]
+    rec = [r["epoch_seen"].get(2, math.inf) - restarted for r in rows]
+    return {"n": n, "killed_at": killed, "recover_med": float(np.median(rec)),
+            "recover_max": float(max(rec)), "final_ok": sum(r["seq"] == count and
+                                                            r["epoch"] == 2 for r in rows),
+            "reconnects": sum(r["reconnects"] for r in rows),
+            "restarts": sum(r["restarts"] for r in rows),
+            "errors": sum(r["error"] is not None for r in rows), "published_b": sb["published"]}
+
+
+def hostile_proc(pub, snap, seconds, vals, out):
+    """A publisher that mixes damaged messages (75 %) with valid updates (25 %)."""
+    import zmq
+
+    from arlight.lightserver import wire
+
+    rng = np.random.default_rng(0)
+    states = make_states(vals, 1, 16)
+    ctx = zmq.Context()
+    ps, rs = ctx.socket(zmq.PUB), ctx.socket(zmq.ROUTER)
+    ps.bind(pub)
+    rs.bind(snap)
+    seq, kinds, latest = 0, {}, None
+    end = time.time() + seconds
+    while time.time() < end:
+        while rs.poll(0):
+            ident, _ = rs.recv_multipart()
+            rs.send_multipart([ident, latest or wire.encode_heartbeat(0, epoch=5)])
+        seq += 1
+        good = wire.encode(dataclasses.replace(states[seq % 16], sequence=seq), epoch=5,
+                           sent=time.time())
+        kind = rng.choice(["valid", "flip", "truncate", "version", "random", "nan", "extend"],
+                          p=[0.25, 0.15, 0.15, 0.1, 0.1, 0.15, 0.1])
+        if kind == "valid":
+            msg, latest = good, good
+        elif kind == "flip":
+            b = bytearray(good)
+            i = int(rng.integers(len(b)))
+            b[i] ^= 1 << int(rng.integers(8))
+            msg = bytes(b)
+        elif kind == "truncate":
+            msg = good[: int(rng.integers(len(good)))]
+        elif kind == "extend":
+            msg = good + bytes(int(rng.integers(1, 64)))
+        elif kind == "version":
+            b = bytearray(good)
+            b[4] = int(rng.integers(2, 256))
+            msg = wire._finish(bytes(b[:48]), bytes(b[48:]))
+        elif kind == "random":
+            msg = rng.bytes(int(rng.integers(0, 3000)))
+        else:
+            b = bytearray(good)
+            off = 48 + 32 * int(rng.integers(vals)) + 4 * int(rng.integers(3))
+            b[off:off + 4] = np.float32(np.nan).tobytes()
+            msg = wire._finish(bytes(b[:48]), bytes(b[48:]))
+        kinds[kind] = kinds.get(kind, 0) + 1
+        ps.send(msg)
+        time.sleep(0.005)
+    last_valid = wire.decode(latest)[1].sequence if latest else 0
+    for _ in range(40):  # heartbeats so that clients fetch the last valid state
+        ps.send(wire.encode_heartbeat(last_valid, epoch=5, sent=time.time()))
+        while rs.poll(0):
+            ident, _ = rs.recv_multipart()
+            rs.send_multipart([ident, latest])
+        time.sleep(0.025)
+    out.put({"kinds": kinds, "last_valid": last_valid, "sent": seq})
+    ctx.destroy(linger=0)
+
+
+def fault_malformed(vals, n=16, seconds=4.0):
+    ctx = mp.get_context("spawn")
+    pub, snap = endpoints()
+    stop, out, hout = ctx.Event(), ctx.Queue(), ctx.Queue()
+    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out),
+                      kwargs={"timeout": 5.0}) for k in _split(n)]
+    for p in ps:
+        p.start()
+    time.sleep(1.5)
+    h = ctx.Process(target=hostile_proc, args=(pub, snap, seconds, vals, hout))
+    h.start()
+    info = hout.get(timeout=seconds + 60)
+    h.join(10)
+    stop.set()
+    rows = [r for rs in collect(out, ps).values() for r in rs]
+    rejected: dict[str, int] = {}
+    for r in rows:
+        for k, v in r["rejected"].items():
+            rejected[k] = rejected.get(k, 0) + v
+    return {"n": n, "info": info, "rejected": rejected,
+            "final_ok": sum(r["seq"] == info["last_valid"] for r in rows),
+            "errors": sum(r["error"] is not None for r in rows),
+            "applied": sum(r["applied"] for r in rows)}
+
+
+def fault_slow(rate, seconds, vals, n_obj, n=16, freeze=3.0):
+    import zmq
+
+    ctx = mp.get_context("spawn")
+    pub, snap = endpoints()
+    stop, out, sout = ctx.Event(), ctx.Queue(), ctx.Queue()
+    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out))
+          for k in _split(n)]
+    for p in ps:
+        p.start()
+    zctx = zmq.Context()
+    never = zctx.socket(zmq.SUB)  # a subscriber that never reads
+    never.setsockopt(zmq.SUBSCRIBE, b"")
+    never.setsockopt(zmq.RCVHWM, 1)
+    never.connect(pub)
+    time.sleep(1.5)
+    count = int(rate * seconds)
+    server = ctx.Process(target=server_proc, args=(pub, snap, rate, count, vals, n_obj, 1, sout))
+    server.start()
+    time.sleep(seconds / 3)
+    frozen = ps[0].pid
+    os.kill(frozen, signal.SIGSTOP)
+    time.sleep(freeze)
+    os.kill(frozen, signal.SIGCONT)
+    s = sout.get(timeout=seconds * 4 + 60)
+    server.join(10)
+    time.sleep(1.0)
+    stop.set()
+    by_pid = collect(out, ps)
+    zctx.destroy(linger=0)
+    others = [r for pid, rs in by_pid.items() if pid != frozen for r in rs]
+    slow = by_pid[frozen]
+    lat = np.concatenate([r["lat_ms"] for r in others])
+    return {"n": n, "frozen_clients": len(slow), "freeze": freeze,
+            "p50_others": float(np.percentile(lat, 50)),
+            "p99_others": float(np.percentile(lat, 99)),
+            "gaps_others": sum(r["gaps"] for r in others),
+            "final_others": sum(r["seq"] == count for r in others), "n_others": len(others),
+            "final_slow": sum(r["seq"] == count for r in slow),
+            "gaps_slow": sum(r["gaps"] for r in slow),
+            "publish_p99": float(np.percentile(s["publish_ms"], 99)),
+            "publish_max": float(np.max(s["publish_ms"])), "published": s["published"]}
+
+
+# -- report ----------------------------------------------------------------------------------
+
+def report(rows, faults, args) -> str:
+    load = os.getloadavg()[0]
+    lines = [SECTION, "",
+             f"`python benchmarks/bench_lightserver.py` — loopback TCP, server replaying "
+             f"{args.vals} VALs + {args.objects} SH blocks at {args.rate:g} updates/s for "
+             f"{args.seconds:g} s per N; clients are `LightClient`s in ≤ {MAX_PROCS} receiver "
+             "processes (decode + validate every message), one server process. Target "
+             "(issue 18): 64 clients at ≥ 18 updates/s, p99 ≤ 50 ms, every client on the "
+             "latest state.", "",
+             "| clients | updates/s (server) | slowest client/s | bytes/update | p50 ms | "
+             "p99 ms | max ms | missed (gaps) | stale | end on latest | server CPU % | "
+             "publish p99 ms |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['n']} | {r['rate']:.1f} | {r['min_client_rate']:.1f} | "
+                     f"{r['bytes']} | {r['p50']:.2f} | {r['p99']:.2f} | {r['max']:.1f} | "
+                     f"{r['gaps']} | {r['stale']} | {r['final_ok']}/{r['n']} | "
+                     f"{r['cpu']:.1f} | {r['publish_p99']:.3f} |")
+    b = rows[-1]["bytes"] if rows else 0
+    lines += ["", f"Bytes per update = 48 (header) + 32·{args.vals} + 108·{args.objects} = "
+              f"{48 + 32 * args.vals + 108 * args.objects} (measured {b})."]
+    big = [r for r in rows if r["n"] == 64]
+    if big:
+        r = big[0]
+        ok = r["rate"] >= 18 and r["p99"] <= 50 and r["final_ok"] == 64
+        lines.append(f"64 clients: {r['rate']:.1f} updates/s, p99 {r['p99']:.1f} ms, "
+                     f"{r['final_ok']}/64 on the latest state — target "
+                     f"**{'met' if ok else 'not met'}**.")
+    if faults:
+        f = faults.get("restart")
+        if f:
+            lines += ["", f"**Server restart** (SIGKILL mid-stream, restart 1 s later, "
+                      f"{f['n']} clients, heartbeat timeout 0.5 s): every client back on the new "
+                      f"server's state {f['recover_med']:.2f} s (median) / "
+                      f"{f['recover_max']:.2f} s (max) after the restart; "
+                      f"{f['final_ok']}/{f['n']} end on its last update; "
+                      f"{f['reconnects']} reconnects, {f['restarts']} epoch changes, "
+                      f"{f['errors']} client errors."]
+        f = faults.get("malformed")
+        if f:
+            kinds = ", ".join(f"{k} {v}" for k, v in sorted(f["info"]["kinds"].items()))
+            rej = ", ".join(f"{k} {v}" for k, v in sorted(f["rejected"].items()))
+            lines += ["", f"**Malformed messages** ({f['n']} clients, {f['info']['sent']} "
+                      f"messages: {kinds}): rejected per client set: {rej}; "
+                      f"{f['final_ok']}/{f['n']} end on the last valid update "
+                      f"({f['info']['last_valid']}); {f['errors']} client errors."]
+        f = faults.get("slow")
+        if f:
+            lines += ["", f"**Slow clients** (one receiver process with {f['frozen_clients']} "
+                      f"of {f['n']} clients frozen by SIGSTOP for {f['freeze']:g} s, plus a SUB "
+                      f"socket that never reads): the other {f['n_others']} clients p50 "
+                      f"{f['p50_others']:.2f} ms, p99 {f['p99_others']:.2f} ms, "
+                      f"{f['gaps_others']} missed, {f['final_others']}/{f['n_others']} on the "
+                      f"latest; server publish p99 {f['publish_p99']:.3f} ms, max "
+                      f"{f['publish_max']:.2f} ms over {f['published']} updates; the frozen "
+                      f"clients skipped {f['gaps_slow']} updates and "
+                      f"{f['final_slow']}/{f['frozen_clients']} ended on the latest."]
+    lines += ["", f"Machine: {os.cpu_count()} cores shared; load average {load:.1f}; CPU "
+              f"pressure (PSI some avg60) {cpu_pressure() or 'n/a'} %."]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--write", action="store_true")
+    ap.add_argument("--seconds", type=float, default=8.0)
+    ap.add_argument("--rate", type=float, default=20.0)
+    ap.add_argument("--vals", type=int, default=16)
+    ap.add_argument("--objects", type=int, default=2)
+    ap.add_argument("--clients", default="1,4,16,64")
+    ap.add_argument("--skip-faults", action="store_true")
+    args = ap.parse_args()
+    if not (0 < args.seconds <= 120 and 0 < args.rate <= 1000):
+        ap.error("--seconds must be in (0, 120] and --rate in (0, 1000]")
+    ns = [int(x) for x in args.clients.split(",")]
+    if any(not 1 <= n <= 256 for n in ns):
+        ap.error("--clients: each N in 1..256")
+    rows = []
+    for n in ns:
+        rows.append(run_load(n, args.rate, args.seconds, args.vals, args.objects))
+        print(rows[-1], flush=True)
+    faults = {}
+    if not args.skip_faults:
+        faults["restart"] = fault_restart(args.rate, args.vals, args.objects)
+        print(faults["restart"], flush=True)
+        faults["malformed"] = fault_malformed(args.vals)
+        print(faults["malformed"], flush=True)
+        faults["slow"] = fault_slow(args.rate, args.seconds, args.vals, args.objects)
+        print(faults["slow"], flush=True)
+    publish(report(rows, faults, args), args.write)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,153 @@
+"""``arlight serve-light`` and ``arlight client`` (see docs/lightserver.md)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from arlight.errors import InputError
+
+DEFAULT_BIND = "tcp://127.0.0.1:5556"
+
+
+def _objects(text: str | None) -> list[list[float]]:
+    """``"x,y,z;x,y,z"`` → object centres (m)."""
+    if not text:
+        return [[0.0, 0.1, 0.0]]
+    out = []
+    for part in text.split(";"):
+        try:
+            xyz = [float(v) for v in part.split(",")]
+        except ValueError:
+            xyz = []
+        if len(xyz) != 3:
+            raise InputError(f"{part!r}: expected X,Y,Z in metres (objects separated by ';')",
+                             field="--objects")
+        out.append(xyz)
+    return out
+
+
+def serve_light_command(
+    source: Annotated[str, typer.Option("--source", help="where the light comes from: "
+                      "`pipeline` (Rohmer's radiance atlas → τ split → VALs → SH on fisheye "
+                      "HDR frames: --world, and --frames or frames synthesised on the fly) or "
+                      "`synthetic` (an analytic moving lamp, no cameras; see "
+                      "docs/lightserver.md)")] = "synthetic",
+    world: Annotated[Path | None, typer.Option("--world", help="scene file of the world "
+                     "(real proxy, virtual objects; its lights light the synthesised frames) "
+                     "for --source pipeline")] = None,
+    frames: Annotated[Path | None, typer.Option("--frames", help="folder of fisheye HDR "
+                      "frames for --source pipeline (see docs/lightserver.md); default: "
+                      "frames synthesised on the fly with a moving light")] = None,
+    bind: Annotated[str, typer.Option("--bind", help="ZeroMQ publish endpoint "
+                    "(tcp://HOST:PORT; PORT * = any free port)")] = DEFAULT_BIND,
+    snapshot_bind: Annotated[str | None, typer.Option("--snapshot-bind", help="snapshot "
+                             "endpoint for late joiners (default: --bind's port + 1)")] = None,
+    rate: Annotated[float, typer.Option("--rate", help="updates per second at most (0 = as "
+                    "fast as the pipeline)", min=0, max=1000)] = 18.0,
+    count: Annotated[int, typer.Option("--count", help="stop after this many updates "
+                     "(0 = run until interrupted)", min=0)] = 0,
+    duration: Annotated[float, typer.Option("--duration", help="stop after this many "
+                        "seconds (0 = run until interrupted)", min=0)] = 0.0,
+    heartbeat: Annotated[float, typer.Option("--heartbeat", help="heartbeat period when "
+                         "idle, seconds", min=0.01, max=60)] = 0.25,
+    vals: Annotated[int, typer.Option("--vals", help="number of VALs M (Rohmer: 8..64)",
+                                      min=1, max=65536)] = 16,
+    objects: Annotated[str | None, typer.Option("--objects", help="--source synthetic: "
+                       "virtual object centres X,Y,Z;X,Y,Z (m), one SH block each")] = None,
+    rig: Annotated[Path | None, typer.Option("--rig", help="--source pipeline: fisheye rig "
+                   "(cams.toml); default: six 180° cameras inside the real geometry")] = None,
+    camera_size: Annotated[int, typer.Option("--camera-size", help="pixels per side of the "
+                           "default rig's cameras", min=8, max=4096)] = 64,
+    atlas: Annotated[int, typer.Option("--atlas", help="radiance atlas side, texels "
+                     "(Rohmer: 1024)", min=16, max=4096)] = 128,
+    tau: Annotated[float, typer.Option("--tau", help="direct share of the total light "
+                   "(Rohmer: 0.75-0.98)", min=0.0, max=1.0)] = 0.9,
+    spp: Annotated[int, typer.Option("--spp", help="samples per pixel of frames "
+                   "synthesised on the fly", min=1, max=4096)] = 8,
+    loop: Annotated[int, typer.Option("--loop", help="light positions per revolution of "
+                    "the moving light (synthesised frames; the stream repeats after)",
+                    min=1, max=10_000)] = 24,
+) -> None:
+    """Run the near-field light server: publish each light update (VALs + SH per object)
+    to every subscribed client, in Rohmer's binary layout (32 B per VAL, 108 B per object).
+
+    Stops after --count updates or --duration seconds, or on Ctrl-C (exit 130).
+    """
+    from arlight.lightserver import transport
+    from arlight.lightserver.producers import SyntheticMovingLight
+    from arlight.lightserver.server import LightServer
+
+    transport.check_endpoint(bind, "--bind", bind=True)
+    if snapshot_bind is not None:
+        transport.check_endpoint(snapshot_bind, "--snapshot-bind", bind=True)
+    if source == "synthetic":
+        if world is not None or frames is not None:
+            raise InputError("--world/--frames need --source pipeline", field="--source")
+        producer = SyntheticMovingLight(vals=vals, objects=_objects(objects),
+                                        frame_dt=1.0 / rate if rate > 0 else 1.0 / 18.0)
+    elif source == "pipeline":
+        from arlight.lightserver.pipeline import pipeline_producer
+
+        producer = pipeline_producer(world, frames, vals=vals, rig_path=rig,
+                                     camera_size=camera_size, atlas=atlas, tau=tau, spp=spp,
+                                     loop=loop)
+    else:
+        raise InputError(f"{source!r}: expected pipeline or synthetic", field="--source")
+    server = LightServer(producer, bind=bind, snapshot_bind=snapshot_bind, rate_hz=rate,
+                         heartbeat_s=heartbeat, count=count or None,
+                         duration=duration or None)
+    pub, snap = server.endpoints
+    typer.echo(f"serving near-field light ({source}) on {pub}, snapshots on {snap}; "
+               f"epoch {server.epoch:08x}", err=True)
+    try:
+        stats = server.run()
+    finally:
+        s = server.stats()
+        ms = sorted(s.produce_seconds)
+        med = f"{1e3 * ms[len(ms) // 2]:.1f} ms" if ms else "n/a"
+        typer.echo(f"published {s.published} updates ({s.bytes_last} B each), "
+                   f"{s.heartbeats} heartbeats, {s.snapshots} snapshots; producer median "
+                   f"{med}", err=True)
+    del stats
+
+
+def client_command(
+    scene: Annotated[Path, typer.Argument(help="AR scene file: the client's world (real "
+                                          "proxy, virtual objects), camera and background "
+                                          "frame")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="output folder: frame_NNNN.png "
+                                      "and client.json")],
+    connect: Annotated[str, typer.Option("--connect", help="the server's publish "
+                       "endpoint")] = DEFAULT_BIND,
+    snapshot: Annotated[str | None, typer.Option("--snapshot", help="the server's snapshot "
+                        "endpoint (default: --connect's port + 1)")] = None,
+    frames: Annotated[int, typer.Option("--frames", help="frames to render", min=1,
+                                        max=100_000)] = 30,
+    orbit: Annotated[float, typer.Option("--orbit", help="camera path: degrees the camera "
+                     "turns about the vertical axis through the scene origin over all "
+                     "frames")] = 30.0,
+    spp: Annotated[int, typer.Option("--spp", help="samples per pixel of the nearfield "
+                                     "render", min=1, max=4096)] = 1,
+    wait: Annotated[float, typer.Option("--wait", help="seconds to wait for the first "
+                    "light state (exit 2 without one)", min=0.1, max=3600)] = 5.0,
+    heartbeat_timeout: Annotated[float, typer.Option("--heartbeat-timeout", help="seconds "
+                                 "of silence before the server counts as lost and the "
+                                 "client reconnects", min=0.05, max=600)] = 1.0,
+) -> None:
+    """Subscribe to a light server and render this client's own frames with the `nearfield`
+    method and the latest light state; writes the frames and update-latency statistics."""
+    from arlight.lightserver.render import run_client
+
+    t0 = time.time()
+    summary = run_client(scene, out, connect=connect, snapshot=snapshot, frames=frames,
+                         orbit_deg=orbit, spp=spp, wait=wait,
+                         heartbeat_timeout=heartbeat_timeout)
+    typer.echo(f"{summary['frames']} frames in {time.time() - t0:.1f} s with light updates "
+               f"{summary['first_sequence']}..{summary['last_sequence']} "
+               f"({summary['updates_applied']} received, latency p50 "
+               f"{summary['latency_ms_p50']:.2f} ms, p99 {summary['latency_ms_p99']:.2f} ms); "
+               f"written to {out}/", err=True)
