@@ -1,0 +1,278 @@
+"""``nearfield``: Rohmer et al. 2015 — near-field light from HDR fisheye cameras as virtual
+area lights (VALs) plus 9 SH coefficients per virtual object, rendered with per-vertex PRT,
+two visibilities per VAL and the differential composite of Eq. 14.
+
+* **prepare** (once per world): the G-buffer scenes, the proxy and virtual-object occluder
+  scenes, the per-vertex PRT transfer of every virtual mesh (``arlight.methods.prt``'s,
+  cached on disk), the material table and the light state: read from ``light`` (a
+  ``NearFieldLight`` JSON, ``arlight light atlas -o vals.json``) or, without it, made by the
+  server pipeline (:class:`~arlight.nearfield.pipeline.NearFieldServer`) from a synthetic
+  capture of the world's real part by the rig in ``cameras`` (default: an automatic rig of
+  six fisheyes, :func:`~arlight.nearfield.cameras.auto_rig`).
+* **render** (per frame, :mod:`arlight.nearfield.client`): G-buffer; PRT indirect light on
+  virtual samples (Eq. 8); shadow maps (two per VAL); direct light of the VALs with both
+  visibilities; Eq. 14. Stages ``gbuffer``, ``indirect``, ``shadow_maps``, ``direct``,
+  ``assemble``.
+
+A client with its own light state (e.g. from the light server) renders with
+:func:`render_with_light` (or :class:`~arlight.nearfield.NearFieldClient`). See
+``docs/methods/nearfield.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from types import SimpleNamespace
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import SceneViews
+from arlight.methods.base import BaseMethod, Layers, Prepared, RenderSettings
+from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.nearfield.client import (
+    MaterialTable,
+    PerObjectSH,
+    ShadowMaps,
+    direct_light,
+    material_table,
+    shadow_maps,
+)
+from arlight.nearfield.state import NearFieldLight
+from arlight.realtime.gbuffer import assemble, render_gbuffer
+from arlight.scene.model import FrameView, World
+from arlight.timing import StageTimer
+
+OPTIONS: dict[str, Field] = {
+    "light": Field("str", None, "NearFieldLight JSON (`arlight light atlas`); empty: run the "
+                   "server on a synthetic capture of the world"),
+    "cameras": Field("str", None, "fisheye rig (cams.toml) of the synthetic capture; empty: "
+                     "six fisheyes inside the proxy's bounds"),
+    "capture_size": Field("int", 128, "side of the synthetic fisheye images", "px", min=16,
+                          max=2048),
+    "capture_spp": Field("int", 32, "paths per pixel of the synthetic capture", "", min=1,
+                         max=4096),
+    "tau": Field("float", 0.9, "direct share τ of the total radiant intensity", "", min=0.0,
+                 max=1.0),
+    "vals": Field("int", 16, "number of virtual area lights M", "", min=1, max=256),
+    "atlas_resolution": Field("int", 256, "radiance atlas side", "texels", min=16,
+                              max=2048),
+    "shadows": Field("choice", "maps", "visibility: `maps` (two 128² maps per VAL, Rohmer) "
+                     "or `rays` (exact shadow rays)", choices=("maps", "rays")),
+    "shadow_map_size": Field("int", 128, "shadow map side", "texels", min=8, max=2048),
+    "shadow_bias": Field("float", 2.0, "depth bias of the shadow maps", "texels", min=0.0,
+                         max=64.0),
+    "disc": Field("bool", True, "VALs as discs (r² + R² in Eq. 5); false: points"),
+    "direct": Field("bool", True, "direct light of the VALs"),
+    "indirect": Field("bool", True, "PRT indirect light of the SH blocks"),
+    "metal_k": Field("rgb", [0.0, 0.0, 0.0], "extinction k of roughconductor materials "
+                     "(their n follows from their reflectance)", "", min=0.0),
+    "directions": Field("int", 512, "visibility rays per vertex of the PRT transfer", "",
+                        min=16, max=16384),
+    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel", "", min=1, max=64),
+}
+
+SPEC = MethodSpec(
+    name="nearfield",
+    description="Rohmer 2015: near-field light from HDR fisheyes as virtual area lights + "
+                "per-object SH; PRT, two shadow maps per VAL, Eq. 14; real time.",
+    options=OPTIONS,
+    capabilities=Capabilities(interactive=True,
+                              materials=frozenset({"diffuse", "phong", "roughconductor"})),
+)
+
+
+@dataclass
+class NearFieldData:
+    """What ``prepare_world`` keeps; ``light`` may be replaced per frame
+    (``dataclasses.replace``), everything else is static."""
+
+    world: World
+    views: SceneViews
+    proxy: mi.Scene
+    occluder: mi.Scene | None
+    prt: PerObjectSH | None
+    materials: MaterialTable
+    sphere: tuple[np.ndarray, float] | None
+    light: NearFieldLight
+    objects: list[str]
+    server_stats: dict
+
+
+def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight, dict]:
+    from arlight.nearfield.atlas import proxy_mesh
+    from arlight.nearfield.cameras import auto_rig, load_rig
+    from arlight.nearfield.capture import capture_rig
+    from arlight.nearfield.lightfile import load_light
+    from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
+
+    if options.light:
+        return load_light(options.light), {}
+    if options.cameras:
+        rig = load_rig(options.cameras)
+    else:
+        mesh = proxy_mesh(world)
+        rig = auto_rig(mesh.vertices.min(0), mesh.vertices.max(0), options.capture_size)
+    server = NearFieldServer(world, rig, NearFieldSettings(
+        atlas_resolution=options.atlas_resolution, tau=options.tau, vals=options.vals))
+    images = capture_rig(world, rig, options.capture_spp)
+    light = server.update(images, timestamp=0.0)
+    return light, dict(server.stats)
+
+
+def prepare(world: World, options: Options, light: NearFieldLight | None = None
+            ) -> NearFieldData:
+    """Everything but the frame (module docstring); ``light`` overrides the options."""
+    from arlight.backend.mitsuba_scene import build_views
+    from arlight.methods import prt
+    from arlight.nearfield.atlas import proxy_mesh
+    from arlight.nearfield.raytrace import mesh_scene
+    from arlight.realtime.oof import virtual_scene
+
+    views = build_views(world)
+    mesh = proxy_mesh(world)
+    proxy = mesh_scene([(mesh.vertices, mesh.faces)])
+    occluder = virtual_scene(world)
+    stats: dict = {}
+    if light is None:
+        light, stats = _light_from_options(world, options)
+    names = [s.name for s in world.virtual_shapes]
+    pdata = None
+    sphere = None
+    if occluder is not None:
+        popts = prt.SPEC.parse_options({"order": 2, "directions": options.directions,
+                                        "oof": False, "glossy": False, "bounces": 0})
+        d = prt.prepare(world, popts)
+        pdata = PerObjectSH(views=views, objects=d.objects, face_offset=d.face_offset,
+                            faces=d.faces, sog=None, env=None, sh=np.zeros((len(names), 9, 3)))
+        b = occluder.bbox()
+        lo, hi = np.array([b.min.x, b.min.y, b.min.z]), np.array([b.max.x, b.max.y, b.max.z])
+        sphere = ((lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0)
+    return NearFieldData(world, views, proxy, occluder, pdata,
+                         material_table(world, list(options.metal_k)), sphere, light, names,
+                         stats)
+
+
+def _check_light(data: NearFieldData) -> None:
+    from arlight.errors import InputError
+
+    n = len(data.objects)
+    if data.light.n_objects not in (0, n):
+        raise InputError(f"the light state has {data.light.n_objects} SH blocks for {n} "
+                         "virtual objects", field="light.sh")
+
+
+def render_with_light(data: NearFieldData, view: FrameView, options: Options,
+                      settings: RenderSettings, timer: StageTimer) -> Layers:
+    """One frame with ``data.light`` (module docstring)."""
+    frame = view.frame
+    if data.occluder is None:  # no virtual object: the composite is the frame itself
+        with timer.stage("assemble"):
+            bg = np.asarray(frame, np.float32)
+            z = np.zeros_like(bg)
+            return Layers.assemble(bg, bg, z, z[..., 0], stats={"vals": float(
+                data.light.count)})
+    _check_light(data)
+    light = data.light
+    with timer.stage("gbuffer"):
+        gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp, settings.seed)
+    width = dr.width(gb.position)
+    mixed = dr.zeros(mi.Color3f, width)
+    with timer.stage("indirect"):
+        if options.indirect and data.prt is not None and light.n_objects:
+            from arlight.methods.prt import shade_virtual
+
+            pd = PerObjectSH(**{**vars(data.prt), "sh": light.sh})
+            rad, lanes = shade_virtual(pd, gb, view, SimpleNamespace(order=2, glossy=False),
+                                       settings.seed)
+            if dr.width(lanes):
+                dr.scatter(mixed, rad, lanes)
+            dr.eval(mixed)
+    delta = dr.zeros(mi.Color3f, width)
+    maps: ShadowMaps | None = None
+    if options.direct and light.count:
+        with timer.stage("shadow_maps"):
+            if options.shadows == "maps" and data.sphere is not None:
+                maps = shadow_maps(light, data.proxy, data.occluder, data.sphere,
+                                   options.shadow_map_size)
+        with timer.stage("direct"):
+            lit, lost = direct_light(light, gb.position, gb.normal, gb.albedo, gb.to_camera,
+                                     gb.virtual, gb.valid, gb.shape, data.materials,
+                                     data.proxy, data.occluder, maps, options.disc,
+                                     options.shadow_bias)
+            mixed = dr.select(gb.virtual, mixed + lit, mixed)
+            delta = dr.select(gb.virtual | ~gb.valid, delta, -lost)
+            dr.eval(mixed, delta)
+    with timer.stage("assemble"):
+        stats = {"vals": float(light.count), "sh_objects": float(light.n_objects),
+                 "shadow_maps": float(0 if maps is None else 2 * int(np.sum(
+                     maps.tan_half > 0)))}
+        return assemble(gb, frame, mixed, delta, stats)
+
+
+class NearFieldMethod(BaseMethod):
+    """Rohmer et al. 2015 near-field AR illumination (module docstring)."""
+
+    spec = SPEC
+
+    def prepare_world(self, world: World, options: Options, settings: RenderSettings
+                      ) -> NearFieldData:
+        return prepare(world, options)
+
+    def pose(self, state: Prepared, transforms, settings: RenderSettings) -> NearFieldData:
+        # the light state stays (it is the server's); the geometry moves
+        return prepare(state.world.posed(transforms), state.options, state.data.light)
+
+    def render_view(self, data: NearFieldData, view: FrameView, options: Options,
+                    settings: RenderSettings, timer: StageTimer) -> Layers:
+        layers = render_with_light(data, view, options, settings, timer)
+        for k, v in data.server_stats.items():
+            layers.stats[f"server_ms_{k}"] = float(v)
+        return layers
+
+
+def with_light(state: Prepared, light: NearFieldLight) -> Prepared:
+    """A prepared state that renders with ``light`` (the original is not modified)."""
+    return replace(state, data=replace(state.data, light=light))
+
+
+__all__ = ["OPTIONS", "SPEC", "NearFieldData", "NearFieldMethod", "prepare",
+           "render_with_light", "with_light"]
+
+
+def empty_light(n_objects: int = 0) -> NearFieldLight:
+    """No VAL and zero SH for ``n_objects`` objects (a client before its first update)."""
+    z = np.zeros((0, 3))
+    return NearFieldLight(z, z, z, np.zeros(0), np.zeros((n_objects, 9, 3)))
+
+
+class NearFieldClient:
+    """Render frames of one world with light states from elsewhere (the light server).
+
+        client = NearFieldClient(world, {"shadows": "maps"})
+        layers = client.render(view, light)      # any NearFieldLight, per frame
+
+    ``world`` is the proxy world with the virtual objects (SH blocks in the order of
+    ``world.virtual_shapes``); ``options`` those of the ``nearfield`` method (``light``,
+    ``cameras`` and the capture options are not used).
+    """
+
+    def __init__(self, world: World, options: dict | None = None,
+                 settings: RenderSettings | None = None) -> None:
+        import time
+
+        self.method = NearFieldMethod()
+        self.settings = replace(settings or RenderSettings(), options=dict(options or {}))
+        opts = self.method.options(self.settings)
+        self.method.check_supported(world)
+        t0 = time.perf_counter()
+        data = prepare(world, opts, empty_light(len(world.virtual_shapes)))
+        self.state = Prepared(SPEC.name, world, opts, data, time.perf_counter() - t0)
+
+    def render(self, view: FrameView, light: NearFieldLight) -> Layers:
+        """Layers of ``view`` lit by ``light`` (Eq. 14)."""
+        return self.method.render(with_light(self.state, light), view, self.settings)
+
+
+__all__ += ["NearFieldClient", "empty_light"]
