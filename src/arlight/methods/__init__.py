@@ -53,6 +53,7 @@ BUILTINS: dict[str, str] = {
     "dvct": "arlight.methods.dvct:DVCTMethod",
     "ibl": "arlight.methods.ibl:IBLMethod", "prt": "arlight.methods.prt:PRTMethod",
     "dic": "arlight.methods.dic:DicMethod",
+    "nearfield": "arlight.methods.nearfield:NearFieldMethod",
 }
 """Built-in methods as entry-point values (the fallback when package metadata is missing)."""
 
