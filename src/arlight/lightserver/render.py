@@ -60,11 +60,11 @@ def run_client(scene_path: Path, out: Path, *, connect: str, snapshot: str | Non
         raise InputError("the client scene has no virtual object to light", file=str(scene_path),
                          field="shapes")
     check_output_dir(out, CLIENT_FILES, 0, (scene_path,))
-    renderer = NearFieldRenderer(scene, spp=spp)
     per_frame = []
     client.start()
     try:
         light = client.wait_for(1, timeout=wait)  # WireVersionError / no server → exit 2
+        renderer = NearFieldRenderer(scene, spp=spp)
         with StagedOutput(out, "client", CLIENT_FILES) as tmp:
             for i, cam in enumerate(camera_path(scene.camera, frames, orbit_deg)):
                 light = client.latest or light  # one read per frame: a whole state
