@@ -106,11 +106,12 @@ SPEC = MethodSpec(
 
 def record_keys(ident: np.ndarray, seed: int) -> np.ndarray:
     """32-bit random-sequence keys of records by id (a fixed hash of id and seed)."""
-    x = (ident.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-         + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0xBF58476D1CE4E5B9))
-    x ^= x >> np.uint64(31)
-    x *= np.uint64(0x94D049BB133111EB)
-    x ^= x >> np.uint64(29)
+    with np.errstate(over="ignore"):  # arithmetic modulo 2^64
+        x = (ident.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+             + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0xBF58476D1CE4E5B9))
+        x ^= x >> np.uint64(31)
+        x *= np.uint64(0x94D049BB133111EB)
+        x ^= x >> np.uint64(29)
     return (x & np.uint64(0xFFFFFFFF)).astype(np.uint32)
 
 
