@@ -147,3 +147,38 @@ def test_killed_server_process_is_followed_after_restart():
     if second is not None:
         assert second.returncode == 130  # SIGINT: the usual arlight exit status
         assert "published" in second.stderr.read().decode()
+
+
+def _synthetic_server(n_obj: int):
+    from arlight.lightserver import LightServer
+
+    objs = [[-0.15, 0.3, 0.2]] * n_obj
+    return LightServer(SyntheticMovingLight(vals=4, objects=objs), bind="tcp://127.0.0.1:*",
+                       rate_hz=30)
+
+
+def test_client_renders_its_frames_with_the_servers_light(tmp_path, capsys):
+    import json
+
+    with _synthetic_server(1) as server:
+        rc = main(["client", SCENE, "-o", str(tmp_path / "o"), "--connect",
+                   server.endpoints[0], "--snapshot", server.endpoints[1], "--frames", "3",
+                   "--size", "32x18", "--wait", "20"])
+    assert rc == 0, capsys.readouterr().err
+    out = tmp_path / "o"
+    assert sorted(p.name for p in out.glob("frame_*.png")) == [f"frame_000{i}.png"
+                                                              for i in range(3)]
+    summary = json.loads((out / "client.json").read_text())
+    seqs = [f["sequence"] for f in summary["per_frame"]]
+    assert seqs == sorted(seqs) and seqs[0] >= 1 and summary["updates_applied"] >= 1
+    assert summary["rejected"] == {} and summary["from_snapshot"] == 1
+
+
+def test_client_refuses_a_light_for_other_objects(tmp_path, capsys):
+    with _synthetic_server(2) as server:
+        rc = main(["client", SCENE, "-o", str(tmp_path / "o"), "--connect",
+                   server.endpoints[0], "--snapshot", server.endpoints[1], "--frames", "1",
+                   "--size", "32x18", "--wait", "20"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "SH for 2 virtual objects" in err and "has 1" in err
+    assert not (tmp_path / "o").exists()

@@ -30,6 +30,19 @@ def _objects(text: str | None) -> list[list[float]]:
     return out
 
 
+def _size(text: str | None) -> tuple[int, int] | None:
+    """``"WxH"`` → (W, H) in pixels."""
+    if text is None:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        w = h = 0
+    if not (1 <= w <= 8192 and 1 <= h <= 8192):
+        raise InputError(f"{text!r}: expected WxH, 1..8192 pixels each", field="--size")
+    return w, h
+
+
 def serve_light_command(
     source: Annotated[str, typer.Option("--source", help="where the light comes from: "
                       "`pipeline` (Rohmer's radiance atlas → τ split → VALs → SH on fisheye "
@@ -132,6 +145,8 @@ def client_command(
                      "frames")] = 30.0,
     spp: Annotated[int, typer.Option("--spp", help="samples per pixel of the nearfield "
                                      "render", min=1, max=4096)] = 1,
+    size: Annotated[str | None, typer.Option("--size", help="render size WxH (default: the "
+                    "scene camera's; the field of view is kept)")] = None,
     wait: Annotated[float, typer.Option("--wait", help="seconds to wait for the first "
                     "light state (exit 2 without one)", min=0.1, max=3600)] = 5.0,
     heartbeat_timeout: Annotated[float, typer.Option("--heartbeat-timeout", help="seconds "
@@ -145,7 +160,7 @@ def client_command(
     t0 = time.time()
     summary = run_client(scene, out, connect=connect, snapshot=snapshot, frames=frames,
                          orbit_deg=orbit, spp=spp, wait=wait,
-                         heartbeat_timeout=heartbeat_timeout)
+                         heartbeat_timeout=heartbeat_timeout, size=_size(size))
     typer.echo(f"{summary['frames']} frames in {time.time() - t0:.1f} s with light updates "
                f"{summary['first_sequence']}..{summary['last_sequence']} "
                f"({summary['updates_applied']} received, latency p50 "

@@ -46,7 +46,7 @@ def _percentile(values, q: float) -> float:
 
 def run_client(scene_path: Path, out: Path, *, connect: str, snapshot: str | None,
                frames: int, orbit_deg: float, spp: int, wait: float,
-               heartbeat_timeout: float) -> dict:
+               heartbeat_timeout: float, size: tuple[int, int] | None = None) -> dict:
     """Render ``frames`` frames of ``scene_path`` lit by the server's latest state; returns
     the summary also written to ``client.json`` (module docstring)."""
     from arlight.io.images import write_png
@@ -56,6 +56,11 @@ def run_client(scene_path: Path, out: Path, *, connect: str, snapshot: str | Non
 
     client = LightClient(connect, snapshot, heartbeat_timeout=heartbeat_timeout)
     scene = load_scene(scene_path)
+    if size is not None:
+        try:
+            scene = scene.resized(*size)
+        except ValueError as exc:
+            raise InputError(str(exc), file=str(scene_path), field="--size") from exc
     if not scene.has_virtual:
         raise InputError("the client scene has no virtual object to light", file=str(scene_path),
                          field="shapes")
@@ -65,9 +70,12 @@ def run_client(scene_path: Path, out: Path, *, connect: str, snapshot: str | Non
     try:
         light = client.wait_for(1, timeout=wait)  # WireVersionError / no server → exit 2
         renderer = NearFieldRenderer(scene, spp=spp)
+        renderer.check(light, str(scene_path))
         with StagedOutput(out, "client", CLIENT_FILES) as tmp:
             for i, cam in enumerate(camera_path(scene.camera, frames, orbit_deg)):
-                light = client.latest or light  # one read per frame: a whole state
+                newest = client.latest  # one read per frame: a whole, validated state
+                if newest is not None and newest.n_objects == renderer.n_objects:
+                    light = newest
                 layers = renderer.render(cam, light)
                 write_png(tmp / f"frame_{i:04d}.png", cam.transfer.to_display(layers.composite))
                 per_frame.append({"frame": i, "sequence": light.sequence,
