@@ -116,7 +116,12 @@ def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight,
         rig = auto_rig(mesh.vertices.min(0), mesh.vertices.max(0), options.capture_size)
     server = NearFieldServer(world, rig, NearFieldSettings(
         atlas_resolution=options.atlas_resolution, tau=options.tau, vals=options.vals))
-    images = capture_rig(world, rig, options.capture_spp)
+    if not options.cameras:  # the automatic rig: drop cameras that see nothing (open sides)
+        from arlight.nearfield.projection import camera_weights
+
+        server.cameras = [c for c in rig if np.any(camera_weights(server.geometry, c,
+                                                                  server.proxy_scene)[0] > 0)]
+    images = capture_rig(world, server.cameras, options.capture_spp)
     light = server.update(images, timestamp=0.0)
     return light, dict(server.stats)
 
