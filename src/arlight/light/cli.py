@@ -459,6 +459,11 @@ from arlight.probeless.cli import probeless as _probeless  # noqa: E402
 
 app.command("probeless")(_probeless)
 
+# Near-field server update (Rohmer et al. 2015, issue 17): code in arlight.nearfield.cli.
+from arlight.nearfield.cli import atlas as _atlas  # noqa: E402
+
+app.command("atlas")(_atlas)
+
 
 if __name__ == "__main__":
     app()
