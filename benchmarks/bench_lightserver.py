@@ -3,9 +3,11 @@
 Set-up (the machine has 2 cores shared with other work): the server is one process
 (:class:`arlight.lightserver.LightServer` replaying states precomputed by the producer, at a
 fixed rate, so the transport is measured, not the producer). The N clients are real
-:class:`arlight.lightserver.LightClient` objects (each its own SUB + DEALER sockets and
-receiver thread, decoding and validating every message) spread over at most 4 receiver
-processes, e.g. 64 clients = 4 processes × 16 clients. They only decode; the rendering
+:class:`arlight.lightserver.LightClient` objects (each its own SUB + DEALER sockets, its own
+state, decoding and validating every message) spread over at most 4 receiver processes, e.g.
+64 clients = 4 processes × 16 clients; in each process one
+:class:`~arlight.lightserver.ClientGroup` thread polls all 16 clients' sockets (16 threads
+per process would fight over the GIL and wake up 16 times as often). They only decode; the rendering
 client (``arlight client``) is a separate, single process and is not part of this load.
 
 Measured per N = 1, 4, 16, 64: updates/s published and the slowest client's received rate,
@@ -88,11 +90,12 @@ def server_proc(pub, snap, rate, count, vals, n_obj, epoch, out):
 def receiver_proc(pub, snap, n_clients, stop, out, sample_epochs=False, timeout=0.5):
     import zmq
 
-    from arlight.lightserver import LightClient
+    from arlight.lightserver import ClientGroup, LightClient
 
     ctx = zmq.Context()
-    clients = [LightClient(pub, snap, heartbeat_timeout=timeout, context=ctx).start()
+    clients = [LightClient(pub, snap, heartbeat_timeout=timeout, context=ctx)
                for _ in range(n_clients)]
+    group = ClientGroup(clients).start()  # one receiver thread for all of them
     epoch_seen = [dict() for _ in clients]  # epoch -> first time seen
     while not stop.wait(0.02 if sample_epochs else 0.2):
         if sample_epochs:
@@ -111,8 +114,7 @@ def receiver_proc(pub, snap, n_clients, stop, out, sample_epochs=False, timeout=
                      "lat_ms": np.array(st.latencies) * 1e3, "error": repr(c.error)
                      if c.error else None, "epoch_seen": seen,
                      "light": cur})
-    for c in clients:
-        c.close()
+    group.close()
     ctx.destroy(linger=0)
     out.put((os.getpid(), rows))
 
@@ -339,7 +341,8 @@ def report(rows, faults, args) -> str:
              f"`python benchmarks/bench_lightserver.py` — loopback TCP, server replaying "
              f"{args.vals} VALs + {args.objects} SH blocks at {args.rate:g} updates/s for "
              f"{args.seconds:g} s per N; clients are `LightClient`s in ≤ {MAX_PROCS} receiver "
-             "processes (decode + validate every message), one server process. Target "
+             "processes, one `ClientGroup` thread each (decode + validate every message), "
+             "one server process. Target "
              "(issue 18): 64 clients at ≥ 18 updates/s, p99 ≤ 50 ms, every client on the "
              "latest state.", "",
              "| clients | updates/s (server) | slowest client/s | bytes/update | p50 ms | "

@@ -8,10 +8,11 @@ versioned header); clients keep the latest state and render their own frames wit
 See docs/lightserver.md.
 """
 
-from arlight.lightserver.client import ClientStats, LightClient
+from arlight.lightserver.client import ClientGroup, ClientStats, LightClient
 from arlight.lightserver.producers import ReplayProducer, SyntheticMovingLight
 from arlight.lightserver.server import LightServer, ServerStats
 from arlight.lightserver.wire import WireError, WireVersionError, decode, encode
 
-__all__ = ["ClientStats", "LightClient", "LightServer", "ReplayProducer", "ServerStats",
-           "SyntheticMovingLight", "WireError", "WireVersionError", "decode", "encode"]
+__all__ = ["ClientGroup", "ClientStats", "LightClient", "LightServer", "ReplayProducer",
+           "ServerStats", "SyntheticMovingLight", "WireError", "WireVersionError", "decode",
+           "encode"]

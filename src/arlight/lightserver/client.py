@@ -1,7 +1,8 @@
 """The client side: subscribe to a light server and keep the latest light state.
 
-:class:`LightClient` runs one receiver thread that owns its sockets (a SUB socket on the
-server's publish endpoint, a DEALER socket on its snapshot endpoint). Every message is
+:class:`LightClient` receives on one thread that owns its sockets (a SUB socket on the
+server's publish endpoint, a DEALER socket on its snapshot endpoint); a :class:`ClientGroup`
+serves many clients from one thread (one poll over all their sockets). Every message is
 decoded and validated completely (:func:`arlight.lightserver.wire.decode`) before the
 client's state — one immutable :class:`~arlight.nearfield.NearFieldLight` — is replaced by a
 single reference assignment, so a renderer that reads :attr:`LightClient.latest` once per
@@ -98,8 +99,11 @@ class LightClient:
         self._stats = ClientStats()
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._group: ClientGroup | None = None
+        self._sub: zmq.Socket | None = None
+        self._snap: zmq.Socket | None = None
+        self._last_heard = 0.0
+        self._snap_asked = 0.0
         self.error: BaseException | None = None
         """An unexpected error that ended the receiver thread (None while healthy)."""
 
@@ -116,16 +120,15 @@ class LightClient:
         return self._epoch
 
     def start(self) -> LightClient:
-        """Start the receiver thread; returns self."""
-        self._thread = threading.Thread(target=self._run, name="lightclient", daemon=True)
-        self._thread.start()
+        """Start receiving on a thread of its own (a :class:`ClientGroup` of one)."""
+        self._group = ClientGroup([self]).start()
         return self
 
     def close(self, timeout: float = 5.0) -> None:
-        """Stop the receiver thread and release the sockets."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
+        """Stop receiving and release the sockets (and the context, when it is our own)."""
+        if self._group is not None:
+            self._group.close(timeout)
+            self._group = None
         if self._own_ctx:
             self._ctx.destroy(linger=0)
 
@@ -196,51 +199,36 @@ class LightClient:
         except zmq.Again:  # one request is already queued
             pass
 
-    def _run(self) -> None:
-        try:
-            self._loop()
-        except BaseException as exc:  # noqa: BLE001 - surfaced by wait_for / .error
-            self.error = exc
+    def _connect_sockets(self) -> list[zmq.Socket]:
+        """Open both sockets and ask for a snapshot; returns the sockets to poll."""
+        self._sub, self._snap = self._open()
+        self._request_snapshot(self._snap)
+        self._last_heard = time.monotonic()
+        return [self._sub, self._snap]
 
-    def _loop(self) -> None:
-        sub, snap = self._open()
-        self._request_snapshot(snap)
-        poller = zmq.Poller()
-        poller.register(sub, zmq.POLLIN)
-        poller.register(snap, zmq.POLLIN)
-        last_heard = time.monotonic()
-        snap_asked = 0.0
-        try:
-            while not self._stop.is_set():
-                events = dict(poller.poll(50))
-                for sock in (sub, snap):
-                    if sock not in events:
-                        continue
-                    while True:  # drain what is queued
-                        try:
-                            msg = sock.recv(flags=zmq.NOBLOCK, copy=True)
-                        except zmq.Again:
-                            break
-                        last_heard = time.monotonic()
-                        if self._handle(msg, from_snapshot=sock is snap) and (
-                                time.monotonic() - snap_asked > 0.1):
-                            self._request_snapshot(snap)
-                            snap_asked = time.monotonic()
-                if time.monotonic() - last_heard > self.heartbeat_timeout:
-                    poller.unregister(sub)
-                    poller.unregister(snap)
-                    sub.close(linger=0)
-                    snap.close(linger=0)
-                    sub, snap = self._open()
-                    poller.register(sub, zmq.POLLIN)
-                    poller.register(snap, zmq.POLLIN)
-                    self._request_snapshot(snap)
-                    last_heard = time.monotonic()
-                    with self._lock:
-                        self._stats.reconnects += 1
-        finally:
-            sub.close(linger=0)
-            snap.close(linger=0)
+    def _close_sockets(self) -> None:
+        for s in (self._sub, self._snap):
+            if s is not None:
+                s.close(linger=0)
+        self._sub = self._snap = None
+
+    def _on_readable(self, sock: zmq.Socket) -> None:
+        """Drain what ``sock`` (our SUB or DEALER) holds."""
+        from_snapshot = sock is self._snap
+        while True:
+            try:
+                msg = sock.recv(flags=zmq.NOBLOCK, copy=True)
+            except zmq.Again:
+                return
+            self._last_heard = time.monotonic()
+            if self._handle(msg, from_snapshot=from_snapshot) and (
+                    self._last_heard - self._snap_asked > 0.1):
+                self._request_snapshot(self._snap)
+                self._snap_asked = self._last_heard
+
+    def _lost(self, now: float) -> bool:
+        """True when nothing came for ``heartbeat_timeout``: the server counts as lost."""
+        return now - self._last_heard > self.heartbeat_timeout
 
     def _handle(self, msg: bytes, *, from_snapshot: bool) -> bool:
         """Decode and apply one message; True when a snapshot should be requested."""
@@ -286,6 +274,70 @@ class LightClient:
             self._changed.notify_all()
         return False
 
+
+class ClientGroup:
+    """Several :class:`LightClient` s served by one receiver thread (one poll over all their
+    sockets): how a process holds many subscriptions without a thread each (the load test's
+    receivers). ``LightClient.start()`` is a group of one.
+    """
+
+    def __init__(self, clients: list[LightClient]):
+        self.clients = list(clients)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> ClientGroup:
+        self._thread = threading.Thread(target=self._run, name="lightclient", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def __enter__(self) -> ClientGroup:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException as exc:  # noqa: BLE001 - surfaced by wait_for / .error
+            for c in self.clients:
+                c.error = exc
+                with c._changed:
+                    c._changed.notify_all()
+        finally:
+            for c in self.clients:
+                c._close_sockets()
+
+    def _loop(self) -> None:
+        poller = zmq.Poller()
+        owner: dict[zmq.Socket, LightClient] = {}
+
+        def attach(c: LightClient) -> None:
+            for s in c._connect_sockets():
+                poller.register(s, zmq.POLLIN)
+                owner[s] = c
+
+        for c in self.clients:
+            attach(c)
+        while not self._stop.is_set():
+            for sock, _ in poller.poll(50):
+                owner[sock]._on_readable(sock)
+            now = time.monotonic()
+            for c in self.clients:
+                if c._lost(now):  # reopen both sockets, ask for a snapshot
+                    for s in (c._sub, c._snap):
+                        poller.unregister(s)
+                        owner.pop(s, None)
+                    c._close_sockets()
+                    attach(c)
+                    with c._lock:
+                        c._stats.reconnects += 1
 
 def _reason(message: str) -> str:
     """A short counter key for a rejected message."""
