@@ -119,6 +119,7 @@ class _Bar:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.stop()
+            self.bar = None
 
 
 def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
@@ -186,6 +187,14 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
 
                 summary.workers = int(opts.workers or info["cpus"] or 1)
                 distributed.run(job, frames, summary.workers, take)
+        except KeyboardInterrupt:
+            bar.close()
+            import sys
+
+            print(f"sequence: {len(store.done)} of {job.count} frames are done in "
+                  f"{store.out}; run the same command again to render the rest",
+                  file=sys.stderr, flush=True)
+            raise
         finally:
             bar.close()
         keys = {k for r in stage_runs for k in r}

@@ -1,0 +1,176 @@
+"""``arlight sequence`` end to end: outputs, bad input, interruption and resume.
+
+Rejects: a run that starts (or creates its output folder) before checking that frames and
+poses agree, that the video decodes and that the Ray cluster answers; a resumed run that
+renders frames already done, or loses frames that were done; a resumed video that differs
+from an uninterrupted run's; a folder of another job silently mixed with this one.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from arlight.sequence.store import LOG
+from tests.sequence.conftest import ARLIGHT, cli, make_tiny, run_cli
+
+
+def _summary(out: Path) -> dict:
+    return json.loads((out / "summary.json").read_text())
+
+
+def _frames(out: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted((out / "frames").glob("*.png"))}
+
+
+@pytest.fixture(scope="module")
+def full_run(tiny, tmp_path_factory):
+    """An uninterrupted run (the reference for the resume tests)."""
+    out = tmp_path_factory.mktemp("full") / "out"
+    r = run_cli(tiny.args(out, "--layers"))
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_outputs_and_rerun_renders_nothing(tiny, full_run):
+    s = _summary(full_run)
+    assert (s["frames"], s["rendered"], s["resumed"]) == (tiny.n, tiny.n, 0)
+    assert len(_frames(full_run)) == tiny.n
+    assert (full_run / "sequence.mp4").stat().st_size > 0
+    assert sorted(p.name for p in (full_run / "layers" / "000003").iterdir()) == [
+        "composite.exr", "delta.exr", "mask.exr", "mixed.exr"]
+    from arlight.sequence.video import probe
+
+    assert probe(full_run / "sequence.mp4")[:2] == (tiny.n, (32, 24))
+    before = _frames(full_run)
+    rc, out, err = cli(tiny.args(full_run, "--layers"))
+    assert rc == 0, err
+    assert "0 rendered, 8 already done" in out
+    assert _frames(full_run) == before
+
+
+def _run_until(tiny, out: Path, frames_done: int, sig: int) -> int:
+    """Start a run slowed to 0.15 s per frame, send ``sig`` once ``frames_done`` frames
+    are logged; returns the number of frames logged after it stopped."""
+    p = subprocess.Popen([ARLIGHT, *tiny.args(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True,
+                         env={**__import__("os").environ, "ARLIGHT_TEST_FRAME_DELAY": "0.15"})
+    log = out / LOG
+    t0 = time.time()
+    while time.time() - t0 < 120:
+        if log.is_file() and len(log.read_text().splitlines()) >= frames_done:
+            break
+        if p.poll() is not None:
+            break
+        time.sleep(0.02)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=60)
+    want = 128 + sig if sig == signal.SIGINT else -sig
+    assert p.returncode == want, err
+    if sig == signal.SIGINT:
+        assert "run the same command again" in err
+    return len([x for x in log.read_text().splitlines() if x.strip()])
+
+
+@pytest.mark.parametrize("sig", [pytest.param(signal.SIGINT, marks=pytest.mark.slow),
+                                 signal.SIGKILL])
+def test_interrupted_run_resumes_only_missing_frames(tiny, full_run, tmp_path, sig):
+    out = tmp_path / "out"
+    done = _run_until(tiny, out, 3, sig)
+    assert 3 <= done < tiny.n
+    assert not (out / "sequence.mp4").exists() and not (out / "summary.json").exists()
+    rc, _, err = cli(tiny.args(out))
+    assert rc == 0, err
+    s = _summary(out)
+    assert (s["rendered"], s["resumed"]) == (tiny.n - done, done)
+    assert _frames(out) == _frames(full_run)
+    assert (out / "sequence.mp4").read_bytes() == (full_run / "sequence.mp4").read_bytes()
+
+
+def test_torn_log_line_and_corrupt_frame_are_rendered_again(tiny, full_run, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(full_run, out)
+    log = out / LOG
+    lines = log.read_text().splitlines()
+    log.write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:20])  # torn last line
+    (out / "frames" / "000002.png").write_bytes(b"not a png")
+    rc, _, err = cli(tiny.args(out, "--layers"))
+    assert rc == 0, err
+    assert (_summary(out)["rendered"], _summary(out)["resumed"]) == (2, tiny.n - 2)
+    assert _frames(out) == _frames(full_run)
+
+
+def test_bad_input_exits_2_and_writes_nothing(tiny, tmp_path):
+    out = tmp_path / "out"
+    short = tmp_path / "short.txt"
+    short.write_text("\n".join(tiny.poses.read_text().splitlines()[:5]) + "\n")
+    args = tiny.args(out)
+    cases = {
+        "poses count": [*args[:5], str(short), *args[6:]],
+        "frames count": [*args, "--poses", str(tiny.poses)],  # replaced below
+        "bad video": None,
+        "unreachable ray": [*args, "--ray", "127.0.0.1:9"],
+        "unknown option": [*args, "--option", "nope=1"],
+        "unknown shape": None,
+    }
+    fewer = tmp_path / "fewer"
+    fewer.mkdir()
+    for f in sorted(tiny.frames.iterdir())[:6]:
+        (fewer / f.name).write_bytes(f.read_bytes())
+    cases["frames count"] = [args[0], args[1], "--frames", str(fewer), *args[4:]]
+    bad = tmp_path / "clip.mp4"
+    bad.write_bytes(b"\x00\x00\x00\x18ftypmp42" + b"garbage" * 50)
+    cases["bad video"] = [args[0], args[1], "--frames", str(bad), *args[4:]]
+    objs = tmp_path / "o.txt"
+    objs.write_text("0 teapot 0 0 0 0 0 0 1\n7 teapot 0 0 0 0 0 0 1\n")
+    cases["unknown shape"] = [*args[:7], str(objs), *args[8:]]
+    expect = {"poses count": "8 frames (0..7)",
+              "frames count": "(8 lines) but the sequence has 6 frames",
+              "bad video": "cannot decode the video", "unreachable ray": "cannot reach",
+              "unknown option": "nope", "unknown shape": "teapot"}
+    for name, a in cases.items():
+        rc, _, err = cli(a)
+        assert rc == 2, (name, err)
+        assert expect[name] in err and len(err.strip().splitlines()) == 1, (name, err)
+        assert not out.exists(), name
+
+
+def test_another_job_in_the_folder_is_refused(tiny, full_run, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(full_run, out)
+    before = _frames(out)
+    rc, _, err = cli(tiny.args(out, "--layers", "--seed", "3"))
+    assert rc == 2 and "another sequence job (different settings)" in err
+    assert _frames(out) == before
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    rc, _, err = cli(tiny.args(foreign))
+    assert rc == 2 and "notes.txt" in err
+
+
+def test_video_input_and_webm_output(tmp_path):
+    from arlight.io.images import read_ldr
+    from arlight.sequence.video import encode, probe
+
+    t = make_tiny(tmp_path / "t", n=4)
+    clip = encode(tmp_path / "in.mp4", [read_ldr(f) for f in sorted(t.frames.iterdir())],
+                  fps=12)
+    out = tmp_path / "out"
+    rc, _, err = cli(["sequence", str(t.scene), "--frames", str(clip), "--poses",
+                      str(t.poses), "-m", "reference", "--spp", "1", "--video", "mp4,webm",
+                      "-o", str(out)])
+    assert rc == 0, err
+    assert probe(out / "sequence.webm") == (4, (32, 24), 12.0)
+    assert probe(out / "sequence.mp4")[0] == 4
+    assert np.asarray(read_ldr(out / "frames" / "000003.png")).shape == (24, 32, 3)
