@@ -235,3 +235,28 @@ def test_port_in_use_names_the_option():
 def test_client_rejects_a_wildcard_port():
     with pytest.raises(InputError, match="not '\\*'"):
         LightClient("tcp://127.0.0.1:*")
+
+
+def test_a_group_of_clients_on_one_thread_all_end_on_the_latest():
+    from arlight.lightserver import ClientGroup
+
+    src = SyntheticMovingLight(vals=8)
+    ctx = zmq.Context()
+    try:
+        with LightServer(src, bind=ANY, rate_hz=100, count=30) as server:
+            clients = [LightClient(*server.endpoints, context=ctx) for _ in range(12)]
+            with ClientGroup(clients):
+                assert server.wait(30)
+                finals = [c.wait_for(30, timeout=10) for c in clients]
+        assert all(same_light(f, src(29)) for f in finals)
+        assert all(c.stats().rejected_total == 0 and c.error is None for c in clients)
+    finally:
+        ctx.destroy(linger=0)
+
+
+def test_a_conflating_client_keeps_only_the_newest_and_ends_on_it():
+    src = SyntheticMovingLight(vals=8)
+    with LightServer(src, bind=ANY, rate_hz=200, count=100) as server:
+        with LightClient(*server.endpoints, conflate=True) as client:
+            assert server.wait(30)
+            assert same_light(client.wait_for(100, timeout=10), src(99))
