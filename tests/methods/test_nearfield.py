@@ -140,3 +140,31 @@ def test_server_stages_payload_and_the_full_method():
         "capture_size": 16, "capture_spp": 1, "atlas_resolution": 32, "vals": 4}))
     assert 1 <= layers.stats["vals"] <= 4 and "time_direct" in layers.stats
     dr.sync_thread()
+
+
+@pytest.mark.parametrize("shadows", ["rays", "maps"])
+def test_lane_culling_changes_nothing(shadows):
+    """Checklist 14 (culling): with and without the per-VAL lane culling the direct light
+    is the same to 1e-6."""
+    from arlight.realtime.gbuffer import render_gbuffer
+
+    sc = scene(room(virtual=[vbox(at=(0.0, 0.3, 0.3))], extra=SLAB))
+    data = NearFieldClient(sc.world).state.data
+    rng = np.random.default_rng(4)
+    pos = np.column_stack([rng.uniform(-0.9, 0.9, 6), rng.uniform(0.0, 1.99, 6),
+                           rng.uniform(-0.9, 0.9, 6)])
+    nrm = rng.normal(size=(6, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    light = NearFieldLight(pos, nrm, rng.uniform(0.1, 1.0, (6, 3)), rng.uniform(0, 0.05, 6),
+                           np.zeros((1, 9, 3)))
+    gb = render_gbuffer(data.views.mixed, sc.view.camera)
+    maps = (shadow_maps(light, data.proxy, data.occluder, data.sphere)
+            if shadows == "maps" else None)
+    args = (light, gb.position, gb.normal, gb.albedo, gb.to_camera, gb.virtual, gb.valid,
+            gb.shape, data.materials, data.proxy, data.occluder, maps)
+    a = [np.array(x) for x in direct_light(*args)]
+    b = [np.array(x) for x in direct_light(*args, sphere=data.sphere)]
+    virt = np.array(gb.virtual)
+    assert np.allclose(a[0][:, virt], b[0][:, virt], atol=1e-6, rtol=0)
+    assert np.allclose(a[1][:, ~virt], b[1][:, ~virt], atol=1e-6, rtol=0)
+    assert np.any(a[1] > 0)

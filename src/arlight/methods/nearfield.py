@@ -205,7 +205,7 @@ def render_with_light(data: NearFieldData, view: FrameView, options: Options,
             lit, lost = direct_light(light, gb.position, gb.normal, gb.albedo, gb.to_camera,
                                      gb.virtual, gb.valid, gb.shape, data.materials,
                                      data.proxy, data.occluder, maps, options.disc,
-                                     options.shadow_bias)
+                                     options.shadow_bias, sphere=data.sphere)
             mixed = dr.select(gb.virtual, mixed + lit, mixed)
             delta = dr.select(gb.virtual | ~gb.valid, delta, -lost)
             dr.eval(mixed, delta)

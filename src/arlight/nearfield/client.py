@@ -149,35 +149,62 @@ def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
     return ShadowMaps(origin, axis, us, vs, tan_half, mi.Float(real), mi.Float(virt), S)
 
 
-def _v3(a) -> mi.Vector3f:
+def _v(a) -> mi.Vector3f:
     return mi.Vector3f(float(a[0]), float(a[1]), float(a[2]))
 
 
-def _c3(a) -> mi.Color3f:
-    return mi.Color3f(float(a[0]), float(a[1]), float(a[2]))
+def _table(a: np.ndarray) -> mi.Vector3f:
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return mi.Vector3f(*[mi.Float(np.ascontiguousarray(a[:, i])) for i in range(3)])
 
 
-def _lookup(maps: ShadowMaps, j: int, x: mi.Point3f, bias_texels: float
+@dataclass
+class _Tables:
+    """Per-VAL parameters as Dr.Jit arrays, read with an opaque index so that one compiled
+    kernel serves every chunk of VALs (literal constants would compile one per chunk)."""
+
+    P: mi.Vector3f
+    N: mi.Vector3f
+    I: mi.Vector3f
+    R2: mi.Float
+    origin: mi.Vector3f | None = None
+    axis: mi.Vector3f | None = None
+    u: mi.Vector3f | None = None
+    v: mi.Vector3f | None = None
+    tan: mi.Float | None = None
+
+
+def _tables(light: NearFieldLight, maps: ShadowMaps | None, disc: bool) -> _Tables:
+    r2 = light.area / math.pi if disc else np.zeros(light.count)
+    t = _Tables(_table(light.positions + EPS * light.normals), _table(light.normals),
+                _table(light.intensity), mi.Float(r2.astype(np.float32)))
+    if maps is not None:
+        t.origin, t.axis = _table(maps.origin), _table(maps.axis)
+        t.u, t.v = _table(maps.u), _table(maps.v)
+        t.tan = mi.Float(maps.tan_half.astype(np.float32))
+    return t
+
+
+def _lookup(maps: ShadowMaps, tab: _Tables, j: mi.UInt32, x: mi.Point3f, bias_texels: float
             ) -> tuple[mi.Bool, mi.Bool]:
     """``(V, V̂)`` of VAL ``j`` at points ``x`` from its two maps (outside the frustum:
     ``(True, True)``)."""
     S = maps.size
-    d = x - _v3(maps.origin[j])
+    d = x - dr.gather(mi.Vector3f, tab.origin, j)
     dist = dr.norm(d)
-    z = dr.dot(d, _v3(maps.axis[j]))
-    t = float(maps.tan_half[j])
-    s = dr.dot(d, _v3(maps.u[j])) / dr.maximum(z * t, 1e-12)
-    q = dr.dot(d, _v3(maps.v[j])) / dr.maximum(z * t, 1e-12)
+    z = dr.dot(d, dr.gather(mi.Vector3f, tab.axis, j))
+    t = dr.gather(mi.Float, tab.tan, j)
+    zt = dr.maximum(z * t, 1e-12)
+    s = dr.dot(d, dr.gather(mi.Vector3f, tab.u, j)) / zt
+    q = dr.dot(d, dr.gather(mi.Vector3f, tab.v, j)) / zt
     inside = (z > 0) & (dr.abs(s) < 1.0) & (dr.abs(q) < 1.0)
-    col = dr.clip(mi.Int32((s + 1.0) * 0.5 * S), 0, S - 1)
-    row = dr.clip(mi.Int32((q + 1.0) * 0.5 * S), 0, S - 1)
-    idx = mi.UInt32(j * S * S) + mi.UInt32(row * S + col)
-    bias = dist * (bias_texels * 2.0 * t / S) + 2e-3
+    col = dr.clip(mi.Int32((s + 1.0) * (0.5 * S)), 0, S - 1)
+    row = dr.clip(mi.Int32((q + 1.0) * (0.5 * S)), 0, S - 1)
+    idx = j * (S * S) + mi.UInt32(row * S + col)
+    bias = dist * (t * (bias_texels * 2.0 / S)) + 2e-3
     real = dr.gather(mi.Float, maps.real, idx, inside)
     virt = dr.gather(mi.Float, maps.virtual, idx, inside)
-    v = ~inside | (real >= dist - bias)
-    vh = ~inside | (virt >= dist - bias)
-    return v, vh
+    return ~inside | (real >= dist - bias), ~inside | (virt >= dist - bias)
 
 
 def _ray_visible(scene: mi.Scene | None, x: mi.Point3f, target: mi.Point3f,
@@ -191,49 +218,122 @@ def _ray_visible(scene: mi.Scene | None, x: mi.Point3f, target: mi.Point3f,
     return ~scene.ray_test(ray, active)
 
 
+@dataclass
+class _Lanes:
+    """The G-buffer lanes one VAL shades (possibly a compacted subset)."""
+
+    p: mi.Point3f
+    n: mi.Vector3f
+    albedo: mi.Color3f
+    to_eye: mi.Vector3f
+    virtual: mi.Bool
+    valid: mi.Bool
+    kind: mi.Int32
+    ks: mi.Color3f
+    ex: mi.Float
+    eta: mi.Color3f
+    k: mi.Color3f
+
+    def take(self, idx: mi.UInt32) -> _Lanes:
+        return _Lanes(*[dr.gather(type(a), a, idx) for a in vars(self).values()])
+
+
+def _shade_one(lanes: _Lanes, tab: _Tables, jj: mi.UInt32, maps: ShadowMaps | None,
+               proxy: mi.Scene, occluder: mi.Scene | None, bias_texels: float
+               ) -> tuple[mi.Color3f, mi.Color3f]:
+    """``(V V̂ L_VAL, V (1 − V̂) L_VAL)`` of VAL ``jj`` on ``lanes`` (maps when given)."""
+    p, n = lanes.p, lanes.n
+    P = dr.gather(mi.Vector3f, tab.P, jj)
+    N = dr.gather(mi.Vector3f, tab.N, jj)
+    d = P - p
+    r2 = dr.squared_norm(d)
+    ell = d * dr.rsqrt(dr.maximum(r2, 1e-20))
+    cos_r = dr.maximum(dr.dot(n, ell), 0.0)
+    cos_s = dr.maximum(-dr.dot(N, ell), 0.0)
+    e = mi.Color3f(dr.gather(mi.Vector3f, tab.I, jj)) * (
+        cos_r * cos_s / (r2 + dr.gather(mi.Float, tab.R2, jj)))  # irradiance, W/m²
+    active = lanes.valid & (cos_r > 0) & (cos_s > 0)
+    h = dr.normalize(ell + lanes.to_eye)
+    lobe = (lanes.ex + 2.0) * (0.5 / math.pi) * dr.power(dr.maximum(dr.dot(n, h), 0.0),
+                                                         lanes.ex)
+    fres = schlick_complex(dr.maximum(dr.dot(h, lanes.to_eye), 0.0), lanes.eta, lanes.k)
+    spec = dr.select(lanes.kind == KIND_METAL, fres, lanes.ks) * lobe
+    spec_on = (lanes.kind != KIND_DIFFUSE) & lanes.virtual
+    brdf = lanes.albedo * (1.0 / math.pi) + dr.select(spec_on, spec, mi.Color3f(0.0))
+    L = dr.select(active, brdf * e, mi.Color3f(0.0))
+    if maps is not None:
+        v, vh = _lookup(maps, tab, jj, p, bias_texels)
+    else:
+        x = p + n * EPS
+        v = _ray_visible(proxy, x, P, active)
+        vh = _ray_visible(occluder, x, P, active & (lanes.virtual | v))
+    zero = mi.Color3f(0.0)
+    return dr.select(v & vh, L, zero), dr.select(v & ~vh, L, zero)
+
+
+def _candidates(lanes: _Lanes, tab: _Tables, jj: mi.UInt32, use_map: bool,
+                sphere: tuple[np.ndarray, float]) -> mi.Bool:
+    """Lanes VAL ``jj`` can change: virtual ones, and real ones inside its shadow frustum
+    (maps) or whose segment to it crosses the virtual objects' bounding sphere (rays)."""
+    p = lanes.p
+    if use_map:
+        d = p - dr.gather(mi.Vector3f, tab.origin, jj)
+        z = dr.dot(d, dr.gather(mi.Vector3f, tab.axis, jj))
+        zt = dr.maximum(z * dr.gather(mi.Float, tab.tan, jj), 1e-12)
+        s = dr.dot(d, dr.gather(mi.Vector3f, tab.u, jj)) / zt
+        q = dr.dot(d, dr.gather(mi.Vector3f, tab.v, jj)) / zt
+        real = (z > 0) & (dr.abs(s) < 1.0) & (dr.abs(q) < 1.0)
+    else:
+        c, rad2 = _v(sphere[0]), float(sphere[1]) ** 2
+        d = dr.gather(mi.Vector3f, tab.P, jj) - p
+        t = dr.clip(dr.dot(c - p, d) / dr.maximum(dr.squared_norm(d), 1e-20), 0.0, 1.0)
+        real = dr.squared_norm(c - (p + t * d)) <= rad2
+    return lanes.valid & (lanes.virtual | real)
+
+
 def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: mi.Color3f,
                  to_eye: mi.Vector3f, virtual: mi.Bool, valid: mi.Bool, shape: mi.Int32,
                  mats: MaterialTable, proxy: mi.Scene, occluder: mi.Scene | None,
-                 maps: ShadowMaps | None, disc: bool = True, bias_texels: float = 2.0
+                 maps: ShadowMaps | None, disc: bool = True, bias_texels: float = 2.0,
+                 sphere: tuple[np.ndarray, float] | None = None
                  ) -> tuple[mi.Color3f, mi.Color3f]:
     """``(Σ_j V_j V̂_j L_VAL_j, Σ_j V_j (1 − V̂_j) L_VAL_j)`` per lane (module docstring);
-    the first is meant for virtual lanes, the second for real ones."""
-    kind = dr.gather(mi.Int32, mats.kind, mi.UInt32(dr.maximum(shape, 0)), valid)
-    ks = dr.gather(mi.Color3f, mats.ks, mi.UInt32(dr.maximum(shape, 0)), valid)
-    ex = dr.gather(mi.Float, mats.exponent, mi.UInt32(dr.maximum(shape, 0)), valid)
-    eta = dr.gather(mi.Color3f, mats.eta, mi.UInt32(dr.maximum(shape, 0)), valid)
-    kk = dr.gather(mi.Color3f, mats.k, mi.UInt32(dr.maximum(shape, 0)), valid)
-    x = p + n * EPS
-    lit = mi.Color3f(0.0)
-    lost = mi.Color3f(0.0)
-    spec_on = (kind != KIND_DIFFUSE) & virtual
+    the first is meant for virtual lanes, the second for real ones.
+
+    ``sphere`` (centre, radius), the virtual objects' bounds, culls lanes per VAL (the role
+    of Rohmer's tile culling): a real lane is shaded for VAL ``j`` only inside its shadow
+    frustum (maps) or when its segment to the VAL crosses the sphere (rays); elsewhere
+    ``V̂_j = 1`` and nothing changes. Those lanes are compacted, shaded and added back.
+    VAL parameters are read through an opaque index, so one kernel serves every VAL.
+    """
+    sid = mi.UInt32(dr.maximum(shape, 0))
+    lanes = _Lanes(p, n, albedo, to_eye, mi.Bool(virtual), mi.Bool(valid),
+                   dr.gather(mi.Int32, mats.kind, sid, valid),
+                   dr.gather(mi.Color3f, mats.ks, sid, valid),
+                   dr.gather(mi.Float, mats.exponent, sid, valid),
+                   dr.gather(mi.Color3f, mats.eta, sid, valid),
+                   dr.gather(mi.Color3f, mats.k, sid, valid))
+    dr.eval(*vars(lanes).values())
+    tab = _tables(light, maps, disc)
+    width = dr.width(p)
+    lit = dr.zeros(mi.Color3f, width)
+    lost = dr.zeros(mi.Color3f, width)
     for j in range(light.count):
-        P = _v3(light.positions[j] + EPS * light.normals[j])
-        N = _v3(light.normals[j])
-        d = P - p
-        r2 = dr.squared_norm(d)
-        r = dr.sqrt(dr.maximum(r2, 1e-20))
-        ell = d / r
-        cos_r = dr.maximum(dr.dot(n, ell), 0.0)
-        cos_s = dr.maximum(-dr.dot(N, ell), 0.0)
-        R2 = float(light.area[j]) / math.pi if disc else 0.0
-        e = _c3(light.intensity[j]) * (cos_r * cos_s / (r2 + R2))  # irradiance, W/m²
-        active = valid & (cos_r > 0) & (cos_s > 0)
-        brdf = albedo * (1.0 / math.pi)
-        h = dr.normalize(ell + to_eye)
-        nh = dr.maximum(dr.dot(n, h), 0.0)
-        lobe = (ex + 2.0) * (0.5 / math.pi) * dr.power(nh, ex)
-        fres = schlick_complex(dr.maximum(dr.dot(h, to_eye), 0.0), eta, kk)
-        spec = dr.select(kind == KIND_METAL, fres, ks) * lobe
-        brdf = brdf + dr.select(spec_on, spec, mi.Color3f(0.0))
-        L = dr.select(active, brdf * e, mi.Color3f(0.0))
-        if maps is not None and maps.tan_half[j] > 0:
-            v, vh = _lookup(maps, j, p, bias_texels)
+        jj = dr.opaque(mi.UInt32, j)
+        use_map = maps is not None and maps.tan_half[j] > 0
+        m = maps if use_map else None
+        if sphere is None:
+            a, b = _shade_one(lanes, tab, jj, m, proxy, occluder, bias_texels)
+            lit += a
+            lost += b
         else:
-            v = _ray_visible(proxy, x, P, active)
-            vh = _ray_visible(occluder, x, P, active)
-        lit += dr.select(v & vh, L, mi.Color3f(0.0))
-        lost += dr.select(v & ~vh, L, mi.Color3f(0.0))
+            idx = dr.compress(_candidates(lanes, tab, jj, use_map, sphere))
+            if dr.width(idx) == 0:
+                continue
+            a, b = _shade_one(lanes.take(idx), tab, jj, m, proxy, occluder, bias_texels)
+            dr.scatter_add(lit, a, idx)
+            dr.scatter_add(lost, b, idx)
+        dr.eval(lit, lost)
     return lit, lost
 
 
