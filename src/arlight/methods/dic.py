@@ -58,6 +58,7 @@ from arlight.realtime.irradiance_cache import (
     TileScanner,
     invalidate_near,
     splat,
+    splat_batches,
 )
 from arlight.realtime.irradiance_eval import evaluate_records, record_tracer
 from arlight.realtime.irradiance_shading import CameraWalk, SplatLookup, splat_geometry
@@ -71,13 +72,13 @@ OPTIONS: dict[str, Field] = {
     "accuracy": Field("float", 1.0, "κ of Tabellion's weight (Eq. 2.15): a record reaches "
                       "R_i/(2κ) and normals 10°/κ away; larger: more records, less "
                       "interpolation", min=0.0, max=1000.0, exclusive_min=True),
-    "tile": Field("int", 16, "side of the cache-miss tiles (≤ 1 new record per tile per "
+    "tile": Field("int", 8, "side of the cache-miss tiles (≤ 1 new record per tile per "
                   "iteration)", "px", min=1, max=4096),
     "max_iterations": Field("int", 100, "miss-detection iterations per frame at most",
                             min=1, max=100000),
-    "min_radius_px": Field("float", 1.0, "smallest record footprint radius (R_i clamp)",
+    "min_radius_px": Field("float", 4.0, "smallest record footprint radius (R_i clamp)",
                            "px", min=0.0, max=1.0e4, exclusive_min=True),
-    "max_radius_px": Field("float", 48.0, "largest record footprint radius (R_i clamp)",
+    "max_radius_px": Field("float", 16.0, "largest record footprint radius (R_i clamp)",
                            "px", min=0.0, max=1.0e4, exclusive_min=True),
     "t_max": Field("int", 8, "frames after which a record is re-evaluated with its own random "
                    "sequence (DicSequence)", "frames", min=1, max=1000000),
@@ -122,12 +123,14 @@ class DicCache:
     Attributes:
         records: the cache records.
         next_id: id of the next record created.
+        next_batch: batch number of the next miss-detection iteration.
         transforms: the object transforms of the frame that produced it.
         bounds: the virtual objects' bounds in that frame ``(lo, hi)`` (m), or None.
     """
 
     records: Records = field(default_factory=Records.empty)
     next_id: int = 0
+    next_batch: int = 0
     transforms: dict[str, np.ndarray] = field(default_factory=dict)
     bounds: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -165,7 +168,7 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
         geom = splat_geometry(views.mixed, camera)
         tracer = record_tracer(views, settings.max_depth, settings.rr_depth)
         bounds = virtual_bounds(data.world, views.mixed)
-    records, next_id = cache.records, cache.next_id
+    records, next_id, next_batch = cache.records, cache.next_id, cache.next_batch
     rec_counts: dict[str, int] = {}
     stats: dict[str, float] = {"records_reevaluated": 0.0, "records_dropped": 0.0}
 
@@ -187,11 +190,12 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
                 vals = evaluate(records.position[stale], records.normal[stale],
                                 records.key[stale])
                 fresh = _records(records.position[stale], records.normal[stale],
-                                 records.key[stale], records.ident[stale], vals)
+                                 records.key[stale], records.ident[stale], vals,
+                                 records.batch[stale])
                 records = records.with_values(stale, fresh)
                 stats["records_reevaluated"] = float(len(stale))
     with timer.stage("splat"):
-        buf = splat(records, geom, camera, kappa, lo_px, hi_px)
+        buf = splat_batches(records, geom, camera, kappa, lo_px, hi_px)
     scanner = TileScanner(camera.width, camera.height, options.tile)
     n_new = 0
     while scanner.iterations < options.max_iterations:
@@ -203,14 +207,15 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
             ident = np.arange(next_id, next_id + len(pix), dtype=np.int64)
             keys = record_keys(ident, settings.seed)
             vals = evaluate(geom.position[pix], geom.normal[pix], keys)
-            new = _records(geom.position[pix], geom.normal[pix], keys, ident, vals)
+            new = _records(geom.position[pix], geom.normal[pix], keys, ident, vals,
+                           batch=next_batch)
         with timer.stage("splat"):
             buf = buf.add(splat(new, geom, camera, kappa, lo_px, hi_px))
         records = records.concat(new)
         next_id += len(pix)
+        next_batch += 1
         n_new += len(pix)
-    with timer.stage("splat"):  # one splat of the whole cache in record order: a static
-        buf = splat(records, geom, camera, kappa, lo_px, hi_px)  # scene gives the same bits
+    with timer.stage("splat"):
         e_mixed, e_delta = buf.irradiance()
     with timer.stage("setup"):
         walk = CameraWalk(views, SplatLookup(camera, e_mixed, e_delta), settings.max_depth)
@@ -236,16 +241,17 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
         layers = layers_from_passes(frame, res, **stats)
     if not data.world.has_virtual:  # every path is shared: L_m == L_r, E_d == 0 exactly
         assert not np.any(layers.delta), "dic delta must vanish without virtual objects"
-    return FrameResult(layers, DicCache(records, next_id, dict(view.object_transforms), bounds),
-                       buf, geom)
+    return FrameResult(layers, DicCache(records, next_id, next_batch,
+                                        dict(view.object_transforms), bounds), buf, geom)
 
 
 def _records(pos: np.ndarray, nrm: np.ndarray, keys: np.ndarray, ident: np.ndarray,
-             vals) -> Records:
+             vals, batch: int | np.ndarray = 0) -> Records:
     return Records(position=np.asarray(pos, np.float64), normal=np.asarray(nrm, np.float64),
                    e_mixed=vals.e_mixed, e_delta=vals.e_delta, radius=vals.radius,
                    age=np.zeros(len(pos), np.int64), key=np.asarray(keys, np.uint32),
-                   ident=ident, stderr_mixed=vals.stderr_mixed, stderr_delta=vals.stderr_delta)
+                   ident=ident, stderr_mixed=vals.stderr_mixed, stderr_delta=vals.stderr_delta,
+                   batch=np.broadcast_to(np.asarray(batch, np.int64), (len(pos),)).copy())
 
 
 class DicMethod(BaseMethod):
