@@ -67,9 +67,18 @@ def make_tiny(folder: Path, n: int = 8, width: int = 32, height: int = 24,
     return Tiny(folder, scene, frames, poses, objects, n)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def tiny(tmp_path_factory) -> Tiny:
     return make_tiny(tmp_path_factory.mktemp("tiny"))
+
+
+@pytest.fixture(scope="session")
+def full_run(tiny, tmp_path_factory) -> Path:
+    """An uninterrupted sequential run of ``tiny`` with layers (the reference run)."""
+    out = tmp_path_factory.mktemp("full") / "out"
+    rc, _, err = cli(tiny.args(out, "--layers"))
+    assert rc == 0, err
+    return out
 
 
 def run_cli(args: list[str], env: dict | None = None, timeout: float = 300

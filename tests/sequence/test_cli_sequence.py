@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from arlight.sequence.store import LOG
-from tests.sequence.conftest import ARLIGHT, cli, make_tiny, run_cli
+from tests.sequence.conftest import ARLIGHT, cli, make_tiny
 
 
 def _summary(out: Path) -> dict:
@@ -27,15 +27,6 @@ def _summary(out: Path) -> dict:
 
 def _frames(out: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted((out / "frames").glob("*.png"))}
-
-
-@pytest.fixture(scope="module")
-def full_run(tiny, tmp_path_factory):
-    """An uninterrupted run (the reference for the resume tests)."""
-    out = tmp_path_factory.mktemp("full") / "out"
-    r = run_cli(tiny.args(out, "--layers"))
-    assert r.returncode == 0, r.stderr
-    return out
 
 
 def test_outputs_and_rerun_renders_nothing(tiny, full_run):

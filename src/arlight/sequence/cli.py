@@ -103,6 +103,7 @@ def sequence_command(
     job = build_job(sc, source, given["method"], settings, poses=poses, objects=objects,
                     axes=pose_axes, calib=calib, marker=marker, fps=fps, vary_seed=vary_seed,
                     layers=layers, threads=threads if ray is not None else None)
+    job.test_hook = os.environ.get("ARLIGHT_TEST_SEQUENCE_HOOK") or None  # fault tests
     inputs = tuple(p for p in (scene, frames, depth, objects) if p is not None)
     if poses not in ("scene", "marker"):
         inputs += (Path(poses),)

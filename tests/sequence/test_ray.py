@@ -1,0 +1,65 @@
+"""Distributed rendering on Ray: a worker killed mid-task loses nothing; Ray stays optional.
+
+Ray's start-up on a 2-core machine takes ~6 s, so the fast tier has one Ray run (the fault
+test, which also checks that the frames equal the sequential loop's).
+
+Rejects: tasks without retries (the killed worker's frame would be missing or the run would
+fail); results collected only at the end (the log would be empty while the run goes on);
+arlight importing Ray outside the ``--ray`` path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from tests.sequence.conftest import ARLIGHT
+
+pytest.importorskip("ray")
+
+
+def test_ray_is_imported_only_by_the_ray_path():
+    code = ("import sys, arlight.cli, arlight.sequence.runner, arlight.sequence.job, "
+            "arlight.sequence.store, arlight.sequence.build; "
+            "print(sorted(m for m in sys.modules if m == 'ray' or m.startswith('ray.')))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+
+
+def test_worker_killed_mid_task_run_completes_with_all_frames(tiny, full_run, tmp_path):
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "frame").write_text("3")
+    out = tmp_path / "out"
+    p = subprocess.Popen([ARLIGHT, *tiny.args(out, "--ray", "auto", "--workers", "2")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, "ARLIGHT_TEST_SEQUENCE_HOOK": str(hook)})
+    t0 = time.time()
+    while not (hook / "pid").exists():
+        assert p.poll() is None, p.communicate()
+        assert time.time() - t0 < 180, "the hooked frame never started"
+        time.sleep(0.05)
+    pid = int((hook / "pid").read_text())
+    (hook / "killed").touch()
+    os.kill(pid, signal.SIGKILL)  # the Ray worker process rendering frame 3
+    stdout, stderr = p.communicate(timeout=300)
+    assert p.returncode == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["frames"], summary["rendered"]) == (tiny.n, tiny.n)
+    assert summary["backend"] == "ray (auto)" and summary["processes"] >= 2
+    attempts = [line.split() for line in (hook / "attempts").read_text().splitlines()]
+    frame3 = [pid_ for i, pid_ in attempts if i == "3"]
+    assert len(frame3) == 2 and frame3[0] == str(pid) and frame3[1] != str(pid)
+    assert sorted({int(i) for i, _ in attempts}) == list(range(tiny.n))
+    # the same frames as the plain sequential loop (a deterministic method)
+    for i in range(tiny.n):
+        name = f"frames/{i:06d}.png"
+        assert (out / name).read_bytes() == (full_run / name).read_bytes(), name
