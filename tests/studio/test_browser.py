@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.studio.browser import launch, why_no_browser
+from arlight.studio.browser import launch, why_no_browser
 from tests.studio.conftest import SIZE
 
 pytestmark = pytest.mark.skipif(why_no_browser() is not None,

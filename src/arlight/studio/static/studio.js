@@ -135,7 +135,8 @@ function shown(h) {
       if (seq <= h.seq) {
         if (seq === h.seq) {
           const ms = now - sent.t;
-          studio.latencies.push({seq, ms, method: h.method, type: sent.type});
+          studio.latencies.push({seq, ms, method: h.method, type: sent.type,
+                                  render_s: h.stats.render_s});
           $("latency").textContent = `${ms.toFixed(0)} ms`;
         }
         studio.sendTimes.delete(seq);

@@ -1,4 +1,4 @@
-"""Finding a browser for the studio's Playwright tests and benchmark: Debian's chromium
+"""Finding a browser for the studio's Playwright tests, benchmark and screenshot: Debian's chromium
 (``apt-get install -y chromium``), never a downloaded one."""
 
 from __future__ import annotations

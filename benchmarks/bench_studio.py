@@ -1,0 +1,266 @@
+"""arlight studio under load and in a browser (issue #20).
+
+Two parts, both against a studio served on a loopback port by this process:
+
+* **load** — ``--clients`` (8) concurrent WebSocket clients each pick the bunny and drag it
+  to random pixels of the demo scene (a drag message every 1/``--rate`` s) for ``--seconds``
+  (60): error messages (must be 0), frames and frame rate per client, the frames the
+  server dropped or superseded (latest-wins), and this process's RSS after the warm-up and
+  at the end (server and clients share the process; flat = no leak per frame).
+* **latency** — headless Chromium (Playwright, Debian's chromium) on the page at
+  ``--latency-resolution`` (640×480): per interactive method, a real pointer drag of the
+  object; the time from the pointer event to the new composite drawn on the canvas
+  (``performance.now()`` in the page), against the server's render time of that frame.
+  Methods are interleaved over ``--rounds`` rounds; medians reported.
+
+    .venv/bin/python benchmarks/bench_studio.py [--write] [--only load|latency]
+
+``--write`` stores the section in RESULTS.md (## arlight studio).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import random
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.results import cpu_pressure, publish  # noqa: E402
+
+HEADING = "## arlight studio (issue #20)"
+
+
+def _engine(resolution: tuple[int, int], method: str = "dir"):
+    from arlight.demo import demo_scene_path
+    from arlight.studio import Engine, StudioConfig
+
+    return Engine(StudioConfig(demo_scene_path(), resolution=resolution, method=method))
+
+
+# ---------------------------------------------------------------------- load
+async def _client(url: str, seconds: float, rate: float, seed: int, engine) -> dict:
+    import aiohttp
+
+    from arlight.studio.protocol import split_frame
+
+    rng = random.Random(seed)
+    w, h = engine.width, engine.height
+    out = {"frames": 0, "errors": [], "first_frame_s": None, "superseded": 0}
+    async with aiohttp.ClientSession() as cs, cs.ws_connect(url + "ws") as ws:
+        t0 = time.perf_counter()
+        stop = t0 + seconds
+
+        async def reader():
+            async for m in ws:
+                if m.type == aiohttp.WSMsgType.BINARY:
+                    head, _ = split_frame(m.data)
+                    out["frames"] += 1
+                    out["superseded"] += bool(head["superseded"])
+                    if out["first_frame_s"] is None:
+                        out["first_frame_s"] = time.perf_counter() - t0
+                elif m.type == aiohttp.WSMsgType.TEXT:
+                    msg = json.loads(m.data)
+                    if msg["type"] == "error":
+                        out["errors"].append(msg["message"])
+                else:
+                    break
+
+        task = asyncio.create_task(reader())
+        rest = engine.rest_poses["bunny"]
+        head = engine.proxy.project(rest.position + [0.0, 0.04, 0.0])
+        await ws.send_json({"type": "pick", "x": head[0], "y": head[1]})
+        seq = 0
+        while time.perf_counter() < stop:
+            seq += 1
+            x, y = rng.uniform(0.1 * w, 0.9 * w), rng.uniform(0.55 * h, 0.98 * h)
+            if rng.random() < 0.05:  # now and then a rotation or a scale
+                await ws.send_json({"type": "pose", "object": "bunny", "seq": seq,
+                                    "yaw_deg": rng.uniform(-180, 180),
+                                    "scale": rng.uniform(0.7, 1.4)})
+            else:
+                await ws.send_json({"type": "drag", "x": x, "y": y, "seq": seq})
+            await asyncio.sleep(1.0 / rate)
+        out["seconds"] = time.perf_counter() - t0
+        out["sent"] = seq
+        await ws.close()
+        await asyncio.gather(task, return_exceptions=True)
+    return out
+
+
+def run_load(clients: int, seconds: float, rate: float, resolution: tuple[int, int]) -> dict:
+    from arlight.studio.server import BackgroundServer
+
+    engine = _engine(resolution)
+    proc = psutil.Process()
+    with BackgroundServer(engine) as srv:
+        async def warm():  # every method state and kernel the load uses, compiled
+            await _client(srv.url, 3.0, 5.0, 0, engine)
+
+        asyncio.run(warm())
+        rss0 = proc.memory_info().rss
+
+        async def main():
+            return await asyncio.gather(*[_client(srv.url, seconds, rate, 1 + i, engine)
+                                          for i in range(clients)])
+
+        results = asyncio.run(main())
+        rss1 = proc.memory_info().rss
+        alive = bool(engine._thread and engine._thread.is_alive())
+    fps = [r["frames"] / r["seconds"] for r in results]
+    return {"clients": clients, "seconds": seconds, "rate": rate, "resolution": resolution,
+            "fps": fps, "frames": [r["frames"] for r in results],
+            "sent": [r["sent"] for r in results],
+            "superseded": sum(r["superseded"] for r in results),
+            "errors": [e for r in results for e in r["errors"]],
+            "first_frame_s": [r["first_frame_s"] for r in results],
+            "rss_mb": (rss0 / 2**20, rss1 / 2**20), "worker_alive": alive}
+
+
+# ---------------------------------------------------------------------- latency
+FAST_METHODS = ("dir", "dlpv", "dvct", "ibl", "prt", "onepass")
+"""The latency benchmark's default methods: the issue's fast ones and progressive onepass."""
+
+
+def run_latency(rounds: int, resolution: tuple[int, int],
+                methods: tuple[str, ...] | None = FAST_METHODS) -> dict:
+    from playwright.sync_api import sync_playwright
+
+    from arlight.studio.browser import launch, why_no_browser
+    from arlight.studio.server import BackgroundServer
+
+    if (why := why_no_browser()) is not None:
+        raise SystemExit(f"latency benchmark: {why}")
+    engine = _engine(resolution)
+    names = [n for n, i in engine.catalogue.items() if not i.unsupported
+             and (methods is None or n in methods)]
+    lat: dict[str, list[float]] = {n: [] for n in names}
+    render: dict[str, list[float]] = {n: [] for n in names}
+    rng = random.Random(0)
+    w, h = engine.width, engine.height
+    with BackgroundServer(engine) as srv, sync_playwright() as p:
+        browser = launch(p)
+        page = browser.new_page(viewport={"width": 1100, "height": 640})
+        page.goto(srv.url)
+        page.wait_for_function("window.studio.frames >= 1", timeout=300_000)
+        box = page.locator("#frame").bounding_box()
+
+        def client(x, y):
+            return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
+
+        for r in range(rounds + 1):  # round 0 warms up (prepare, kernel compilation)
+            for name in names:
+                page.select_option("#method", name)
+                page.wait_for_function(f"window.studio.header.method === '{name}' && "
+                                       "window.studio.sendTimes.size === 0",
+                                       timeout=600_000)
+                pos = page.evaluate("window.studio.header.objects.bunny.position")
+                start = engine.proxy.project(np.array(pos) + [0.0, 0.03, 0.0])
+                target = (rng.uniform(0.25 * w, 0.75 * w), rng.uniform(0.65 * h, 0.9 * h))
+                page.mouse.move(*client(*start))
+                page.mouse.down()
+                page.wait_for_function("window.studio.messages.some(m => m.type === "
+                                       "'picked' && m.object)", timeout=60_000)
+                page.evaluate("window.studio.messages = []")
+                n0 = page.evaluate("window.studio.latencies.length")
+                page.mouse.move(*client(*target))  # one pointer event: one drag
+                page.wait_for_function(f"window.studio.latencies.length > {n0}",
+                                       timeout=600_000)
+                page.mouse.up()
+                if r == 0:
+                    continue
+                rec = page.evaluate("window.studio.latencies.at(-1)")
+                lat[name].append(rec["ms"] / 1e3)
+                render[name].append(rec["render_s"])
+        browser.close()
+    return {"rounds": rounds, "resolution": resolution, "latency": lat, "render": render}
+
+
+# ---------------------------------------------------------------------- report
+def report(load: dict | None, latency: dict | None) -> str:
+    lines = [HEADING, "",
+             "`benchmarks/bench_studio.py`: the studio served on loopback by the benchmark "
+             "process (bundled demo scene, method `dir` for the load test); one render "
+             "worker thread for all clients, latest-wins. 2-core shared machine, CPU pressure "
+             f"(avg60) {cpu_pressure() or 'n/a'} % at the end.", ""]
+    if load:
+        fps = load["fps"]
+        r0, r1 = load["rss_mb"]
+        lines += [f"**Load**: {load['clients']} WebSocket clients × {load['seconds']:.0f} s of "
+                  f"random drags ({load['rate']:.0f} messages/s each, 5 % rotations/scales), "
+                  f"{load['resolution'][0]}×{load['resolution'][1]}:", "",
+                  "| | value |", "|---|---|",
+                  f"| error messages | {len(load['errors'])} |",
+                  f"| messages sent / frames received (all clients) | {sum(load['sent'])} / "
+                  f"{sum(load['frames'])} |",
+                  f"| frames per second per client: median (min–max) | "
+                  f"{statistics.median(fps):.2f} ({min(fps):.2f}–{max(fps):.2f}) |",
+                  f"| all clients together | {sum(fps):.1f} frames/s |",
+                  f"| frames shown although superseded (finished after a newer drag) | "
+                  f"{load['superseded']} |",
+                  f"| RSS after warm-up → end | {r0:.0f} MB → {r1:.0f} MB "
+                  f"({r1 - r0:+.0f} MB) |",
+                  f"| render worker alive at the end | {load['worker_alive']} |", ""]
+        if load["errors"]:
+            lines += ["Errors: " + "; ".join(sorted(set(load["errors"]))[:5]), ""]
+    if latency:
+        lines += [f"**Latency** from a pointer drag on the page (headless Chromium) to the new "
+                  f"composite drawn on its canvas, "
+                  f"{latency['resolution'][0]}×{latency['resolution'][1]}, median of "
+                  f"{latency['rounds']} drags per method (methods interleaved, after a "
+                  "warm-up round); *render* is the server's `method.render` time of that "
+                  "frame, the rest is picking the surface, tone mapping, JPEG, transport and "
+                  "decoding:", "",
+                  "| method | drag → composite (s) | render (s) | overhead (s) |",
+                  "|---|---|---|---|"]
+        for name, xs in latency["latency"].items():
+            if not xs:
+                continue
+            m, rr = statistics.median(xs), statistics.median(latency["render"][name])
+            lines.append(f"| {name} | {m:.3f} | {rr:.3f} | {m - rr:.3f} |")
+        lines += ["", "A progressive method's row is its first (1 spp) frame after the drag; "
+                  "it then refines while the pointer rests."]
+    return "\n".join(lines)
+
+
+def _size(text: str) -> tuple[int, int]:
+    w, h = text.lower().split("x")
+    return int(w), int(h)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=("load", "latency"))
+    ap.add_argument("--clients", type=int, default=8)
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--rate", type=float, default=20.0, help="drag messages per second")
+    ap.add_argument("--resolution", type=_size, default=(160, 120), help="load test size")
+    ap.add_argument("--latency-resolution", type=_size, default=(640, 480))
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--methods", default=",".join(FAST_METHODS),
+                    help="latency: comma-separated methods, or 'all' interactive ones")
+    ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
+    args = ap.parse_args()
+    load = latency = None
+    if args.only in (None, "load"):
+        load = run_load(args.clients, args.seconds, args.rate, args.resolution)
+        print(json.dumps({k: v for k, v in load.items() if k != "errors"}, default=str))
+    if args.only in (None, "latency"):
+        methods = None if args.methods == "all" else tuple(args.methods.split(","))
+        latency = run_latency(args.rounds, args.latency_resolution, methods)
+        print(json.dumps(latency))
+    publish(report(load, latency), args.write)
+    if load and (load["errors"] or not load["worker_alive"]):
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    main()
