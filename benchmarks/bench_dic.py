@@ -1,0 +1,160 @@
+"""Benchmark: differential irradiance caching (``dic``) against ``onepass`` at equal time.
+
+1. PSNR vs wall time on bunny-box at 640×480 (the suite's world, its 256-spp Mitsuba ground
+   truth): a ladder of ``dic`` settings (rays per record, camera samples) and of ``onepass``
+   sample counts, each rendered from its prepared state after a warm-up frame, the methods
+   interleaved round by round on the shared machine; medians over the repeats. ``dic`` rows
+   carry the record count, miss-detection iterations and stage times.
+2. Flicker (``arlight.evaluate.metrics.temporal_flicker``) on a short sequence at 160×120 in
+   which the virtual object moves a little every frame: ``dic`` through
+   :class:`arlight.methods.dic.DicSequence` (records kept, dropped near the object, aged)
+   against ``onepass`` with a fresh seed per frame at about the same time per frame; errors
+   against a 256-spp ``onepass`` render of each frame.
+
+Usage:
+
+    python benchmarks/bench_dic.py [--repeats 3] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from dataclasses import replace
+
+import numpy as np
+from results import cpu_pressure, publish
+
+from arlight.evaluate import metrics as M
+from arlight.evaluate.suite import get_scene
+from arlight.methods import RenderSettings, get_method
+from arlight.methods.dic import DicSequence
+from arlight.scene.model import ARScene
+
+HEADING = "## Differential irradiance caching: dic vs onepass at equal time (issue 14)"
+DIC_LADDER = [  # (rays per record, camera spp)
+    (32, 1), (64, 4), (128, 16), (256, 32),
+]
+ONEPASS_LADDER = [2, 8, 32, 64, 128]
+STAGES = ("setup", "update", "records", "splat", "miss", "trace", "assemble")
+
+
+def psnr(layers, gt, transfer) -> float:
+    return M.image_metrics(layers.composite, gt, transfer)["psnr"]
+
+
+def equal_time(scene, gt, repeats: int) -> tuple[list[dict], list[dict]]:
+    tr = scene.camera.transfer
+    configs = [("dic", RenderSettings(spp=spp, options={"rays": rays}), f"rays {rays}, spp {spp}")
+               for rays, spp in DIC_LADDER]
+    configs += [("onepass", RenderSettings(spp=spp), f"spp {spp}") for spp in ONEPASS_LADDER]
+    states = {}
+    runs: dict[int, list] = {i: [] for i in range(len(configs))}
+    for i, (name, s, _) in enumerate(configs):
+        m = get_method(name)
+        states[i] = m.prepare(scene.world, s)
+        m.render(states[i], scene.view, s)  # warm-up (kernel compilation)
+    for r in range(repeats):
+        for i, (name, s, _) in enumerate(configs):
+            s_r = replace(s, seed=17 + r)
+            layers = get_method(name).render(states[i], scene.view, s_r)
+            runs[i].append((layers.stats["seconds"], psnr(layers, gt, tr), layers.stats))
+    rows = []
+    for i, (name, _, label) in enumerate(configs):
+        secs = statistics.median(x[0] for x in runs[i])
+        db = statistics.median(x[1] for x in runs[i])
+        st = runs[i][-1][2]
+        row = {"method": name, "setting": label, "seconds": secs, "psnr": db}
+        if name == "dic":
+            row.update(records=st["records"], iterations=st["iterations"],
+                       stages={k: statistics.median(x[2].get(f"time_{k}", 0.0) for x in runs[i])
+                               for k in STAGES})
+        rows.append(row)
+    return [r for r in rows if r["method"] == "dic"], [r for r in rows if r["method"] != "dic"]
+
+
+def onepass_at(rows: list[dict], seconds: float) -> float:
+    """onepass PSNR interpolated (in log time) at ``seconds``; nan outside the ladder."""
+    t = np.log([r["seconds"] for r in rows])
+    p = [r["psnr"] for r in rows]
+    x = np.log(seconds)
+    if x < t.min() or x > t.max():
+        return float("nan")
+    order = np.argsort(t)
+    return float(np.interp(x, t[order], np.asarray(p)[order]))
+
+
+def flicker(frames: int = 5) -> dict[str, float]:
+    s = get_scene("bunny-box", quick=True)
+    base = s.ar_scene(s.photo(spp=64)).resized(160, 120)
+    name = next(sh.name for sh in base.world.shapes if sh.is_virtual)
+    views = []
+    for k in range(frames):
+        move = np.eye(4)
+        move[:3, 3] = [0.01 * k, 0.0, 0.0]  # 1 cm per frame
+        views.append(replace(base.view, object_transforms={name: move}))
+    refs = [get_method("onepass")(ARScene.compose(base.world, v), RenderSettings(spp=256)).composite
+            for v in views]
+    seq = DicSequence(base.world, RenderSettings(spp=4, options={"rays": 128}))
+    dic = [seq.render(v) for v in views]
+    t_dic = statistics.median(x.stats["seconds"] for x in dic[1:])
+    one = get_method("onepass")
+    state = one.prepare(base.world, RenderSettings(spp=1))
+    per_spp = one.render(state, views[0], RenderSettings(spp=4)).stats["seconds"] / 4
+    spp = max(1, int(round(t_dic / per_spp)))
+    ops = [one.render(state, v, RenderSettings(spp=spp, seed=1000 + k))
+           for k, v in enumerate(views)]
+    return {"frames": frames, "dic_seconds": t_dic, "onepass_spp": spp,
+            "onepass_seconds": statistics.median(x.stats["seconds"] for x in ops[1:]),
+            "dic": M.temporal_flicker([x.composite for x in dic], refs),
+            "onepass": M.temporal_flicker([x.composite for x in ops], refs),
+            "records_dropped": statistics.median(x.stats["records_dropped"] for x in dic[1:]),
+            "records_new": statistics.median(x.stats["records_new"] for x in dic[1:])}
+
+
+def report(dic_rows, one_rows, fl, repeats: int, pressure: str) -> str:
+    lines = [HEADING, "",
+             f"`python benchmarks/bench_dic.py --repeats {repeats}`; bunny-box world at 640×480 "
+             "(its area light and constant sky), 256-spp Mitsuba ground truth, PSNR on the "
+             "display image (R = 1); llvm_ad_rgb, 2 shared CPU cores (CPU pressure avg60 "
+             f"{pressure or 'n/a'} % at the end); medians of {repeats} interleaved rounds, "
+             "each frame from the prepared state after a warm-up frame. "
+             "`onepass @ same time`: onepass's PSNR interpolated at dic's time (log time).", "",
+             "| method | setting | time | PSNR | onepass @ same time | records | iterations |",
+             "|---|---|---|---|---|---|---|"]
+    for r in dic_rows:
+        at = onepass_at(one_rows, r["seconds"])
+        at_s = "—" if np.isnan(at) else f"{at:.2f} dB"
+        lines.append(f"| dic | {r['setting']} | {r['seconds']:.2f} s | {r['psnr']:.2f} dB | "
+                     f"{at_s} | {r['records']:.0f} | {r['iterations']:.0f} |")
+    for r in one_rows:
+        lines.append(f"| onepass | {r['setting']} | {r['seconds']:.2f} s | {r['psnr']:.2f} dB "
+                     "| | | |")
+    lines += ["", "dic stage times (s, medians): " + "; ".join(
+        f"{r['setting']}: " + ", ".join(f"{k} {v:.2f}" for k, v in r["stages"].items() if v)
+        for r in dic_rows), ""]
+    lines += [f"Flicker, 160×120, the bunny moving 1 cm per frame over {fl['frames']} frames "
+              f"(`temporal_flicker` against 256-spp onepass per frame): dic (DicSequence, 128 "
+              f"rays, 4 spp, {fl['dic_seconds']:.2f} s per frame, median "
+              f"{fl['records_dropped']:.0f} records dropped and {fl['records_new']:.0f} new per "
+              f"frame) **{fl['dic']:.4f}**; onepass with a fresh seed per frame at "
+              f"{fl['onepass_spp']} spp ({fl['onepass_seconds']:.2f} s per frame) "
+              f"**{fl['onepass']:.4f}**."]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
+    args = ap.parse_args()
+    s = get_scene("bunny-box", quick=False)
+    photo = s.photo(spp=256)
+    scene = s.ar_scene(photo)
+    dic_rows, one_rows = equal_time(scene, photo.ground_truth, args.repeats)
+    fl = flicker()
+    publish(report(dic_rows, one_rows, fl, args.repeats, cpu_pressure()), args.write)
+
+
+if __name__ == "__main__":
+    main()
