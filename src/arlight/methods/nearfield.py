@@ -21,7 +21,7 @@ A client with its own light state (e.g. from the light server) renders with
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 
 import drjit as dr
@@ -98,6 +98,9 @@ class NearFieldData:
     light: NearFieldLight
     objects: list[str]
     server_stats: dict
+    map_cache: dict = field(default_factory=dict)
+    """Shadow maps of the last light state (key: VAL geometry, map size): a client frame
+    whose light did not change since the last frame reuses them (results are identical)."""
 
 
 def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight, dict]:
@@ -199,8 +202,14 @@ def render_with_light(data: NearFieldData, view: FrameView, options: Options,
     if options.direct and light.count:
         with timer.stage("shadow_maps"):
             if options.shadows == "maps" and data.sphere is not None:
-                maps = shadow_maps(light, data.proxy, data.occluder, data.sphere,
-                                   options.shadow_map_size)
+                key = (light.positions.tobytes(), light.normals.tobytes(),
+                       options.shadow_map_size)
+                maps = data.map_cache.get(key)
+                if maps is None:
+                    maps = shadow_maps(light, data.proxy, data.occluder, data.sphere,
+                                       options.shadow_map_size)
+                    data.map_cache.clear()
+                    data.map_cache[key] = maps
         with timer.stage("direct"):
             lit, lost = direct_light(light, gb.position, gb.normal, gb.albedo, gb.to_camera,
                                      gb.virtual, gb.valid, gb.shape, data.materials,
