@@ -71,3 +71,19 @@ def test_moving_light_moves_the_first_area_light():
     assert np.allclose(p[0], p[4]) and not np.allclose(p[0], p[1])
     assert np.isclose(np.linalg.norm(p[1] - p[3]), 0.6)  # opposite points of the circle
     assert all(np.isclose(q[1], p[0][1]) for q in p)  # stays in the ceiling's plane
+
+
+def test_serve_light_pipeline_from_a_folder_and_bad_folder(tmp_path, capsys):
+    from arlight.cli import main
+
+    world = load_scene(SCENE).world
+    rig = default_rig(world, size=16)
+    write_frames(lambda i: [np.full((16, 16, 3), 1.0 + i, np.float32)] * len(rig), rig,
+                 tmp_path / "frames", 1)
+    base = ["serve-light", "--source", "pipeline", "--world", SCENE, "--camera-size", "16",
+            "--atlas", "64", "--vals", "4", "--bind", "tcp://127.0.0.1:*", "--count", "2"]
+    assert main([*base, "--frames", str(tmp_path / "frames")]) == 0
+    assert f"published 2 updates ({48 + 32 * 4 + 108} B each)" in capsys.readouterr().err
+    assert main([*base, "--frames", str(tmp_path / "nothing")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--frames" in err[0] and "nothing" in err[0]
