@@ -87,3 +87,19 @@ def test_rig_file_errors_and_auto_rig(tmp_path):
     rig = load_rig(good)
     assert np.allclose(rig[0].axis, [0, 0, -1]) and rig[0].size == (32, 32)
     assert len(auto_rig(np.zeros(3), np.ones(3), 16)) == 6
+
+
+def test_auto_rig_sees_a_flat_proxy_from_above():
+    from arlight.errors import InputError
+    from arlight.nearfield.cameras import seeing_cameras
+
+    d = room()
+    d["shapes"] = d["shapes"][:1]  # the floor alone
+    m = proxy_mesh(world(d))
+    g = rasterize(m, layout_charts(m, 32), 1)
+    scene = mesh_scene([(m.vertices, m.faces)])
+    keep = seeing_cameras(auto_rig(m.vertices.min(0), m.vertices.max(0), 16), g, scene)
+    names = [c.name for c in keep]
+    assert "-y" in names and "+y" not in names
+    with pytest.raises(InputError, match="no camera"):
+        seeing_cameras([_cam([0, -1, 0], [0, -1, 0])], g, scene)

@@ -105,7 +105,7 @@ class NearFieldData:
 
 def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight, dict]:
     from arlight.nearfield.atlas import proxy_mesh
-    from arlight.nearfield.cameras import auto_rig, load_rig
+    from arlight.nearfield.cameras import auto_rig, load_rig, seeing_cameras
     from arlight.nearfield.capture import capture_rig
     from arlight.nearfield.lightfile import load_light
     from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
@@ -120,10 +120,7 @@ def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight,
     server = NearFieldServer(world, rig, NearFieldSettings(
         atlas_resolution=options.atlas_resolution, tau=options.tau, vals=options.vals))
     if not options.cameras:  # the automatic rig: drop cameras that see nothing (open sides)
-        from arlight.nearfield.projection import camera_weights
-
-        server.cameras = [c for c in rig if np.any(camera_weights(server.geometry, c,
-                                                                  server.proxy_scene)[0] > 0)]
+        server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
     images = capture_rig(world, server.cameras, options.capture_spp)
     light = server.update(images, timestamp=0.0)
     return light, dict(server.stats)

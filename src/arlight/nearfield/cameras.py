@@ -16,7 +16,9 @@ orientation, plus its centre in the world. ``cams.toml``::
 
 :func:`auto_rig` places cameras for a world that has no rig (synthetic capture): one 180°
 equidistant camera per axis direction, a quarter of the way from the centre of the real
-geometry's bounding box towards each face of the box, looking outwards.
+geometry's bounding box towards each face of the box, looking outwards (the centre is lifted
+to at least a quarter of the box diagonal above its floor, so a flat proxy is seen from
+above). Cameras that see nothing of the proxy are dropped by :func:`seeing_cameras`.
 """
 
 from __future__ import annotations
@@ -151,6 +153,7 @@ def auto_rig(bounds_min: np.ndarray, bounds_max: np.ndarray, size: int = 256,
     """Six outward-looking equidistant fisheyes inside a bounding box (module docstring)."""
     lo, hi = np.asarray(bounds_min, np.float64), np.asarray(bounds_max, np.float64)
     c, half = (lo + hi) / 2, (hi - lo) / 2
+    c[1] = max(c[1], lo[1] + 0.25 * float(np.linalg.norm(hi - lo)))  # above a flat floor
     rig = []
     for axis, label in enumerate("xyz"):
         for sign in (1.0, -1.0):
@@ -164,4 +167,19 @@ def auto_rig(bounds_min: np.ndarray, bounds_max: np.ndarray, size: int = 256,
     return rig
 
 
-__all__ = ["Model", "RigCamera", "auto_rig", "load_rig", "look_rotation"]
+def seeing_cameras(rig: list[RigCamera], geometry, proxy) -> list[RigCamera]:
+    """The cameras of ``rig`` that see at least one texel of the atlas ``geometry``
+    (``proxy``: the Mitsuba scene of the proxy mesh).
+
+    Raises:
+        InputError: none does.
+    """
+    from arlight.nearfield.projection import camera_weights
+
+    keep = [c for c in rig if np.any(camera_weights(geometry, c, proxy)[0] > 0)]
+    if not keep:
+        raise InputError("no camera of the rig sees the proxy", field="cameras")
+    return keep
+
+
+__all__ = ["Model", "RigCamera", "auto_rig", "load_rig", "look_rotation", "seeing_cameras"]

@@ -41,16 +41,13 @@ def atlas(
     spp: Annotated[int, typer.Option(help="paths per pixel of synthetic captures")] = 32,
 ) -> None:
     """Run one server update of the near-field pipeline and write the VALs and SH."""
-    import numpy as np
-
     from arlight.errors import ArlightError
     from arlight.io.images import read_hdr
     from arlight.nearfield.atlas import proxy_mesh
-    from arlight.nearfield.cameras import auto_rig, load_rig
+    from arlight.nearfield.cameras import auto_rig, load_rig, seeing_cameras
     from arlight.nearfield.capture import capture, real_scene
     from arlight.nearfield.lightfile import save_light
     from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
-    from arlight.nearfield.projection import camera_weights
     from arlight.scene.load import load_scene
 
     try:
@@ -71,8 +68,7 @@ def atlas(
             rig = auto_rig(mesh.vertices.min(0), mesh.vertices.max(0), size)
         server = NearFieldServer(proxy.world, rig, settings)
         if cameras is None:  # automatic rig: keep the cameras that see the proxy
-            server.cameras = [c for c in rig if np.any(camera_weights(
-                server.geometry, c, server.proxy_scene)[0] > 0)]
+            server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
         src = load_scene(world).world if world is not None else proxy.world
         mi_scene = None
         images = []
