@@ -102,4 +102,4 @@ def test_auto_rig_sees_a_flat_proxy_from_above():
     names = [c.name for c in keep]
     assert "-y" in names and "+y" not in names
     with pytest.raises(InputError, match="no camera"):
-        seeing_cameras([_cam([0, -1, 0], [0, -1, 0])], g, scene)
+        seeing_cameras([_cam([0, -1, 0], [0, -1, 0], up=(0, 0, 1))], g, scene)
