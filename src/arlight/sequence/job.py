@@ -157,7 +157,8 @@ class FrameResult:
         layers: float32 layers (``composite``, ``mixed``, ``delta``, ``mask``) when the job
             asks for them, else empty.
         stats: the method's stats (``seconds``, ``time_<stage>``, counters) plus
-            ``prepare_seconds`` (0 when this process had the method prepared already) and
+            ``prepare_seconds`` (0 when this process had the method prepared already),
+            ``task_seconds`` (preparation, view, render and display conversion) and
             ``pid``/``host`` of the process that rendered it.
     """
 
@@ -230,6 +231,7 @@ def render_frame(job: SequenceJob, frame: InputFrame,
     import socket
 
     _test_hook(job, frame.index)
+    t0 = time.perf_counter()
     method, state, prep = prepared(job)
     view = job.view(frame, depth)
     layers = method.render(state, view, job.frame_settings(frame.index))
@@ -243,7 +245,8 @@ def render_frame(job: SequenceJob, frame: InputFrame,
         out_layers = {"composite": layers.composite, "mixed": layers.mixed,
                       "delta": layers.delta, "mask": layers.mask}
     stats = {k: v for k, v in layers.stats.items() if isinstance(v, int | float)}
-    stats.update(prepare_seconds=prep, pid=os.getpid(), host=socket.gethostname())
+    stats.update(prepare_seconds=prep, pid=os.getpid(), host=socket.gethostname(),
+                 task_seconds=time.perf_counter() - t0)
     return FrameResult(frame.index, display, out_layers, stats)
 
 

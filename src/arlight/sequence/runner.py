@@ -59,6 +59,10 @@ class RunSummary:
     workers: int = 1
     videos: list[str] = field(default_factory=list)
     processes: int = 0
+    connect_seconds: float = 0.0
+    render_seconds: float = 0.0
+    driver_seconds: float = 0.0
+    task_seconds: list[float] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         fs = self.frame_seconds
@@ -68,6 +72,9 @@ class RunSummary:
                 "seconds": self.seconds,
                 "frames_per_second": self.rendered / self.seconds if self.seconds else 0.0,
                 "frame_seconds": per, "prepare_seconds": self.prepare_seconds,
+                "connect_seconds": self.connect_seconds,
+                "render_seconds": self.render_seconds,
+                "driver_seconds": self.driver_seconds,
                 "stage_medians": self.stages, "backend": self.backend,
                 "workers": self.workers, "processes": self.processes, "videos": self.videos}
 
@@ -151,32 +158,38 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
     store = SequenceStore(out, job)
     store.check(opts.restart, inputs)
     info = None
+    t0 = time.perf_counter()
     if opts.ray is not None:
         from arlight.sequence import distributed
 
         info = distributed.connect(opts.ray, opts.workers)  # an unreachable cluster: here
-    t0 = time.perf_counter()
+    connected = time.perf_counter()
     try:
         done = store.open(opts.restart)
         todo = store.missing
         summary = RunSummary(frames=job.count, rendered=0, resumed=len(done), seconds=0.0,
-                             backend="sequential" if info is None else f"ray ({opts.ray})")
+                             backend="sequential" if info is None else f"ray ({opts.ray})",
+                             connect_seconds=connected - t0)
         stage_runs: list[dict[str, float]] = []
         pids: set[Any] = set()
         bar = _Bar(job.count, len(done), opts.progress,
                    f"{job.method} {'sequence' if info is None else 'on Ray'}")
 
         def take(res: FrameResult) -> None:
+            t = time.perf_counter()
             store.write(res)
             summary.rendered += 1
             summary.frame_seconds.append(float(res.stats.get("seconds", 0.0)))
             summary.prepare_seconds += float(res.stats.get("prepare_seconds", 0.0))
+            summary.task_seconds.append(float(res.stats.get("task_seconds", 0.0)))
             stage_runs.append({k[5:]: float(v) for k, v in res.stats.items()
                                if k.startswith("time_")})
             pids.add((res.stats.get("host"), res.stats.get("pid")))
             bar.advance()
+            summary.driver_seconds += time.perf_counter() - t
 
         frames = _frames_with_depth(source, set(todo), depths)
+        t_loop = time.perf_counter()
         try:
             if info is None:
                 for fr, d in frames:
@@ -197,6 +210,7 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
             raise
         finally:
             bar.close()
+        summary.render_seconds = time.perf_counter() - t_loop
         keys = {k for r in stage_runs for k in r}
         summary.stages = {k: statistics.median(r.get(k, 0.0) for r in stage_runs)
                           for k in sorted(keys)}
