@@ -102,8 +102,9 @@ def test_unknown_option_lists_the_known_ones_for_every_method():
     typo silently renders with defaults."""
     with pytest.raises(InputError, match=r"options\.reprojct: unknown option; known "
                                          r"options: caustics, env_mode, "
-                                         r"mirror_lower_hemisphere, mode, photon_radius, "
-                                         r"photons, ppm_alpha, ppm_iterations, replicas, "
+                                         r"light_sampling, mirror_lower_hemisphere, mode, "
+                                         r"photon_radius, photons, ppm_alpha, "
+                                         r"ppm_iterations, replica_mode, replicas, "
                                          r"reproject, sampler"):
         get_method("onepass").spec.parse_options({"reprojct": False})
     with pytest.raises(InputError, match=r"options\.spp: .*reference takes no options"):
@@ -120,7 +121,8 @@ def test_option_types_defaults_and_command_line_strings():
                                      "caustics": "none", "photons": 200_000,
                                      "photon_radius": 0.01, "ppm_iterations": 1,
                                      "ppm_alpha": 0.7, "sampler": "sobol",
-                                     "replicas": 16}
+                                     "replicas": 16, "replica_mode": "scrambles",
+                                     "light_sampling": "solid_angle"}
     opts = spec.parse_options({"reproject": "false", "mode": "twopass"})
     assert opts.reproject is False and opts["mode"] == "twopass" and opts.env_mode == "mis"
     assert spec.parse_options({"reproject": "TRUE"}).reproject is True

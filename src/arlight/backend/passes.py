@@ -112,7 +112,7 @@ def effective_replicas(spp: int, replicas: int) -> int:
 def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                spp_per_pass: int | None = None, progress: str | None = None,
                max_lanes: int = 2_000_000, sampler: str | None = None,
-               replicas: int = 1) -> PassResult:
+               replicas: int = 1, scramble_replicas: bool = True) -> PassResult:
     """Evaluate ``kernel`` on ``spp`` camera samples per pixel and accumulate moments.
 
     Args:
@@ -127,6 +127,11 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             argument (see the module docstring).
         replicas: independent randomisations the standard errors come from (the largest
             divisor of ``spp`` not above it is used; 1: per-sample variance).
+        scramble_replicas: True: every replica is its own randomisation (unbiased standard
+            errors); False (``sobol``): the replicas are the ``R`` consecutive blocks of one
+            scrambled sequence of ``spp`` points per pixel — the whole pixel is one net (the
+            lower error of a single sequence), and the spread of the block means gives a
+            conservative standard error (blocks of one net are negatively correlated).
     """
     if sampler is not None and sampler not in SAMPLERS:
         raise InputError(f"unknown sampler {sampler!r} (expected one of {SAMPLERS})",
@@ -159,7 +164,11 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                 rays = generate_rays(camera, pixel, k, spp, seed_u)
                 outputs = kernel(rays, pixel, pass_seed, lanes)
             else:
-                stream = LaneSampler.for_samples(sampler, pixel, replica, j, seed_u)
+                if scramble_replicas:
+                    stream = LaneSampler.for_samples(sampler, pixel, replica, j, seed_u)
+                else:  # block r of one sequence: index r·spp/R + j, one scramble per pixel
+                    stream = LaneSampler.for_samples(sampler, pixel, mi.UInt32(0),
+                                                     replica * (spp // n_rep) + j, seed_u)
                 if sampler == "sobol":
                     lens = stream.next_2d(CAMERA_LENS) if camera.aperture_radius > 0 else None
                     rays = rays_from_samples(camera, pixel, stream.next_2d(CAMERA_PIXEL), lens)

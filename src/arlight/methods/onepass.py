@@ -10,8 +10,9 @@ Options (``RenderSettings.options``, declared in :data:`OPTIONS`; ``arlight meth
 prints them): ``env_mode`` (``mis`` | ``miss_only``), ``mirror_lower_hemisphere``,
 ``reproject``, ``mode`` (``onepass`` | ``twopass``: the same tracer run separately on the mixed
 and the real view, with the same random numbers — the baseline of the equivalence test and
-of the ray counts), ``sampler`` (``sobol`` | ``independent``) and ``replicas`` (the
-standard errors' independent randomisations, :mod:`arlight.backend.passes`), ``caustics``
+of the ray counts), ``sampler`` (``sobol`` | ``independent``), ``replicas`` and
+``replica_mode`` (the standard errors' independent randomisations, :mod:`arlight.backend.passes`),
+``light_sampling`` (``solid_angle`` | ``mitsuba``, :mod:`arlight.sampling.lights`), ``caustics``
 (``none`` | ``photons``: differential caustic photon mapping, :mod:`arlight.methods.photons`)
 with ``photons``, ``photon_radius`` (m), ``ppm_iterations``, ``ppm_alpha``.
 
@@ -77,6 +78,15 @@ OPTIONS: dict[str, Field] = {
                       "errors (the largest divisor of spp not above it; 1: per-sample "
                       "variance, which overstates the error of Sobol samples)", min=1,
                       max=4096),
+    "replica_mode": Field("choice", "scrambles", "`scrambles`: each replica its own Sobol "
+                          "scrambling (unbiased errors); `blocks`: the replicas are blocks of "
+                          "one scrambled sequence per pixel (lower error, conservative "
+                          "standard errors)", choices=("scrambles", "blocks")),
+    "light_sampling": Field("choice", "solid_angle", "`solid_angle`: lights chosen by "
+                            "estimated power, rectangular lights sampled by solid angle "
+                            "(spherical rectangles, Ureña 2013); `mitsuba`: the scene's own "
+                            "(uniform choice, rectangles by area)",
+                            choices=("solid_angle", "mitsuba")),
     "caustics": Field("choice", "none", "`photons`: caustic photon map from point/spot lights "
                       "through glass and mirrors, differential (Kán §4.1.2, "
                       "docs/methods/photons.md); `none`: path tracing only",
@@ -118,7 +128,7 @@ def tracer_from_options(opts: Options, settings: RenderSettings) -> TracerOption
     return TracerOptions(max_depth=settings.max_depth, rr_depth=settings.rr_depth,
                          env_mode=opts.env_mode,
                          mirror_lower_hemisphere=opts.mirror_lower_hemisphere,
-                         reproject=opts.reproject)
+                         reproject=opts.reproject, light_sampling=opts.light_sampling)
 
 
 def photon_settings(opts: Options, settings: RenderSettings) -> PhotonSettings:
@@ -199,7 +209,8 @@ class OnePassMethod(BaseMethod):
             res = run_passes(view.camera, settings.spp, kernel, seed=settings.seed,
                              spp_per_pass=settings.spp_per_pass,
                              progress="onepass" if settings.progress else None,
-                             sampler=options.sampler, replicas=options.replicas)
+                             sampler=options.sampler, replicas=options.replicas,
+                             scramble_replicas=options.replica_mode == "scrambles")
         with timer.stage("assemble"):
             stats = ray_stats(counts, res.lanes)
             stats["stderr_replicas"] = float(res.moments["mixed"].replicas)

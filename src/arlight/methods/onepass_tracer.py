@@ -57,6 +57,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
+from arlight.sampling.lights import LightSampler
 from arlight.sampling.stream import LaneSampler
 from arlight.scene.camera import Camera
 
@@ -82,6 +83,9 @@ class TracerOptions:
         first_emission_depth: vertices at smaller depths collect no emitted radiance (0: all
             do; 1: paths started at an irradiance-cache record gather indirect light only,
             the direct light being the camera's, Kán §4.2 / :mod:`arlight.methods.dic`).
+        light_sampling: ``"mitsuba"`` (the scene's ``sample_emitter_direction``: uniform
+            emitter choice, rectangles by area) or ``"solid_angle"`` (emitters by estimated
+            power, rectangles by solid angle: :mod:`arlight.sampling.lights`).
     """
 
     max_depth: int = 8
@@ -90,6 +94,7 @@ class TracerOptions:
     mirror_lower_hemisphere: bool = False
     reproject: bool = True
     first_emission_depth: int = 0
+    light_sampling: str = "mitsuba"
 
 
 @dataclass
@@ -200,6 +205,14 @@ class OnePassTracer:
         self.same_views = mixed is real
         self.ctx = mi.BSDFContext()
         self.miss_only = opts.env_mode == "miss_only"
+        self.lights: dict[int, LightSampler] = {}
+        if opts.light_sampling == "solid_angle":
+            # one set of selection probabilities for both views (the real view's): the two
+            # views then sample their (identical) lights with identical numbers
+            real_ls = LightSampler(real.scene)
+            self.lights[id(real)] = real_ls
+            if not self.same_views:
+                self.lights[id(mixed)] = LightSampler(mixed.scene, pmf=real_ls.pmf_np)
         self.reproj = (_Reprojector(camera, frame, real)
                        if opts.reproject and camera is not None and frame is not None
                        and not self.same_views else None)
@@ -318,6 +331,22 @@ class OnePassTracer:
         counts["rays_real_shadow"] += int(dr.sum(n_shadow)[0])
         return lr
 
+    def _sample_emitter(self, view: SceneView, it: mi.Interaction3f, u: mi.Point2f,
+                        active: mi.Bool) -> tuple[mi.DirectionSample3f, mi.Color3f]:
+        """Next-event light sample (no visibility test): Mitsuba's or ours."""
+        ls = self.lights.get(id(view))
+        if ls is None:
+            return view.scene.sample_emitter_direction(it, u, False, active)
+        return ls.sample(it, u, active)
+
+    def _pdf_emitter(self, view: SceneView, it: mi.Interaction3f, ds: mi.DirectionSample3f,
+                     active: mi.Bool) -> mi.Float:
+        """Solid-angle pdf of :meth:`_sample_emitter` producing ``ds`` (for MIS)."""
+        ls = self.lights.get(id(view))
+        if ls is None:
+            return view.scene.pdf_emitter_direction(it, ds, active)
+        return ls.pdf(it, ds, active)
+
     def _is_env(self, emitter: mi.EmitterPtr) -> mi.Bool:
         flags = emitter.flags()
         return (mi.has_flag(flags, mi.EmitterFlags.Infinite)
@@ -372,7 +401,7 @@ class OnePassTracer:
         if self.opts.mirror_lower_hemisphere:
             si.wi = dr.select(valid, si.wi, mi.Vector3f(si.wi.x, -dr.abs(si.wi.y), si.wi.z))
         ds = mi.DirectionSample3f(scene, si=si, ref=st.prev_si)
-        em_pdf = scene.pdf_emitter_direction(st.prev_si, ds, active & ~st.prev_delta)
+        em_pdf = self._pdf_emitter(view, st.prev_si, ds, active & ~st.prev_delta)
         mis = mis_weight(st.prev_pdf, em_pdf)
         if self.miss_only:
             mis = dr.select(self._is_env(ds.emitter), 1.0, mis)
@@ -389,8 +418,7 @@ class OnePassTracer:
             reproj &= depth + 1 < self.opts.max_depth
         bsdf = si.bsdf()
         active_em = (active_next | reproj) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds, em_weight = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False,
-                                                       active_em)
+        ds, em_weight = self._sample_emitter(view, si, _rand2(key, depth, _DIM_NEE), active_em)
         active_em &= ds.pdf != 0.0
         if self.miss_only:
             active_em &= ~self._is_env(ds.emitter)

@@ -1,2 +1,9 @@
 """Sample generation: Owen-scrambled Sobol points (:mod:`.sobol`) and the per-lane samplers
-of the path tracers (:mod:`.stream`)."""
+of the path tracers (:mod:`.stream`).
+
+Importing this package selects the Mitsuba variant (its types only exist once one is set).
+"""
+
+from arlight.backend.variant import ensure_variant
+
+VARIANT = ensure_variant()

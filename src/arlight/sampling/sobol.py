@@ -20,15 +20,14 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-# Joe & Kuo (2008) primitive polynomials: (degree s, coefficients a, initial m_1..m_s)
-_JOE_KUO = {1: (1, 0, (1,)), 2: (2, 1, (1, 3)), 3: (3, 1, (1, 3, 1))}
-_TWO_M32 = 2.0 ** -32
+# Joe & Kuo (2008) primitive polynomial of dimension 1: (degree s, coefficients a, m_1..m_s)
+_JOE_KUO = {1: (1, 0, (1,))}
 
 
 def direction_numbers(dim: int) -> list[int]:
     """The 32 direction numbers ``V_k`` (as 32-bit integers) of Sobol dimension ``dim``.
 
-    Dimension 0 is the van der Corput sequence (``V_k = 2^(31−k)``); 1–3 follow the
+    Dimension 0 is the van der Corput sequence (``V_k = 2^(31−k)``); 1 follows the
     recurrence ``V_k = V_{k−s} ⊕ (V_{k−s} ≫ s) ⊕ ⊕_j a_j V_{k−j}`` (Bratley & Fox 1988) with
     Joe & Kuo's polynomials.
     """
@@ -45,11 +44,11 @@ def direction_numbers(dim: int) -> list[int]:
     return v
 
 
-_V = {d: direction_numbers(d) for d in range(4)}
+_V = {d: direction_numbers(d) for d in range(2)}
 
 
 def sobol_u32(index: mi.UInt32, dim: int) -> mi.UInt32:
-    """Sobol coordinate ``dim`` (0–3) of points ``index`` as 32-bit fixed point."""
+    """Sobol coordinate ``dim`` (0 or 1) of points ``index`` as 32-bit fixed point."""
     if dim == 0:
         return dr.brev(index)
     x = dr.zeros(mi.UInt32, dr.width(index))
