@@ -65,7 +65,8 @@ class LightServer:
             free port; see :attr:`endpoints`).
         snapshot_bind: ROUTER endpoint for snapshots; default: ``bind``'s port + 1.
         rate_hz: updates per second at most (0 = as fast as the producer). Rohmer's server
-            reaches ≈ 18 Hz (digest §10, Table 1).
+            reaches ≈ 18 Hz (digest §10, Table 1). A producer slower than that sets the pace;
+            when it speeds up again the schedule restarts from now (no burst).
         heartbeat_s: a heartbeat goes out when no update was published for this long (s).
         count: stop after this many updates (None = never).
         duration: stop after this many seconds (None = never).
@@ -192,7 +193,10 @@ class LightServer:
                 if self.duration is not None and time.monotonic() - start >= self.duration:
                     break
                 due = start + frame * period
-                if (wait := due - time.monotonic()) > 0 and self._stop.wait(wait):
+                wait = due - time.monotonic()
+                if wait < -period:  # a slow producer: re-anchor, never burst to catch up
+                    start -= wait
+                elif wait > 0 and self._stop.wait(wait):
                     break
                 t0 = time.perf_counter()
                 light = self.producer(frame)
