@@ -212,3 +212,15 @@ def test_bad_options_name_the_field(key, value):
 def test_min_radius_above_max_is_refused():
     with pytest.raises(InputError, match="min_radius_px"):
         DicMethod.spec.parse_options({"min_radius_px": 10.0, "max_radius_px": 2.0})
+
+
+def test_cli_bad_option_exits_2(tmp_path):
+    """Bad input through the command line: exit status 2, nothing written."""
+    from arlight.cli import main
+    from arlight.demo import demo_scene_path
+
+    for opt in ("rays=0", "accuracy=0", "accuracy=5000", "tile=0"):
+        out = tmp_path / opt.replace("=", "_")
+        assert main(["render", str(demo_scene_path()), "-m", "dic", "--option", opt, "-o",
+                     str(out)]) == 2
+        assert not out.exists()

@@ -57,11 +57,11 @@ from arlight.realtime.irradiance_cache import (
     SplatGeometry,
     TileScanner,
     invalidate_near,
-    splat,
     splat_batches,
 )
 from arlight.realtime.irradiance_eval import evaluate_records, record_tracer
 from arlight.realtime.irradiance_shading import CameraWalk, SplatLookup, splat_geometry
+from arlight.realtime.irradiance_splat import splat_dr
 from arlight.realtime.shading import virtual_bounds
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
@@ -195,7 +195,7 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
                 records = records.with_values(stale, fresh)
                 stats["records_reevaluated"] = float(len(stale))
     with timer.stage("splat"):
-        buf = splat_batches(records, geom, camera, kappa, lo_px, hi_px)
+        buf = splat_batches(records, geom, camera, kappa, lo_px, hi_px, splat_dr)
     scanner = TileScanner(camera.width, camera.height, options.tile)
     n_new = 0
     while scanner.iterations < options.max_iterations:
@@ -210,7 +210,7 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
             new = _records(geom.position[pix], geom.normal[pix], keys, ident, vals,
                            batch=next_batch)
         with timer.stage("splat"):
-            buf = buf.add(splat(new, geom, camera, kappa, lo_px, hi_px))
+            buf = buf.add(splat_dr(new, geom, camera, kappa, lo_px, hi_px))
         records = records.concat(new)
         next_id += len(pix)
         next_batch += 1

@@ -119,8 +119,9 @@ def tabellion_weight(x: np.ndarray, n: np.ndarray, xi: np.ndarray, ni: np.ndarra
         kappa: the accuracy κ (> 0; larger: smaller footprints, more records).
     """
     dist = np.linalg.norm(x - xi, axis=-1) / (0.5 * radius)
-    cosn = np.clip(np.sum(n * ni, axis=-1), -1.0, 1.0)
-    dev = np.sqrt(np.maximum(1.0 - cosn, 0.0)) * NORMAL_SCALE
+    # sqrt(1 − n·n_i) = ‖n − n_i‖ / √2 for unit normals: exactly 0 for equal normals, where
+    # the dot product's rounding would give ~1e-4 (float32) and shrink the own-pixel weight
+    dev = np.linalg.norm(n - ni, axis=-1) * (NORMAL_SCALE / math.sqrt(2.0))
     return 1.0 - kappa * np.maximum(dist, dev)
 
 
@@ -190,6 +191,24 @@ def effective_radius(records: Records, camera: Camera, kappa: float, min_px: flo
     return r, uv, z
 
 
+def footprint_boxes(records: Records, camera: Camera, kappa: float, min_px: float,
+                    max_px: float) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """Clamped ``R_i`` and the inclusive pixel box ``(c0, c1, r0, r1)`` of each footprint
+    (pixels whose centres lie in the screen square of the disc ``R_i/(2κ)``), clipped to the
+    image; empty boxes have ``c1 < c0`` or ``r1 < r0``."""
+    w_img, h_img = camera.width, camera.height
+    radius, uv, z = effective_radius(records, camera, kappa, min_px, max_px)
+    r_px = radius / (2 * kappa) * float(camera.fy) / np.where(z > 1e-9, z, 1e-9)
+    front = (z > 1e-9) & np.all(np.isfinite(uv), axis=1)
+    c0 = np.floor(np.where(front, uv[:, 0] - r_px, 0.0) - 0.5).astype(np.int64) + 1
+    c1 = np.floor(np.where(front, uv[:, 0] + r_px, -1.0) - 0.5).astype(np.int64)
+    r0 = np.floor(np.where(front, uv[:, 1] - r_px, 0.0) - 0.5).astype(np.int64) + 1
+    r1 = np.floor(np.where(front, uv[:, 1] + r_px, -1.0) - 0.5).astype(np.int64)
+    c0, c1 = np.clip(c0, 0, w_img), np.clip(c1, -1, w_img - 1)
+    r0, r1 = np.clip(r0, 0, h_img), np.clip(r1, -1, h_img - 1)
+    return radius, (c0, c1, r0, r1)
+
+
 def splat(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
           min_px: float, max_px: float) -> SplatBuffer:
     """Splat ``records`` into a new buffer (Kán §4.2.3, weights Eq. 2.15).
@@ -203,15 +222,7 @@ def splat(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
     out = SplatBuffer.zeros(w_img * h_img)
     if len(records) == 0:
         return out
-    radius, uv, z = effective_radius(records, camera, kappa, min_px, max_px)
-    r_px = radius / (2 * kappa) * float(camera.fy) / np.where(z > 1e-9, z, 1e-9)
-    front = (z > 1e-9) & np.all(np.isfinite(uv), axis=1)
-    c0 = np.floor(np.where(front, uv[:, 0] - r_px, 0.0) - 0.5).astype(np.int64) + 1
-    c1 = np.floor(np.where(front, uv[:, 0] + r_px, -1.0) - 0.5).astype(np.int64)
-    r0 = np.floor(np.where(front, uv[:, 1] - r_px, 0.0) - 0.5).astype(np.int64) + 1
-    r1 = np.floor(np.where(front, uv[:, 1] + r_px, -1.0) - 0.5).astype(np.int64)
-    c0, c1 = np.clip(c0, 0, w_img), np.clip(c1, -1, w_img - 1)
-    r0, r1 = np.clip(r0, 0, h_img), np.clip(r1, -1, h_img - 1)
+    radius, (c0, c1, r0, r1) = footprint_boxes(records, camera, kappa, min_px, max_px)
     bw = np.maximum(c1 - c0 + 1, 0)
     bh = np.maximum(r1 - r0 + 1, 0)
     area = bw * bh
@@ -247,17 +258,19 @@ def splat(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
 
 
 def splat_batches(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
-                  min_px: float, max_px: float) -> SplatBuffer:
+                  min_px: float, max_px: float, splat_fn=None) -> SplatBuffer:
     """:func:`splat` batch by batch (runs of equal ``records.batch``), the buffers added in
     order — bitwise the buffer the miss loop built when it splatted each new batch onto the
     previous ones, so a static scene's next frame splats the same bits without re-splatting
-    the whole cache in a fixed order each frame."""
+    the whole cache in a fixed order each frame. ``splat_fn``: :func:`splat` (default) or
+    the Dr.Jit :func:`arlight.realtime.irradiance_splat.splat_dr`."""
+    splat_fn = splat_fn or splat
     buf = SplatBuffer.zeros(geom.width * geom.height)
     if len(records) == 0:
         return buf
     cuts = np.flatnonzero(np.diff(records.batch)) + 1
     for idx in np.split(np.arange(len(records)), cuts):
-        buf = buf.add(splat(records.take(idx), geom, camera, kappa, min_px, max_px))
+        buf = buf.add(splat_fn(records.take(idx), geom, camera, kappa, min_px, max_px))
     return buf
 
 
@@ -310,4 +323,5 @@ def invalidate_near(records: Records, boxes: list[tuple[np.ndarray, np.ndarray]]
 
 
 __all__ = ["COS_10", "NORMAL_SCALE", "Records", "SplatBuffer", "SplatGeometry", "TileScanner",
-           "effective_radius", "invalidate_near", "splat", "splat_batches", "tabellion_weight"]
+           "effective_radius", "footprint_boxes", "invalidate_near", "splat", "splat_batches",
+           "tabellion_weight"]
