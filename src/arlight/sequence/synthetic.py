@@ -76,6 +76,7 @@ class SyntheticSequence:
     objects: list[dict[str, np.ndarray]]
     frames: list[np.ndarray] = field(default_factory=list)
     ground_truth: list[np.ndarray] = field(default_factory=list)
+    ground_truth_stderr: list[np.ndarray] = field(default_factory=list)
     masks: list[np.ndarray] = field(default_factory=list)
     depths: list[np.ndarray] = field(default_factory=list)
 
@@ -132,6 +133,7 @@ def synthetic_sequence(scene: str = "bunny-box", n_frames: int = 32, width: int 
         photo = synthesize(wv, spp=spp, seed=1, batches=batches, cache_dir=cache_dir)
         seq.frames.append(photo.frame)
         seq.ground_truth.append(photo.ground_truth)
+        seq.ground_truth_stderr.append(photo.ground_truth_stderr)
         seq.masks.append(photo.mask)
         if depth:
             from arlight.probeless.synthetic import sensor_depth
@@ -148,6 +150,15 @@ def sequence_job(seq: SyntheticSequence, method: str, settings: RenderSettings,
     return SequenceJob(world=seq.proxy.world, camera=seq.proxy.camera, poses=seq.poses,
                        objects=seq.objects, method=method, settings=settings,
                        vary_seed=vary_seed, threads=threads, frames_fingerprint=seq.name)
+
+
+def ground_truth_flicker_floor(seq: SyntheticSequence) -> float:
+    """The flicker (radiance) that the ground truth's own Monte Carlo noise contributes:
+    ``mean_t mean_pixels sqrt(2/π)·sqrt(se_t² + se_{t+1}²)``, the mean of |N(0, σ²)| for the
+    difference of two independent errors with the per-pixel standard errors ``se``. A
+    method whose composite were exact would score about this."""
+    se = np.asarray(seq.ground_truth_stderr, np.float64)
+    return float(np.mean(math.sqrt(2 / math.pi) * np.sqrt(se[1:] ** 2 + se[:-1] ** 2)))
 
 
 def sequence_metrics(composites: list[np.ndarray], seq: SyntheticSequence) -> dict[str, float]:
@@ -167,5 +178,5 @@ def sequence_metrics(composites: list[np.ndarray], seq: SyntheticSequence) -> di
             "flicker_display": M.temporal_flicker(disp, disp_gt)}
 
 
-__all__ = ["SyntheticSequence", "object_path", "orbit_poses", "sequence_job",
-           "sequence_metrics", "synthetic_sequence"]
+__all__ = ["SyntheticSequence", "ground_truth_flicker_floor", "object_path", "orbit_poses",
+           "sequence_job", "sequence_metrics", "synthetic_sequence"]
