@@ -148,7 +148,7 @@ def client_command(
     size: Annotated[str | None, typer.Option("--size", help="render size WxH (default: the "
                     "scene camera's; the field of view is kept)")] = None,
     wait: Annotated[float, typer.Option("--wait", help="seconds to wait for the first "
-                    "light state (exit 2 without one)", min=0.1, max=3600)] = 5.0,
+                    "light state (exit 2 without one)", min=0.1, max=3600)] = 30.0,
     heartbeat_timeout: Annotated[float, typer.Option("--heartbeat-timeout", help="seconds "
                                  "of silence before the server counts as lost and the "
                                  "client reconnects", min=0.05, max=600)] = 1.0,
