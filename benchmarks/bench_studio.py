@@ -26,6 +26,7 @@ import json
 import random
 import statistics
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -112,7 +113,19 @@ def run_load(clients: int, seconds: float, rate: float, resolution: tuple[int, i
             return await asyncio.gather(*[_client(srv.url, seconds, rate, 1 + i, engine)
                                           for i in range(clients)])
 
+        samples: list[tuple[float, float]] = []
+        done = threading.Event()
+
+        def sample():  # RSS every 2 s during the load
+            t0 = time.perf_counter()
+            while not done.wait(2.0):
+                samples.append((time.perf_counter() - t0, proc.memory_info().rss / 2**20))
+
+        sampler = threading.Thread(target=sample, daemon=True)
+        sampler.start()
         results = asyncio.run(main())
+        done.set()
+        sampler.join()
         rss1 = proc.memory_info().rss
         alive = bool(engine._thread and engine._thread.is_alive())
     fps = [r["frames"] / r["seconds"] for r in results]
@@ -122,7 +135,8 @@ def run_load(clients: int, seconds: float, rate: float, resolution: tuple[int, i
             "superseded": sum(r["superseded"] for r in results),
             "errors": [e for r in results for e in r["errors"]],
             "first_frame_s": [r["first_frame_s"] for r in results],
-            "rss_mb": (rss0 / 2**20, rss1 / 2**20), "worker_alive": alive}
+            "rss_mb": (rss0 / 2**20, rss1 / 2**20), "rss_samples": samples,
+            "worker_alive": alive}
 
 
 # ---------------------------------------------------------------------- latency
@@ -185,6 +199,15 @@ def run_latency(rounds: int, resolution: tuple[int, int],
 
 
 # ---------------------------------------------------------------------- report
+def _half_slope(load: dict) -> float:
+    """Least-squares RSS slope over the second half of the load run, MB per minute."""
+    pts = [(t, m) for t, m in load["rss_samples"] if t >= load["seconds"] / 2]
+    if len(pts) < 2:
+        return float("nan")
+    t, m = np.array(pts).T
+    return float(np.polyfit(t, m, 1)[0] * 60.0)
+
+
 def report(load: dict | None, latency: dict | None) -> str:
     lines = [HEADING, "",
              "`benchmarks/bench_studio.py`: the studio served on loopback by the benchmark "
@@ -208,6 +231,8 @@ def report(load: dict | None, latency: dict | None) -> str:
                   f"{load['superseded']} |",
                   f"| RSS after warm-up → end | {r0:.0f} MB → {r1:.0f} MB "
                   f"({r1 - r0:+.0f} MB) |",
+                  f"| RSS growth over the second half of the run | {_half_slope(load):+.1f} "
+                  "MB/min |",
                   f"| render worker alive at the end | {load['worker_alive']} |", ""]
         if load["errors"]:
             lines += ["Errors: " + "; ".join(sorted(set(load["errors"]))[:5]), ""]

@@ -49,6 +49,11 @@ IMAGE_LAYERS = ("composite", "mixed", "delta", "mask")
 DEFAULT_METHODS = ("dir", "dlpv", "ibl", "dvct", "prt", "onepass")
 """Preferred first method when the scene's [render] table names no interactive one."""
 
+REFINE_IDLE_S = 0.25
+"""A progressive method starts refining only after the tab has been quiet this long,
+seconds: a refinement frame cannot be interrupted, so none is started while the pointer is
+busy (a pick pauses it, and the drag that follows does not wait behind one)."""
+
 Post = Callable[[str, Any], None]
 """How the worker hands a message to a session's connection: ``post("json", dict)`` or
 ``post("frame", bytes)``; must be thread-safe (the server wraps ``call_soon_threadsafe``)."""
@@ -108,6 +113,7 @@ class Session:
     accumulators: dict[str, Accumulator] = field(default_factory=dict)
     refine: int = 0  # frames accumulated for the current version (progressive methods)
     closed: bool = False
+    last_message: float = 0.0  # time.monotonic() of the newest client message
     frames_sent: int = 0
     superseded: int = 0
     errors: int = 0
@@ -332,7 +338,7 @@ class Engine:
                     work = self._next_work() if call is None else None
                     if call is not None or work is not None:
                         break
-                    self._cond.wait(timeout=1.0)
+                    self._cond.wait(timeout=REFINE_IDLE_S / 2)
             if call is not None:
                 fn, fut = call
                 if fut.set_running_or_notify_cancel():
@@ -367,7 +373,8 @@ class Engine:
             if s.display_version != s.displayed_version:
                 return "display"
             if (s.refine and self.catalogue[s.method].progressive
-                    and s.refine < self.config.max_refine):
+                    and s.refine < self.config.max_refine
+                    and time.monotonic() - s.last_message >= REFINE_IDLE_S):
                 return "refine"
         return None
 
@@ -417,6 +424,8 @@ class Engine:
         Raises :class:`ProtocolError` / :class:`InputError` for a message that cannot
         apply (unknown object or method, nothing picked)."""
         kind = msg.type
+        with s.lock:
+            s.last_message = time.monotonic()
         if kind == "pick":
             return self.call(self._pick, s, msg["x"], msg["y"], msg.seq)
         if kind == "save":
@@ -480,26 +489,31 @@ class Engine:
             self._states[name] = get_method(name).prepare(self.scene.world, self.settings)
         return self._states[name]
 
-    def _resolve_drag(self, s: Session) -> None:
+    def _resolve_drag(self, s: Session) -> int:
+        """Stand the picked object on the surface under the pending drag target; returns
+        the session version this covers (a message after it makes the frame stale)."""
         with s.lock:
-            target, name = s.pending_drag, s.selected
+            version, target, name = s.version, s.pending_drag, s.selected
             s.pending_drag = None
         if target is None or name is None:
-            return
+            return version
         hit = self.proxy.support(*target)
         if hit is None:
             s.post("json", {"type": "status", "message": "no real surface to stand on "
                             "there; the object stays"})
-            return
+            return version
         with s.lock:
             s.poses[name] = s.poses[name].moved_to(hit.position)
+        return version
 
     def _render(self, s: Session, refine: bool) -> None:
         t0 = time.perf_counter()
-        if not refine:
-            self._resolve_drag(s)
         with s.lock:
-            version, method, poses = s.version, s.method, dict(s.poses)
+            version = s.version
+        if not refine:
+            version = self._resolve_drag(s)
+        with s.lock:
+            method, poses = s.method, dict(s.poses)
             n = s.refine + 1 if refine else 1
         t_place = time.perf_counter() - t0
         fn = get_method(method)
