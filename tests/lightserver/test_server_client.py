@@ -260,3 +260,4 @@ def test_a_conflating_client_keeps_only_the_newest_and_ends_on_it():
         with LightClient(*server.endpoints, conflate=True) as client:
             assert server.wait(30)
             assert same_light(client.wait_for(100, timeout=10), src(99))
+

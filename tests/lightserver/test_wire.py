@@ -73,30 +73,33 @@ def _patched(msg: bytes, offset: int, fmt: str, value) -> bytes:
     return wire._finish(bytes(b[:48]), bytes(b[48:]))  # valid CRC: only the field is wrong
 
 
-@pytest.mark.parametrize("mutate,match", [
-    (lambda m: m[:47], "truncated"),
-    (lambda m: m[:-1], "needs"),
-    (lambda m: m + b"\0", "needs"),
-    (lambda m: b"XXXX" + m[4:], "magic"),
-    (lambda m: m[:100] + bytes([m[100] ^ 1]) + m[101:], "corrupted"),
-    (lambda m: _patched(m, 5, "<B", 9), "kind"),
-    (lambda m: _patched(m, 36, "<I", 10**6), "claims"),
-    (lambda m: _patched(m, 36, "<I", 3), "needs"),
-    (lambda m: _patched(m, 48, "<f", float("nan")), "finite"),
-    (lambda m: _patched(m, 48 + 16, "<f", -1.0), ">= 0"),
-    (lambda m: _patched(m, 28, "<d", float("inf")), "finite"),
+@pytest.mark.parametrize("mutate,match,reason", [
+    (lambda m: m[:47], "truncated", "truncated"),
+    (lambda m: m[:-1], "needs", "length"),
+    (lambda m: m + b"\0", "needs", "length"),
+    (lambda m: b"XXXX" + m[4:], "magic", "magic"),
+    (lambda m: m[:100] + bytes([m[100] ^ 1]) + m[101:], "corrupted", "corrupted"),
+    (lambda m: _patched(m, 5, "<B", 9), "kind", "kind"),
+    (lambda m: _patched(m, 36, "<I", 10**6), "claims", "counts"),
+    (lambda m: _patched(m, 36, "<I", 3), "needs", "length"),
+    (lambda m: _patched(m, 48, "<f", float("nan")), "non-finite position", "finite"),
+    (lambda m: _patched(m, 48 + 16, "<f", -1.0), "intensity must be >= 0", "negative"),
+    (lambda m: _patched(m, 48 + 28, "<f", -1.0), "area must be >= 0", "negative"),
+    (lambda m: _patched(m, 48 + 4 * 32 + 20, "<f", float("inf")), "non-finite sh", "finite"),
+    (lambda m: _patched(m, 28, "<d", float("inf")), "finite", "finite"),
 ])
-def test_malformed_messages_are_rejected(mutate, match):
+def test_malformed_messages_are_rejected(mutate, match, reason):
     msg = wire.encode(random_light(4, 1))
-    with pytest.raises(wire.WireError, match=match):
+    with pytest.raises(wire.WireError, match=match) as err:
         wire.decode(mutate(msg))
+    assert err.value.reason == reason
 
 
 def test_wrong_version_is_its_own_error():
     msg = _patched(wire.encode(random_light(4, 1)), 4, "<B", 2)
     with pytest.raises(wire.WireVersionError, match="version 2") as err:
         wire.decode(msg)
-    assert err.value.version == 2
+    assert err.value.version == 2 and err.value.reason == "version"
 
 
 def test_heartbeat_and_restamp():

@@ -244,9 +244,8 @@ class LightClient:
                 self._changed.notify_all()
             return False
         except wire.WireError as exc:
-            reason = _reason(str(exc))
             with self._lock:
-                self._stats.rejected[reason] += 1
+                self._stats.rejected[exc.reason] += 1
             return False
         with self._changed:
             st = self._stats
@@ -338,12 +337,3 @@ class ClientGroup:
                     attach(c)
                     with c._lock:
                         c._stats.reconnects += 1
-
-def _reason(message: str) -> str:
-    """A short counter key for a rejected message."""
-    for key in ("truncated", "magic", "corrupted", "kind", "claims", "needs", "finite",
-                "heartbeat", ">= 0", "unit"):
-        if key in message:
-            return {"needs": "length", "claims": "counts", ">= 0": "negative",
-                    "unit": "normal"}.get(key, key)
-    return "invalid"

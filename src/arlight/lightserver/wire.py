@@ -62,7 +62,15 @@ assert HEADER_BYTES == 48 and VAL_BYTES == 32
 
 
 class WireError(ArlightError):
-    """A message that is not a valid light update (truncated, corrupted, bad values)."""
+    """A message that is not a valid light update (truncated, corrupted, bad values).
+
+    ``reason`` is a short key for counters: ``truncated``, ``magic``, ``version``, ``kind``,
+    ``counts``, ``length``, ``corrupted``, ``finite``, ``negative``, ``normal``, ``range``.
+    """
+
+    def __init__(self, message: str, reason: str = "invalid"):
+        self.reason = reason
+        super().__init__(message)
 
 
 class WireVersionError(WireError):
@@ -71,7 +79,8 @@ class WireVersionError(WireError):
     def __init__(self, version: int):
         self.version = version
         super().__init__(f"light message of wire version {version}; this arlight reads "
-                         f"version {WIRE_VERSION} (upgrade the older of server and client)")
+                         f"version {WIRE_VERSION} (upgrade the older of server and client)",
+                         "version")
 
 
 @dataclass(frozen=True)
@@ -144,7 +153,8 @@ def _f32(a: np.ndarray, what: str) -> np.ndarray:
     with np.errstate(over="ignore"):
         out = np.asarray(a, dtype=np.float64).astype(np.float32)
     if not np.all(np.isfinite(out)):
-        raise WireError(f"NearFieldLight.{what}: values beyond float32 range cannot be sent")
+        raise WireError(f"NearFieldLight.{what}: values beyond float32 range cannot be sent",
+                        "range")
     return out
 
 
@@ -157,7 +167,7 @@ def encode(light: NearFieldLight, *, epoch: int = 0, sent: float = 0.0) -> bytes
     m, n_obj = light.count, light.n_objects
     if m > MAX_VALS or n_obj > MAX_OBJECTS:
         raise WireError(f"NearFieldLight: {m} VALs / {n_obj} objects exceed the wire "
-                        f"limits ({MAX_VALS} / {MAX_OBJECTS})")
+                        f"limits ({MAX_VALS} / {MAX_OBJECTS})", "counts")
     vals = np.empty(m, dtype=VAL_DTYPE)
     vals["position"] = _f32(light.positions, "positions")
     vals["normal"] = oct_encode(light.normals)
@@ -189,30 +199,31 @@ def decode_header(message: bytes) -> Header:
     buf = memoryview(message)
     if len(buf) < HEADER_BYTES:
         raise WireError(f"light message truncated: {len(buf)} bytes, a header is "
-                        f"{HEADER_BYTES}")
+                        f"{HEADER_BYTES}", "truncated")
     fields = HEADER.unpack_from(buf, 0)
     if fields[0] != MAGIC:
-        raise WireError(f"not a light message: magic {bytes(fields[0])!r}, expected {MAGIC!r}")
+        raise WireError(f"not a light message: magic {bytes(fields[0])!r}, expected {MAGIC!r}",
+                        "magic")
     h = Header(*fields[1:])
     if h.version != WIRE_VERSION:
         raise WireVersionError(h.version)
     if h.kind not in (KIND_UPDATE, KIND_HEARTBEAT):
-        raise WireError(f"light message of unknown kind {h.kind}")
+        raise WireError(f"light message of unknown kind {h.kind}", "kind")
     if h.count > MAX_VALS or h.n_obj > MAX_OBJECTS:
         raise WireError(f"light message claims {h.count} VALs and {h.n_obj} objects (limits "
-                        f"{MAX_VALS}, {MAX_OBJECTS})")
+                        f"{MAX_VALS}, {MAX_OBJECTS})", "counts")
     if h.kind == KIND_HEARTBEAT and (h.count or h.n_obj):
-        raise WireError("heartbeat with a payload")
+        raise WireError("heartbeat with a payload", "counts")
     want = message_bytes(h.count, h.n_obj)
     if len(buf) != want:
         raise WireError(f"light message of {len(buf)} bytes; its header (M = {h.count}, "
-                        f"n_obj = {h.n_obj}) needs {want}")
+                        f"n_obj = {h.n_obj}) needs {want}", "length")
     crc = zlib.crc32(buf[HEADER_BYTES:], zlib.crc32(bytes(buf[:_CRC_OFFSET]) + b"\0\0\0\0"))
     if crc != h.crc32:
         raise WireError(f"light message corrupted: CRC-32 {crc:08x}, header says "
-                        f"{h.crc32:08x}")
+                        f"{h.crc32:08x}", "corrupted")
     if not (np.isfinite(h.timestamp) and np.isfinite(h.sent)):
-        raise WireError("light message with a non-finite timestamp")
+        raise WireError("light message with a non-finite timestamp", "finite")
     return h
 
 
@@ -228,6 +239,14 @@ def decode(message: bytes) -> tuple[Header, NearFieldLight | None]:
     vals = np.frombuffer(message, dtype=VAL_DTYPE, count=h.count, offset=HEADER_BYTES)
     sh = np.frombuffer(message, dtype="<f4", count=27 * h.n_obj,
                        offset=HEADER_BYTES + VAL_BYTES * h.count).reshape(h.n_obj, 9, 3)
+    fields = {"position": vals["position"], "intensity": vals["intensity"],
+              "area": vals["area"], "sh": sh}
+    for name, a in fields.items():
+        if not np.all(np.isfinite(a)):
+            raise WireError(f"light message {h.sequence}: non-finite {name}", "finite")
+    for name in ("intensity", "area"):
+        if np.any(fields[name] < 0):
+            raise WireError(f"light message {h.sequence}: {name} must be >= 0", "negative")
     try:
         light = NearFieldLight(positions=vals["position"].astype(np.float64),
                                normals=oct_decode(vals["normal"]),
@@ -235,6 +254,6 @@ def decode(message: bytes) -> tuple[Header, NearFieldLight | None]:
                                area=vals["area"].astype(np.float64),
                                sh=sh.astype(np.float64), sequence=int(h.sequence),
                                timestamp=float(h.timestamp))
-    except ArlightError as exc:  # non-finite or negative values
-        raise WireError(f"light message {h.sequence}: {exc}") from exc
+    except ArlightError as exc:  # e.g. a normal that does not decode to a unit vector
+        raise WireError(f"light message {h.sequence}: {exc}", "normal") from exc
     return h, light
