@@ -131,3 +131,29 @@ def test_interactive_methods_render_a_sequence(tiny, method):
     res = [render_frame(job, fr) for fr in list(src)[:3]]
     assert [r.stats["prepare_seconds"] > 0 for r in res] == [True, False, False]
     assert all(r.display.shape == (24, 32, 3) for r in res)
+
+
+def test_split_frame_is_the_sample_weighted_mean_of_its_parts(tiny):
+    """``split = 3`` of 5 spp: parts of 2, 2 and 1 samples with seeds frame_seed(s, k);
+    the frame is their composites' mean weighted 2:2:1, whatever order they arrive in."""
+    from arlight.progressive import frame_seed
+    from arlight.sequence.job import merge_parts
+
+    src = FrameSource(tiny.frames)
+    job = build_job(load_scene(tiny.scene), src, "reference", RenderSettings(spp=5, seed=7),
+                    poses=tiny.poses, objects=tiny.objects, split=3)
+    fr = list(src)[2]
+    parts = [render_frame(job, fr, None, k) for k in range(3)]
+    merged = merge_parts(job, parts[::-1])
+    view = job.view(fr)
+    method = get_method("reference")
+    comps = [method(ARScene.compose(job.world, view),
+                    RenderSettings(spp=n, seed=frame_seed(7, k))).composite
+             for k, n in enumerate((2, 2, 1))]
+    mean = (0.4 * comps[0].astype(np.float64) + 0.4 * comps[1] + 0.2 * comps[2])
+    assert np.array_equal(merged.display, view.camera.transfer.to_display(
+        mean.astype(np.float32)))
+    assert merged.stats["parts"] == 3 and merged.layers == {}
+    with pytest.raises(Exception, match="progressive"):
+        build_job(load_scene(tiny.scene), src, "dlpv", RenderSettings(spp=4),
+                  poses=tiny.poses, split=2)

@@ -73,13 +73,17 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
               poses: str | Path = "scene", objects: str | Path | None = None,
               axes: str = "opencv", calib: str | Path | None = None,
               marker: str | None = None, fps: float | None = None, vary_seed: bool = False,
-              layers: bool = False, threads: int | None = None) -> SequenceJob:
+              layers: bool = False, threads: int | None = None, split: int = 1
+              ) -> SequenceJob:
     """A job for ``scene`` (its world and camera) over the frames of ``source``.
 
     Raises :class:`InputError` for an unknown method or option, a pose file whose frame count
     differs from the frames', unknown object names, or a marker missing from a frame."""
     fn = get_method(method)
     fn.spec.parse_options(settings.options)
+    if split > 1 and not fn.spec.capabilities.progressive:
+        raise InputError(f"--split needs a progressive method (independent estimates per "
+                         f"seed, averaged); {method!r} is not", field="--split")
     where = str(scene.source) if scene.source else "<scene>"
     camera = fit_camera(scene.camera, source.size, where)
     n = source.count
@@ -102,7 +106,7 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
     return SequenceJob(world=world, camera=camera, poses=pose_list, objects=obj,
                        method=method, settings=settings, vary_seed=vary_seed, layers=layers,
                        fps=rate, calibration=calibration, threads=threads,
-                       frames_fingerprint=source.fingerprint)
+                       frames_fingerprint=source.fingerprint, split=split)
 
 
 __all__ = ["build_job", "fit_camera", "marker_poses"]

@@ -64,6 +64,9 @@ def sequence_command(
     threads: Annotated[int | None, typer.Option("--threads", help="Dr.Jit threads per Ray "
                        "worker (default: local CPUs / workers, 1 on a cluster)", min=1,
                        max=1024)] = None,
+    split: Annotated[int, typer.Option("--split", help="render each frame in this many "
+                     "parts of spp/split samples (separate Ray tasks), averaged; progressive "
+                     "methods only", min=1, max=MAX_SPP)] = 1,
     restart: Annotated[bool, typer.Option("--restart", help="replace another sequence's "
                        "frames in OUT instead of refusing")] = False,
 ) -> None:
@@ -102,7 +105,8 @@ def sequence_command(
         threads = 1
     job = build_job(sc, source, given["method"], settings, poses=poses, objects=objects,
                     axes=pose_axes, calib=calib, marker=marker, fps=fps, vary_seed=vary_seed,
-                    layers=layers, threads=threads if ray is not None else None)
+                    layers=layers, threads=threads if ray is not None else None,
+                    split=split)
     job.test_hook = os.environ.get("ARLIGHT_TEST_SEQUENCE_HOOK") or None  # fault tests
     inputs = tuple(p for p in (scene, frames, depth, objects) if p is not None)
     if poses not in ("scene", "marker"):

@@ -7,8 +7,9 @@ Ray is imported here only, when a run asks for it; nothing else in arlight needs
   --head``) or ``ray://HOST:PORT`` (Ray Client) joins an existing cluster. The address is
   checked with a plain TCP connection first (:data:`CONNECT_TIMEOUT_S`), so an unreachable
   cluster is a clear :class:`InputError` before any output exists.
-* **Tasks**: one task per frame, ``num_cpus = threads`` (the Dr.Jit threads each worker
-  process uses, :func:`arlight.sequence.job.configure_threads`), ``max_retries`` =
+* **Tasks**: one task per frame (per part of a frame with ``split``), ``num_cpus =
+  threads`` (the Dr.Jit threads each worker process uses,
+  :func:`arlight.sequence.job.configure_threads`), ``max_retries`` =
   :data:`MAX_RETRIES`: when a worker process or node dies mid-task, Ray runs the task again
   elsewhere and nothing is lost. The job (world, poses, settings) is put in Ray's object
   store once; each task carries its frame's pixels. Every worker process imports arlight
@@ -17,7 +18,8 @@ Ray is imported here only, when a run asks for it; nothing else in arlight needs
   state.
 * **Flow**: at most ``2 × workers`` tasks are in flight (frames are decoded as tasks are
   submitted, so a long video is never held in memory); results are handed to ``on_result``
-  in completion order, which writes them at once.
+  in completion order (a split frame once all its parts are in, merged by
+  :func:`arlight.sequence.job.merge_parts`), which writes them at once.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from typing import Any
 
 from arlight.errors import InputError
 from arlight.sequence.frames import InputFrame
-from arlight.sequence.job import FrameResult, SequenceJob, render_frame
+from arlight.sequence.job import FrameResult, SequenceJob, merge_parts, render_frame
 
 MAX_RETRIES = 3
 """Times Ray re-runs a frame whose worker process died (system failures only)."""
@@ -86,8 +88,8 @@ def shutdown() -> None:
         ray.shutdown()
 
 
-def _remote_render(job: SequenceJob, frame: InputFrame, depth) -> FrameResult:
-    return render_frame(job, frame, depth)
+def _remote_render(job: SequenceJob, frame: InputFrame, depth, part: int) -> FrameResult:
+    return render_frame(job, frame, depth, part)
 
 
 def run(job: SequenceJob, frames: Iterable[tuple[InputFrame, Any]], workers: int,
@@ -101,6 +103,7 @@ def run(job: SequenceJob, frames: Iterable[tuple[InputFrame, Any]], workers: int
     task = ray.remote(num_cpus=threads, max_retries=MAX_RETRIES)(_remote_render)
     job_ref = ray.put(job)
     pending: list[Any] = []
+    parts: dict[int, list[FrameResult]] = {}
     it = iter(frames)
     exhausted = False
     window = max(2, 2 * workers)
@@ -112,7 +115,9 @@ def run(job: SequenceJob, frames: Iterable[tuple[InputFrame, Any]], workers: int
                     exhausted = True
                     break
                 frame, depth = nxt
-                pending.append(task.remote(job_ref, frame, depth))
+                frame_ref = ray.put(frame)  # once, for all the parts of the frame
+                pending += [task.remote(job_ref, frame_ref, depth, k)
+                            for k in range(job.split)]
             if not pending:
                 return
             ready, pending = ray.wait(pending, num_returns=1)
@@ -121,7 +126,10 @@ def run(job: SequenceJob, frames: Iterable[tuple[InputFrame, Any]], workers: int
             except ray.exceptions.RayTaskError as exc:
                 cause = exc.cause if hasattr(exc, "cause") else exc
                 raise cause from None
-            on_result(res)
+            got = parts.setdefault(res.index, [])
+            got.append(res)
+            if len(got) == job.split:
+                on_result(merge_parts(job, parts.pop(res.index)))
     finally:
         for ref in pending:  # interrupted or failed: do not leave work running
             ray.cancel(ref, force=True)

@@ -13,6 +13,12 @@ frames, and object motion goes through the method's ``pose()``. Every frame uses
 seed (Kán's fixed per-frame random sequence, thesis §4.4: a static scene renders bitwise
 identically frame after frame, so path-traced sequences do not flicker from noise alone);
 ``vary_seed`` gives each frame its own seed instead (for comparison).
+
+A high-spp frame of a *progressive* method (independent estimates for different seeds) can
+be split into ``split`` parts — separate tasks on Ray — each with ``spp / split`` samples
+and seed :func:`arlight.progressive.frame_seed` ``(seed, part)``; :func:`merge_parts`
+averages their composites weighted by samples (Kán Eq. 4.12 accumulates the same way), in
+part order, so the merged frame does not depend on which part finished first.
 """
 
 from __future__ import annotations
@@ -55,6 +61,7 @@ class SequenceJob:
         threads: Dr.Jit threads per process (None: Dr.Jit's default, all cores).
         frames_fingerprint: identifies the input frames (for resuming).
         test_hook: folder of the fault-injection test (see :func:`_test_hook`), or None.
+        split: parts each frame is rendered in (progressive methods only; 1: whole frames).
     """
 
     world: World
@@ -70,11 +77,17 @@ class SequenceJob:
     threads: int | None = None
     frames_fingerprint: str = ""
     test_hook: str | None = None
+    split: int = 1
     parts: dict[str, str] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.objects) != len(self.poses):
             raise ValueError("objects and poses must have one entry per frame")
+        if not 1 <= self.split <= self.settings.spp:
+            from arlight.errors import InputError
+
+            raise InputError(f"must be between 1 and --spp ({self.settings.spp}), got "
+                             f"{self.split}", field="--split")
         self.parts = self._part_hashes()
 
     @property
@@ -106,7 +119,7 @@ class SequenceJob:
             "objects": h(*[x for o in self.objects for k in sorted(o) for x in (k, o[k])]),
             "method": h(self.method, s.options),
             "settings": h(s.spp, s.max_depth, s.rr_depth, s.seed, s.spp_per_pass,
-                          self.vary_seed),
+                          self.vary_seed, *([self.split] if self.split > 1 else [])),
             "frames": self.frames_fingerprint,
             "layers": h(self.layers),
         }
@@ -116,11 +129,22 @@ class SequenceJob:
         """The job's identity (hash of :attr:`parts`)."""
         return hashlib.sha256(json.dumps(self.parts, sort_keys=True).encode()).hexdigest()[:24]
 
-    def frame_settings(self, index: int) -> RenderSettings:
-        if not self.vary_seed:
-            return replace(self.settings, progress=False)
-        return replace(self.settings, progress=False,
-                       seed=(self.settings.seed + index * SEED_STRIDE) & 0xFFFFFFFF)
+    def frame_settings(self, index: int, part: int = 0) -> RenderSettings:
+        """Settings of frame ``index`` (part ``part`` of :attr:`split`)."""
+        seed = self.settings.seed
+        if self.vary_seed:
+            seed = (seed + index * SEED_STRIDE) & 0xFFFFFFFF
+        if self.split == 1:
+            return replace(self.settings, progress=False, seed=seed)
+        from arlight.progressive import frame_seed
+
+        return replace(self.settings, progress=False, seed=frame_seed(seed, part),
+                       spp=self.part_spp(part))
+
+    def part_spp(self, part: int) -> int:
+        """Samples per pixel of part ``part``: ``spp`` split as evenly as possible."""
+        q, r = divmod(self.settings.spp, self.split)
+        return q + (1 if part < r else 0)
 
     def view(self, frame: InputFrame, depth: np.ndarray | None = None) -> FrameView:
         """The view of ``frame``: its pose, object transforms, background (linear radiance,
@@ -166,6 +190,7 @@ class FrameResult:
     display: np.ndarray
     layers: dict[str, np.ndarray]
     stats: dict[str, Any]
+    part: int = 0
 
 
 _PREPARED: dict[str, tuple[Any, Any]] = {}
@@ -225,16 +250,17 @@ def _test_hook(job: SequenceJob, index: int) -> None:
         time.sleep(120)
 
 
-def render_frame(job: SequenceJob, frame: InputFrame,
-                 depth: np.ndarray | None = None) -> FrameResult:
-    """Render frame ``frame.index`` of ``job`` (the method prepared once per process)."""
+def render_frame(job: SequenceJob, frame: InputFrame, depth: np.ndarray | None = None,
+                 part: int = 0) -> FrameResult:
+    """Render frame ``frame.index`` of ``job`` (the method prepared once per process); with
+    ``job.split > 1`` only part ``part`` of it (its layers always hold the composite)."""
     import socket
 
     _test_hook(job, frame.index)
     t0 = time.perf_counter()
     method, state, prep = prepared(job)
     view = job.view(frame, depth)
-    layers = method.render(state, view, job.frame_settings(frame.index))
+    layers = method.render(state, view, job.frame_settings(frame.index, part))
     cam = view.camera
     # the bit depth of the input frame (as arlight.output.display_dtype)
     dtype = np.uint16 if view.frame_codes is not None and \
@@ -244,10 +270,44 @@ def render_frame(job: SequenceJob, frame: InputFrame,
     if job.layers:
         out_layers = {"composite": layers.composite, "mixed": layers.mixed,
                       "delta": layers.delta, "mask": layers.mask}
+    elif job.split > 1:
+        out_layers = {"composite": layers.composite}
     stats = {k: v for k, v in layers.stats.items() if isinstance(v, int | float)}
     stats.update(prepare_seconds=prep, pid=os.getpid(), host=socket.gethostname(),
-                 task_seconds=time.perf_counter() - t0)
-    return FrameResult(frame.index, display, out_layers, stats)
+                 task_seconds=time.perf_counter() - t0, display_bits=display.dtype.itemsize * 8)
+    return FrameResult(frame.index, display, out_layers, stats, part)
 
 
-__all__ = ["FrameResult", "SequenceJob", "configure_threads", "prepared", "render_frame"]
+def merge_parts(job: SequenceJob, results: list[FrameResult]) -> FrameResult:
+    """One frame from its ``job.split`` parts: every layer averaged with the parts' samples
+    per pixel as weights (float64, in part order), the display codes from the merged
+    composite; times and counters summed, ``prepare_seconds`` summed."""
+    results = sorted(results, key=lambda r: r.part)
+    if [r.part for r in results] != list(range(job.split)):
+        raise ValueError(f"frame {results[0].index}: parts {[r.part for r in results]}")
+    if len(results) == 1:
+        return results[0]
+    w = np.array([job.part_spp(r.part) for r in results], np.float64)
+    w /= w.sum()
+    layers = {}
+    for name in results[0].layers:
+        acc = np.zeros(results[0].layers[name].shape, np.float64)
+        for wk, r in zip(w, results, strict=True):
+            acc += wk * r.layers[name]
+        layers[name] = acc.astype(np.float32)
+    dtype = np.uint16 if results[0].stats.get("display_bits") == 16 else np.uint8
+    display = job.camera.transfer.to_display(layers["composite"], dtype)
+    stats: dict[str, Any] = dict(results[0].stats)
+    for r in results[1:]:
+        for k, v in r.stats.items():
+            if isinstance(v, int | float) and k not in ("pid", "display_bits") and \
+                    isinstance(stats.get(k), int | float):
+                stats[k] += v
+    stats["parts"] = job.split
+    if not job.layers:
+        layers = {}
+    return FrameResult(results[0].index, display, layers, stats)
+
+
+__all__ = ["FrameResult", "SequenceJob", "configure_threads", "merge_parts", "prepared",
+           "render_frame"]

@@ -21,7 +21,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.sequence.frames import FrameSource, InputFrame
-from arlight.sequence.job import FrameResult, SequenceJob, render_frame
+from arlight.sequence.job import FrameResult, SequenceJob, merge_parts, render_frame
 from arlight.sequence.store import SequenceStore
 
 
@@ -193,7 +193,8 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
         try:
             if info is None:
                 for fr, d in frames:
-                    take(render_frame(job, fr, d))
+                    take(merge_parts(job, [render_frame(job, fr, d, k)
+                                           for k in range(job.split)]))
                 summary.workers = 1
             else:
                 from arlight.sequence import distributed
