@@ -27,8 +27,12 @@ Faults (long versions of tests/lightserver):
   and a raw SUB socket never reads at all; the other clients' latency and the server's
   publish times are compared with the unfrozen run.
 
+A live run follows: the server executes the pipeline (``NearFieldServer.update``) per update
+on fisheye frames recorded first (cornell proxy, ceiling light on a circle), 16 clients.
+
 Usage: ``python benchmarks/bench_lightserver.py [--write] [--seconds 8] [--rate 20]
-[--clients 1,4,16,64] [--skip-faults]`` (``--write`` updates the section of RESULTS.md).
+[--clients 1,4,16,64] [--repeats 3] [--skip-pipeline] [--skip-faults]`` (``--write``
+updates the section of RESULTS.md; about 6 minutes with the defaults).
 """
 
 from __future__ import annotations
