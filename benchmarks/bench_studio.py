@@ -198,6 +198,37 @@ def run_latency(rounds: int, resolution: tuple[int, int],
     return {"rounds": rounds, "resolution": resolution, "latency": lat, "render": render}
 
 
+# ---------------------------------------------------------------------- screenshot
+def screenshot(path: Path, method: str = "dir") -> Path:
+    """The page at 640×480 after dragging the bunny toward the camera (docs/images)."""
+    from playwright.sync_api import sync_playwright
+
+    from arlight.studio.browser import launch
+    from arlight.studio.server import BackgroundServer
+
+    engine = _engine((640, 480), method)
+    with BackgroundServer(engine) as srv, sync_playwright() as p:
+        browser = launch(p)
+        page = browser.new_page(viewport={"width": 1030, "height": 610})
+        page.goto(srv.url)
+        page.wait_for_function("window.studio.frames >= 1", timeout=300_000)
+        box = page.locator("#frame").bounding_box()
+        rest = engine.rest_poses["bunny"]
+        start = engine.proxy.project(rest.position + [0.0, 0.05, 0.0])
+        page.mouse.move(box["x"] + start[0], box["y"] + start[1])
+        page.mouse.down()
+        for t in np.linspace(0, 1, 6)[1:]:
+            page.mouse.move(box["x"] + start[0] - 60 * t, box["y"] + start[1] + 40 * t)
+        page.mouse.up()
+        last = page.evaluate("window.studio.seq")
+        page.wait_for_function(f"window.studio.header.seq >= {last} && "
+                               "!window.studio.header.superseded", timeout=300_000)
+        page.wait_for_timeout(500)
+        page.screenshot(path=str(path))
+        browser.close()
+    return path
+
+
 # ---------------------------------------------------------------------- report
 def _half_slope(load: dict) -> float:
     """Least-squares RSS slope over the second half of the load run, MB per minute."""
@@ -264,6 +295,8 @@ def _size(text: str) -> tuple[int, int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=("load", "latency"))
+    ap.add_argument("--screenshot", type=Path, help="only save a screenshot of the page "
+                    "(docs/images/studio.png) and exit")
     ap.add_argument("--clients", type=int, default=8)
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=20.0, help="drag messages per second")
@@ -274,6 +307,9 @@ def main() -> None:
                     help="latency: comma-separated methods, or 'all' interactive ones")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
+    if args.screenshot:
+        print(screenshot(args.screenshot))
+        return
     load = latency = None
     if args.only in (None, "load"):
         load = run_load(args.clients, args.seconds, args.rate, args.resolution)

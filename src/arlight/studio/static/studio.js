@@ -122,6 +122,7 @@ async function onFrame(buf) {
 
 function shown(h) {
   const now = performance.now();
+  if ($("status").textContent.startsWith("preparing")) setStatus("", false);
   studio.header = h;
   studio.frames += 1;
   frameTimes.push(now);
