@@ -98,12 +98,16 @@ class NearFieldData:
     light: NearFieldLight
     objects: list[str]
     server_stats: dict
+    server: object = None
+    """The NearFieldServer that made ``light`` in ``prepare`` (None for a given light): a
+    posed world gets its SH probes re-traced at the moved objects (``pose``)."""
     map_cache: dict = field(default_factory=dict)
     """Shadow maps of the last light state (key: VAL geometry, map size): a client frame
     whose light did not change since the last frame reuses them (results are identical)."""
 
 
-def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight, dict]:
+def _light_from_options(world: World, options: Options
+                        ) -> tuple[NearFieldLight, dict, object]:
     from arlight.nearfield.atlas import proxy_mesh
     from arlight.nearfield.cameras import auto_rig, load_rig, seeing_cameras
     from arlight.nearfield.capture import capture_rig
@@ -111,7 +115,7 @@ def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight,
     from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
 
     if options.light:
-        return load_light(options.light), {}
+        return load_light(options.light), {}, None
     if options.cameras:
         rig = load_rig(options.cameras)
     else:
@@ -123,12 +127,13 @@ def _light_from_options(world: World, options: Options) -> tuple[NearFieldLight,
         server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
     images = capture_rig(world, server.cameras, options.capture_spp)
     light = server.update(images, timestamp=0.0)
-    return light, dict(server.stats)
+    return light, dict(server.stats), server
 
 
-def prepare(world: World, options: Options, light: NearFieldLight | None = None
-            ) -> NearFieldData:
-    """Everything but the frame (module docstring); ``light`` overrides the options."""
+def prepare(world: World, options: Options, light: NearFieldLight | None = None,
+            server=None) -> NearFieldData:
+    """Everything but the frame (module docstring); ``light`` overrides the options
+    (``server``: the server that made it, kept for ``pose``)."""
     from arlight.backend.mitsuba_scene import build_views
     from arlight.methods import prt
     from arlight.nearfield.atlas import proxy_mesh
@@ -141,7 +146,7 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None
     occluder = virtual_scene(world)
     stats: dict = {}
     if light is None:
-        light, stats = _light_from_options(world, options)
+        light, stats, server = _light_from_options(world, options)
     names = [s.name for s in world.virtual_shapes]
     pdata = None
     sphere = None
@@ -156,7 +161,7 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None
         sphere = ((lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0)
     return NearFieldData(world, views, proxy, occluder, pdata,
                          material_table(world, list(options.metal_k)), sphere, light, names,
-                         stats)
+                         stats, server)
 
 
 def _check_light(data: NearFieldData) -> None:
@@ -232,8 +237,22 @@ class NearFieldMethod(BaseMethod):
         return prepare(world, options)
 
     def pose(self, state: Prepared, transforms, settings: RenderSettings) -> NearFieldData:
-        # the light state stays (it is the server's); the geometry moves
-        return prepare(state.world.posed(transforms), state.options, state.data.light)
+        """The posed geometry with the same VALs; where this state's own server made the
+        light, the SH probes are re-traced at the moved objects (as a server does when
+        it is told the new poses); a given light is kept as it is."""
+        from arlight.nearfield.indirect import IndirectProbes
+        from arlight.nearfield.pipeline import virtual_objects
+
+        world = state.world.posed(transforms)
+        light, srv = state.data.light, state.data.server
+        if srv is not None and srv.last is not None:
+            probes = IndirectProbes(srv.mesh.vertices, srv.mesh.faces, srv.layout,
+                                    virtual_objects(world), srv.settings.cube_resolution)
+            v = srv.last.vals
+            sh = probes.coefficients(srv.last.indirect_atlas, np.zeros_like(light.sh),
+                                     (v.positions, v.normals, v.intensity, v.area))
+            light = replace(light, sh=sh)
+        return prepare(world, state.options, light, srv)
 
     def render_view(self, data: NearFieldData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
