@@ -173,6 +173,10 @@ class Engine:
             raise InputError(f"must be in [1, 100], got {config.quality}", field="--quality")
         self.source = Path(config.scene).resolve()
         self.full = load_scene(self.source)
+        if self.full.frame is None:
+            raise InputError("the scene has no background frame to composite onto; add a "
+                             "[frame] table with `image = ...`", file=str(self.source),
+                             field="frame")
         if not self.full.virtual_shapes:
             raise InputError("the scene has no virtual shape to move", file=str(self.source),
                              field="shapes")
