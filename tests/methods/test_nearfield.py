@@ -14,7 +14,7 @@ from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.nearfield import NearFieldClient, empty_light, prepare
 from arlight.nearfield.cameras import auto_rig
-from arlight.nearfield.client import direct_light, shadow_maps
+from arlight.nearfield.client import direct_light, shadow_maps, tile_lanes
 from arlight.nearfield.lightfile import load_light, save_light
 from arlight.nearfield.materials import (
     beer_lambert,
@@ -142,8 +142,8 @@ def test_server_stages_payload_and_the_full_method():
     dr.sync_thread()
 
 
-@pytest.mark.parametrize("shadows", ["rays", "maps"])
-def test_lane_culling_changes_nothing(shadows):
+@pytest.mark.parametrize("shadows,gspp", [("rays", 1), ("maps", 1), ("maps", 4)])
+def test_lane_culling_changes_nothing(shadows, gspp):
     """Checklist 14 (culling): with and without the per-VAL lane culling the direct light
     is the same to 1e-6."""
     from arlight.realtime.gbuffer import render_gbuffer
@@ -157,13 +157,16 @@ def test_lane_culling_changes_nothing(shadows):
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     light = NearFieldLight(pos, nrm, rng.uniform(0.1, 1.0, (6, 3)), rng.uniform(0, 0.05, 6),
                            np.zeros((1, 9, 3)))
-    gb = render_gbuffer(data.views.mixed, sc.view.camera)
+    gb = render_gbuffer(data.views.mixed, sc.view.camera, gspp)
     maps = (shadow_maps(light, data.proxy, data.occluder, data.sphere)
             if shadows == "maps" else None)
     args = (light, gb.position, gb.normal, gb.albedo, gb.to_camera, gb.virtual, gb.valid,
             gb.shape, data.materials, data.proxy, data.occluder, maps)
     a = [np.array(x) for x in direct_light(*args)]
-    b = [np.array(x) for x in direct_light(*args, sphere=data.sphere)]
+    lanes = tile_lanes(light, np.array(gb.position, np.float64).T, np.array(gb.valid),
+                       np.array(gb.virtual), gb.width, gb.height, gb.spp, data.sphere)
+    assert sum(len(x) for x in lanes) < 0.9 * light.count * int(np.sum(np.array(gb.valid)))
+    b = [np.array(x) for x in direct_light(*args, lanes_per_val=lanes)]
     virt = np.array(gb.virtual)
     assert np.allclose(a[0][:, virt], b[0][:, virt], atol=1e-6, rtol=0)
     assert np.allclose(a[1][:, ~virt], b[1][:, ~virt], atol=1e-6, rtol=0)

@@ -11,8 +11,8 @@ two visibilities per VAL and the differential composite of Eq. 14.
   six fisheyes, :func:`~arlight.nearfield.cameras.auto_rig`).
 * **render** (per frame, :mod:`arlight.nearfield.client`): G-buffer; PRT indirect light on
   virtual samples (Eq. 8); shadow maps (two per VAL); direct light of the VALs with both
-  visibilities; Eq. 14. Stages ``gbuffer``, ``indirect``, ``shadow_maps``, ``direct``,
-  ``assemble``.
+  visibilities; Eq. 14. Stages ``gbuffer``, ``indirect``, ``shadow_maps``, ``cull`` (8×8
+  tiles), ``direct``, ``assemble``.
 
 A client with its own light state (e.g. from the light server) renders with
 :func:`render_with_light` (or :class:`~arlight.nearfield.NearFieldClient`). See
@@ -38,6 +38,7 @@ from arlight.nearfield.client import (
     direct_light,
     material_table,
     shadow_maps,
+    tile_lanes,
 )
 from arlight.nearfield.state import NearFieldLight
 from arlight.realtime.gbuffer import assemble, render_gbuffer
@@ -212,11 +213,17 @@ def render_with_light(data: NearFieldData, view: FrameView, options: Options,
                                        options.shadow_map_size)
                     data.map_cache.clear()
                     data.map_cache[key] = maps
+        with timer.stage("cull"):
+            lanes = None
+            if data.sphere is not None:
+                lanes = tile_lanes(light, np.array(gb.position, np.float64).T,
+                                   np.array(gb.valid, bool), np.array(gb.virtual, bool),
+                                   gb.width, gb.height, gb.spp, data.sphere)
         with timer.stage("direct"):
             lit, lost = direct_light(light, gb.position, gb.normal, gb.albedo, gb.to_camera,
                                      gb.virtual, gb.valid, gb.shape, data.materials,
                                      data.proxy, data.occluder, maps, options.disc,
-                                     options.shadow_bias, sphere=data.sphere)
+                                     options.shadow_bias, lanes)
             mixed = dr.select(gb.virtual, mixed + lit, mixed)
             delta = dr.select(gb.virtual | ~gb.valid, delta, -lost)
             dr.eval(mixed, delta)

@@ -109,36 +109,71 @@ def _frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(a, u)
 
 
-def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
-                sphere: tuple[np.ndarray, float], size: int = 128) -> ShadowMaps:
-    """Real and virtual depth maps of every VAL over the virtual objects' bounding
-    ``sphere`` (centre, radius)."""
-    c, rad = sphere
-    M, S = light.count, int(size)
+@dataclass
+class Frusta:
+    """Per VAL the frustum from its centre that tightly contains the virtual objects'
+    bounding sphere (shared by both shadow maps and the tile culling).
+
+    Attributes:
+        origin, axis, u, v: (M, 3) apex (VAL centre + EPS·normal) and orthonormal frame.
+        tan_half: (M,) tangent of the half opening (0: the VAL lies inside the sphere, no
+            frustum — such a VAL uses rays and shades every lane).
+    """
+
+    origin: np.ndarray
+    axis: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    tan_half: np.ndarray
+
+    def coords(self, j: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Frustum coordinates ``(z, s, q)`` of points ``x (N, 3)`` for VAL ``j`` (inside:
+        ``z > 0`` and ``|s|, |q| < 1``)."""
+        d = x - self.origin[j]
+        z = d @ self.axis[j]
+        zt = np.maximum(z * self.tan_half[j], 1e-12)
+        return z, (d @ self.u[j]) / zt, (d @ self.v[j]) / zt
+
+
+def frusta(light: NearFieldLight, sphere: tuple[np.ndarray, float]) -> Frusta:
+    """The :class:`Frusta` of ``light``'s VALs around ``sphere`` (centre, radius; 5 %
+    margin)."""
+    c, rad = np.asarray(sphere[0], np.float64), float(sphere[1])
+    M = light.count
     origin = light.positions + EPS * light.normals
     axis, us, vs = np.zeros((M, 3)), np.zeros((M, 3)), np.zeros((M, 3))
     tan_half = np.zeros(M)
-    g = (np.arange(S) + 0.5) / S * 2.0 - 1.0
-    gy, gx = np.meshgrid(g, g, indexing="ij")
-    dirs = []
     for j in range(M):
         d = c - origin[j]
         dist = float(np.linalg.norm(d))
         if dist <= rad * 1.05:
-            dirs.append(np.zeros((0, 3)))
             continue
         a = d / dist
         u, v = _frame(a)
-        t = math.tan(math.asin(min(rad * 1.05 / dist, 0.999)))
-        axis[j], us[j], vs[j], tan_half[j] = a, u, v, t
-        w = a[None] + t * (gx.reshape(-1, 1) * u[None] + gy.reshape(-1, 1) * v[None])
-        dirs.append(w / np.linalg.norm(w, axis=1, keepdims=True))
+        axis[j], us[j], vs[j] = a, u, v
+        tan_half[j] = math.tan(math.asin(min(rad * 1.05 / dist, 0.999)))
+    return Frusta(origin, axis, us, vs, tan_half)
+
+
+def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
+                sphere: tuple[np.ndarray, float], size: int = 128) -> ShadowMaps:
+    """Real and virtual depth maps of every VAL over the virtual objects' bounding
+    ``sphere`` (centre, radius)."""
+    fr = frusta(light, sphere)
+    M, S = light.count, int(size)
+    g = (np.arange(S) + 0.5) / S * 2.0 - 1.0
+    gy, gx = np.meshgrid(g, g, indexing="ij")
     real = np.full(M * S * S, np.inf, np.float32)
     virt = np.full(M * S * S, np.inf, np.float32)
-    live = [j for j in range(M) if tan_half[j] > 0]
+    live = [j for j in range(M) if fr.tan_half[j] > 0]
     if live:
-        o = np.concatenate([np.repeat(origin[j][None], S * S, 0) for j in live])
-        d = np.concatenate([dirs[j] for j in live])
+        dirs = []
+        for j in live:
+            w = fr.axis[j][None] + fr.tan_half[j] * (gx.reshape(-1, 1) * fr.u[j][None]
+                                                    + gy.reshape(-1, 1) * fr.v[j][None])
+            dirs.append(w / np.linalg.norm(w, axis=1, keepdims=True))
+        o = np.concatenate([np.repeat(fr.origin[j][None], S * S, 0) for j in live])
+        d = np.concatenate(dirs)
         idx = np.concatenate([np.arange(j * S * S, (j + 1) * S * S) for j in live])
         ray = mi.Ray3f(mi.Point3f(*[o[:, i].astype(np.float32) for i in range(3)]),
                        mi.Vector3f(*[d[:, i].astype(np.float32) for i in range(3)]))
@@ -146,7 +181,66 @@ def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
             pi = scene.ray_intersect_preliminary(ray)
             t = np.asarray(dr.select(pi.is_valid(), pi.t, dr.inf), np.float32)
             out[idx] = t
-    return ShadowMaps(origin, axis, us, vs, tan_half, mi.Float(real), mi.Float(virt), S)
+    return ShadowMaps(fr.origin, fr.axis, fr.u, fr.v, fr.tan_half, mi.Float(real),
+                      mi.Float(virt), S)
+
+
+TILE = 8
+"""Tile side in pixels (Rohmer: 8×8 tiles, 64 threads)."""
+
+
+def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
+               virtual: np.ndarray, width: int, height: int, spp: int,
+               sphere: tuple[np.ndarray, float]) -> list[np.ndarray]:
+    """Per VAL the lanes it must shade (Rohmer's tile culling, §5): lanes (pixel-major,
+    ``spp`` per pixel, as the G-buffer lays them out) are grouped into 8×8-pixel tiles with
+    the bounding box of their hit points; a tile is kept for VAL ``j`` unless its box lies
+    entirely behind the VAL's plane (a one-sided emitter lights nothing there) or — for a
+    tile without virtual lanes — entirely outside the VAL's frustum around the virtual
+    objects (there ``V̂_j = 1`` and nothing changes). Returns, per VAL, the kept valid lanes
+    (sorted indices)."""
+    T = TILE
+    hp, wp = -(-height // T) * T, -(-width // T) * T
+    ty, tx = hp // T, wp // T
+
+    def tiled(a: np.ndarray, fill) -> np.ndarray:  # (H, W, spp, c) -> (ty, tx, T*T*spp, c)
+        a = a.reshape(height, width, spp, -1)
+        out = np.full((hp, wp, spp, a.shape[-1]), fill, a.dtype)
+        out[:height, :width] = a
+        return out.reshape(ty, T, tx, T, spp, -1).transpose(0, 2, 1, 3, 4, 5).reshape(
+            ty * tx, T * T * spp, -1)
+
+    ok = np.asarray(valid, bool)
+    pos = np.where(ok[:, None], np.asarray(position, np.float64), np.nan)
+    pt = tiled(pos, np.nan)
+    has = np.any(tiled(ok[:, None], False)[..., 0], axis=1)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN tiles
+            lo, hi = np.nanmin(pt, axis=1), np.nanmax(pt, axis=1)
+    has_virtual = np.any(tiled((ok & np.asarray(virtual, bool))[:, None], False)[..., 0], 1)
+    corners = np.stack([np.where(np.array(b)[None, :] == 1, hi, lo) for b in
+                        np.ndindex(2, 2, 2)], axis=1)  # (tiles, 8, 3)
+    corners = np.where(has[:, None, None], corners, 0.0)
+    lane = np.arange(width * height * spp)
+    pix = lane // spp
+    tile = (pix // width // T) * tx + (pix % width) // T
+    fr = frusta(light, sphere)
+    out = []
+    for j in range(light.count):
+        behind = np.all((corners - fr.origin[j]) @ light.normals[j] <= 0, axis=1)
+        keep = has & ~behind
+        if fr.tan_half[j] > 0:
+            z, s, q = (a.reshape(-1, 8) for a in fr.coords(j, corners.reshape(-1, 3)))
+            front = z > 0
+            outside = (np.all(~front, 1) | np.all(front & (s >= 1), 1)
+                       | np.all(front & (s <= -1), 1) | np.all(front & (q >= 1), 1)
+                       | np.all(front & (q <= -1), 1))
+            keep &= has_virtual | ~outside
+        out.append(np.flatnonzero(keep[tile] & ok).astype(np.uint32))
+    return out
 
 
 def _v(a) -> mi.Vector3f:
@@ -271,40 +365,18 @@ def _shade_one(lanes: _Lanes, tab: _Tables, jj: mi.UInt32, maps: ShadowMaps | No
     return dr.select(v & vh, L, zero), dr.select(v & ~vh, L, zero)
 
 
-def _candidates(lanes: _Lanes, tab: _Tables, jj: mi.UInt32, use_map: bool,
-                sphere: tuple[np.ndarray, float]) -> mi.Bool:
-    """Lanes VAL ``jj`` can change: virtual ones, and real ones inside its shadow frustum
-    (maps) or whose segment to it crosses the virtual objects' bounding sphere (rays)."""
-    p = lanes.p
-    if use_map:
-        d = p - dr.gather(mi.Vector3f, tab.origin, jj)
-        z = dr.dot(d, dr.gather(mi.Vector3f, tab.axis, jj))
-        zt = dr.maximum(z * dr.gather(mi.Float, tab.tan, jj), 1e-12)
-        s = dr.dot(d, dr.gather(mi.Vector3f, tab.u, jj)) / zt
-        q = dr.dot(d, dr.gather(mi.Vector3f, tab.v, jj)) / zt
-        real = (z > 0) & (dr.abs(s) < 1.0) & (dr.abs(q) < 1.0)
-    else:
-        c, rad2 = _v(sphere[0]), float(sphere[1]) ** 2
-        d = dr.gather(mi.Vector3f, tab.P, jj) - p
-        t = dr.clip(dr.dot(c - p, d) / dr.maximum(dr.squared_norm(d), 1e-20), 0.0, 1.0)
-        real = dr.squared_norm(c - (p + t * d)) <= rad2
-    return lanes.valid & (lanes.virtual | real)
-
-
 def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: mi.Color3f,
                  to_eye: mi.Vector3f, virtual: mi.Bool, valid: mi.Bool, shape: mi.Int32,
                  mats: MaterialTable, proxy: mi.Scene, occluder: mi.Scene | None,
                  maps: ShadowMaps | None, disc: bool = True, bias_texels: float = 2.0,
-                 sphere: tuple[np.ndarray, float] | None = None
+                 lanes_per_val: list[np.ndarray] | None = None
                  ) -> tuple[mi.Color3f, mi.Color3f]:
     """``(Σ_j V_j V̂_j L_VAL_j, Σ_j V_j (1 − V̂_j) L_VAL_j)`` per lane (module docstring);
     the first is meant for virtual lanes, the second for real ones.
 
-    ``sphere`` (centre, radius), the virtual objects' bounds, culls lanes per VAL (the role
-    of Rohmer's tile culling): a real lane is shaded for VAL ``j`` only inside its shadow
-    frustum (maps) or when its segment to the VAL crosses the sphere (rays); elsewhere
-    ``V̂_j = 1`` and nothing changes. Those lanes are compacted, shaded and added back.
-    VAL parameters are read through an opaque index, so one kernel serves every VAL.
+    ``lanes_per_val`` (:func:`tile_lanes`): per VAL the lanes to shade (tile culling);
+    those lanes are gathered, shaded and added back. None: every lane, every VAL. VAL
+    parameters are read through an opaque index, so one kernel serves every VAL.
     """
     sid = mi.UInt32(dr.maximum(shape, 0))
     lanes = _Lanes(p, n, albedo, to_eye, mi.Bool(virtual), mi.Bool(valid),
@@ -322,14 +394,14 @@ def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: m
         jj = dr.opaque(mi.UInt32, j)
         use_map = maps is not None and maps.tan_half[j] > 0
         m = maps if use_map else None
-        if sphere is None:
+        if lanes_per_val is None:
             a, b = _shade_one(lanes, tab, jj, m, proxy, occluder, bias_texels)
             lit += a
             lost += b
         else:
-            idx = dr.compress(_candidates(lanes, tab, jj, use_map, sphere))
-            if dr.width(idx) == 0:
+            if len(lanes_per_val[j]) == 0:
                 continue
+            idx = mi.UInt32(lanes_per_val[j])
             a, b = _shade_one(lanes.take(idx), tab, jj, m, proxy, occluder, bias_texels)
             dr.scatter_add(lit, a, idx)
             dr.scatter_add(lost, b, idx)
@@ -348,5 +420,6 @@ class PerObjectSH(SimpleNamespace):
                 for k, o in enumerate(self.objects)]
 
 
-__all__ = ["EPS", "KIND_DIFFUSE", "KIND_GLOSSY", "KIND_METAL", "MaterialTable",
-           "PerObjectSH", "ShadowMaps", "direct_light", "material_table", "shadow_maps"]
+__all__ = ["EPS", "KIND_DIFFUSE", "KIND_GLOSSY", "KIND_METAL", "TILE", "Frusta",
+           "MaterialTable", "PerObjectSH", "ShadowMaps", "direct_light", "frusta",
+           "material_table", "shadow_maps", "tile_lanes"]
