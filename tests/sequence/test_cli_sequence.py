@@ -150,6 +150,7 @@ def test_another_job_in_the_folder_is_refused(tiny, full_run, tmp_path):
     assert rc == 2 and "notes.txt" in err
 
 
+@pytest.mark.slow
 def test_video_input_and_webm_output(tmp_path):
     from arlight.io.images import read_ldr
     from arlight.sequence.video import encode, probe
@@ -165,3 +166,15 @@ def test_video_input_and_webm_output(tmp_path):
     assert probe(out / "sequence.webm") == (4, (32, 24), 12.0)
     assert probe(out / "sequence.mp4")[0] == 4
     assert np.asarray(read_ldr(out / "frames" / "000003.png")).shape == (24, 32, 3)
+
+
+def test_video_frame_source_decodes_every_frame(tmp_path):
+    from arlight.sequence.frames import FrameSource
+    from arlight.sequence.video import encode
+
+    frames = [np.full((24, 32, 3), 40 * i + 20, np.uint8) for i in range(5)]
+    src = FrameSource(encode(tmp_path / "in.mp4", frames, fps=10))
+    assert (src.count, src.size, src.fps, src.is_video) == (5, (32, 24), 10.0, True)
+    got = list(src.frames({1, 3}))
+    assert [f.index for f in got] == [1, 3]
+    assert [int(np.median(f.codes)) for f in got] == pytest.approx([60, 140], abs=2)

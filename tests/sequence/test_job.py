@@ -128,8 +128,8 @@ def test_job_key_changes_with_every_input(tiny):
 @pytest.mark.parametrize("method", ["dlpv", pytest.param("ibl", marks=pytest.mark.slow)])
 def test_interactive_methods_render_a_sequence(tiny, method):
     job, src = _job(tiny, method=method)
-    res = [render_frame(job, fr) for fr in list(src)[:3]]
-    assert [r.stats["prepare_seconds"] > 0 for r in res] == [True, False, False]
+    res = [render_frame(job, fr) for fr in list(src)[:2]]
+    assert [r.stats["prepare_seconds"] > 0 for r in res] == [True, False]
     assert all(r.display.shape == (24, 32, 3) for r in res)
 
 
