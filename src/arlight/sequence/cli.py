@@ -14,7 +14,7 @@ from arlight.errors import InputError
 def sequence_command(
     scene: Annotated[Path, typer.Argument(help="AR scene file: the world (proxy, virtual "
                                           "objects, lights) and the camera (intrinsics, "
-                                          "transfer); its [render] table gives defaults")],
+                                          "transfer); its render table gives defaults")],
     frames: Annotated[Path, typer.Option("--frames", help="folder of images (natural name "
                                          "order) or a video file (mp4, mov, mkv, webm, ...)")],
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder (rerun with the "
