@@ -27,7 +27,7 @@ def sequence_command(
                                        "--marker). See docs/sequence.md")] = "scene",
     objects: Annotated[Path | None, typer.Option("--objects", help="per-frame object "
                        "transforms: FRAME NAME tx ty tz qx qy qz qw lines, or a keyframes "
-                       ".toml with [[objects.NAME]]")] = None,
+                       ".toml (arrays objects.NAME)")] = None,
     pose_axes: Annotated[str, typer.Option("--pose-axes", help="camera axes of the poses "
                          "file: opencv (x right, y down, z forward) or opengl (ARKit: y up, "
                          "z backward)")] = "opencv",
