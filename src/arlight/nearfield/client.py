@@ -198,7 +198,7 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
     entirely behind the VAL's plane (a one-sided emitter lights nothing there) or — for a
     tile without virtual lanes — entirely outside the VAL's frustum around the virtual
     objects (there ``V̂_j = 1`` and nothing changes). Returns, per VAL, the kept valid lanes
-    (sorted indices)."""
+    (tile by tile)."""
     T = TILE
     hp, wp = -(-height // T) * T, -(-width // T) * T
     ty, tx = hp // T, wp // T
@@ -211,22 +211,20 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
             ty * tx, T * T * spp, -1)
 
     ok = np.asarray(valid, bool)
-    pos = np.where(ok[:, None], np.asarray(position, np.float64), np.nan)
-    pt = tiled(pos, np.nan)
-    has = np.any(tiled(ok[:, None], False)[..., 0], axis=1)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN tiles
-            lo, hi = np.nanmin(pt, axis=1), np.nanmax(pt, axis=1)
+    pos = np.asarray(position, np.float32)
+    lo = tiled(np.where(ok[:, None], pos, np.inf), np.inf).min(axis=1).astype(np.float64)
+    hi = tiled(np.where(ok[:, None], pos, -np.inf), -np.inf).max(axis=1).astype(np.float64)
+    has = np.isfinite(lo[:, 0])
     has_virtual = np.any(tiled((ok & np.asarray(virtual, bool))[:, None], False)[..., 0], 1)
     corners = np.stack([np.where(np.array(b)[None, :] == 1, hi, lo) for b in
                         np.ndindex(2, 2, 2)], axis=1)  # (tiles, 8, 3)
     corners = np.where(has[:, None, None], corners, 0.0)
-    lane = np.arange(width * height * spp)
+    lane = np.flatnonzero(ok)
     pix = lane // spp
     tile = (pix // width // T) * tx + (pix % width) // T
+    order = np.argsort(tile, kind="stable")  # valid lanes grouped by tile (CSR)
+    counts = np.bincount(tile, minlength=ty * tx)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     fr = frusta(light, sphere)
     out = []
     for j in range(light.count):
@@ -239,7 +237,11 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
                        | np.all(front & (s <= -1), 1) | np.all(front & (q >= 1), 1)
                        | np.all(front & (q <= -1), 1))
             keep &= has_virtual | ~outside
-        out.append(np.flatnonzero(keep[tile] & ok).astype(np.uint32))
+        k = np.flatnonzero(keep)
+        sizes = counts[k]
+        total = int(sizes.sum())
+        offs = np.repeat(starts[k] - np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes)
+        out.append(lane[order[offs + np.arange(total)]].astype(np.uint32))
     return out
 
 
