@@ -5,11 +5,13 @@ splat buffer (Kán thesis §4.2, §4.2.5, §3.3).
 Each camera sample follows a *Whitted* walk: at every vertex it collects emission (seen by
 the camera or through delta-specular bounces), and at a vertex with a smooth BSDF it adds
 
-* direct light: one next-event sample (``scene.sample_emitter_direction``, environment maps
-  importance-sampled; weight 1 — the BSDF-sampled emitter hit of MIS would be an indirect
-  record ray's first hit, which the records leave out) with the one-pass rules: a mixed
-  shadow ray and, on a path that has not touched a virtual object, a real one where the
-  mixed one is blocked (µ ⊂ ρ);
+* direct light: one light sample (``scene.sample_emitter_direction``, environment maps
+  importance-sampled) and one BSDF sample whose ray only collects emission, combined by the
+  power heuristic as the one-pass tracer's first vertex, with the one-pass rules: a mixed
+  shadow ray and, on a walk that has not touched a virtual object, a real one where the
+  mixed one is blocked (µ ⊂ ρ); the BSDF ray is mixed, with a real one where it hits a
+  virtual object. (The records collect no emission at their rays' first hits, so light
+  reaching the vertex directly is counted here only);
 * indirect light: ``ρ_d / π · E`` with ``E`` read from the splat buffer at the pixel the
   vertex *projects to* (Kán §4.2.5; outside the image the buffer is tiled repetitively), so
   depth of field, antialiasing samples, mirrors and glass read the irradiance of the points
@@ -34,6 +36,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
+from arlight.methods.onepass_tracer import mis_weight
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.realtime.irradiance_cache import SplatGeometry
 from arlight.scene.camera import Camera
@@ -43,7 +46,7 @@ _DIM_NEE, _DIM_BSDF1, _DIM_BSDF2 = 0, 2, 3
 UNLIMITED_SPECULAR = 16
 """Longest delta-specular chain when ``max_depth = -1``."""
 WALK_COUNTERS = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
-                 "rays_real_shadow")
+                 "rays_real_shadow", "rays_mixed_radiance_direct", "rays_real_radiance_direct")
 
 
 def _rand1(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Float:
@@ -171,26 +174,40 @@ class CameraWalk:
                  dr.full(mi.Bool, True, m), dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u),
                  mi.UInt32(zero_u), mi.UInt32(zero_u))
 
-        def cond(ray, beta, active, lr_b, depth, n_rad, n_sh):
+        def cond(ray, beta, active, lr_b, depth, n_rad, n_sh, n_dir):
             return active
 
-        def body(ray, beta, active, lr_b, depth, n_rad, n_sh):
-            c = {"rays_real_shadow": n_sh}
+        def body(ray, beta, active, lr_b, depth, n_rad, n_sh, n_dir):
+            c = {"rays_real_shadow": n_sh, "rays_real_radiance_direct": n_dir}
             n_rad += dr.select(active, 1, 0)
             si = self.real.scene.ray_intersect(ray, mi.RayFlags.All, False, active)
             ray, beta, active, _, lr_b = self._vertex(self.real, si, ray, beta, active, key_b,
                                                       depth, None, lr_b, depth >= start,
                                                       False, c)
-            return ray, beta, active, lr_b, depth + 1, n_rad, c["rays_real_shadow"]
+            return (ray, beta, active, lr_b, depth + 1, n_rad, c["rays_real_shadow"],
+                    c["rays_real_radiance_direct"])
 
-        _, _, _, lr_b, _, n_rad, n_sh = dr.while_loop(state=state, cond=cond, body=body,
-                                                     label="dic_camera_real")
+        _, _, _, lr_b, _, n_rad, n_sh, n_dir = dr.while_loop(
+            state=(*state, mi.UInt32(zero_u)), cond=cond, body=body, label="dic_camera_real")
         lr = mi.Color3f(lr)
         dr.scatter(lr, lr_b, idx)
-        dr.eval(lr, n_rad, n_sh)
+        dr.eval(lr, n_rad, n_sh, n_dir)
         counts["rays_real_radiance"] += int(dr.sum(n_rad)[0])
         counts["rays_real_shadow"] += int(dr.sum(n_sh)[0])
+        counts["rays_real_radiance_direct"] += int(dr.sum(n_dir)[0])
         return lr
+
+    def _bsdf_emission(self, view: SceneView, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
+                       bs: mi.BSDFSample3f, throughput: mi.Color3f, active: mi.Bool
+                       ) -> tuple[mi.Color3f, mi.Int32]:
+        """Emission found along a BSDF-sampled ray, MIS-weighted against light sampling
+        (power heuristic, as the one-pass tracer), and the role of what the ray hit."""
+        scene = view.scene
+        si_b = scene.ray_intersect(ray, mi.RayFlags.All, False, active)
+        ds = mi.DirectionSample3f(scene, si=si_b, ref=si)
+        em_pdf = scene.pdf_emitter_direction(si, ds, active)
+        le = throughput * mis_weight(bs.pdf, em_pdf) * si_b.emitter(scene).eval(si_b, active)
+        return dr.select(active, le, 0.0), view.hit_role(si_b)
 
     def _vertex(self, view: SceneView, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
                 beta: mi.Color3f, active: mi.Bool, key: mi.UInt32, depth: mi.UInt32,
@@ -206,12 +223,12 @@ class CameraWalk:
         act = active & si.is_valid()
         bsdf = si.bsdf()
         smooth = act & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        # direct light: one light sample, weight 1, one-pass shadow rays
+        # direct light (1): one light sample, MIS against the BSDF, one-pass shadow rays
         nee = smooth & self._limit(depth, 1)
         ds, em_w = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False, nee)
         nee &= ds.pdf != 0.0
-        f = bsdf.eval(self.ctx, si, si.to_local(ds.d), nee)
-        contrib = beta * f * em_w
+        f, pdf_b = bsdf.eval_pdf(self.ctx, si, si.to_local(ds.d), nee)
+        contrib = beta * f * em_w * dr.select(ds.delta, 1.0, mis_weight(ds.pdf, pdf_b))
         nee &= dr.max(contrib) > 0
         shadow = si.spawn_ray_to(ds.p)
         if to_mixed:
@@ -239,12 +256,29 @@ class CameraWalk:
         if to_mixed:
             lm = lm + dr.select(gather, ind_m, 0.0)
         lr = lr + dr.select(gather & to_real, ind_r, 0.0)
-        # delta-specular vertices continue the walk
+        # direct light (2): the BSDF sample's ray, emission MIS-weighted against the light
+        #   sample (a mixed ray; a real one where it hits a virtual object on a shared walk)
         bs, weight = bsdf.sample(self.ctx, si, _rand1(key, depth, _DIM_BSDF1),
                                  _rand2(key, depth, _DIM_BSDF2), act)
-        cont = (act & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-                & self._limit(depth, 1) & (dr.max(weight) > 0))
-        ray = dr.select(cont, si.spawn_ray(si.to_world(bs.wo)), ray)
+        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        lit = smooth & ~delta & self._limit(depth, 1) & (dr.max(weight) > 0)
+        if not to_mixed:
+            lit &= to_real  # nothing to gather on the retraced shared prefix
+        ray_b = si.spawn_ray(si.to_world(bs.wo))
+        kind = "mixed" if to_mixed else "real"
+        c[f"rays_{kind}_radiance_direct"] += dr.select(lit, 1, 0)
+        le_b, role_b = self._bsdf_emission(view, si, ray_b, bs, beta * weight, lit)
+        if to_mixed:
+            lm = lm + le_b
+            if not self.same_views:
+                need_r = lit & to_real & (role_b == ROLE_VIRTUAL)
+                c["rays_real_radiance_direct"] += dr.select(need_r, 1, 0)
+                le_r, _ = self._bsdf_emission(self.real, si, ray_b, bs, beta * weight, need_r)
+                le_b = dr.select(need_r, le_r, le_b)
+        lr = lr + dr.select(to_real, le_b, 0.0)
+        # delta-specular vertices continue the walk
+        cont = act & delta & self._limit(depth, 1) & (dr.max(weight) > 0)
+        ray = dr.select(cont, ray_b, ray)
         beta = dr.select(cont, beta * weight, beta)
         return ray, beta, cont, lm, lr
 
