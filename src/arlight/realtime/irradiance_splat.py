@@ -70,6 +70,10 @@ def splat_dr(records: Records, geom: SplatGeometry, camera: Camera, kappa: float
     pix = np.flatnonzero(geom.valid)
     col, row = pix % w_img, pix // w_img
     lane_bin = (row // bin_px) * nbx + col // bin_px
+    busy = ends[lane_bin] > starts[lane_bin]  # lanes only for pixels in bins with records
+    pix, col, row, lane_bin = pix[busy], col[busy], row[busy], lane_bin[busy]
+    if len(pix) == 0:
+        return out
     j0 = mi.UInt32(starts[lane_bin].astype(np.uint32))
     j1 = mi.UInt32(ends[lane_bin].astype(np.uint32))
     colv, rowv = mi.Int32(col.astype(np.int32)), mi.Int32(row.astype(np.int32))
