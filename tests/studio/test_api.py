@@ -208,3 +208,27 @@ def test_page_and_assets_are_served(studio_server):
     assert "/static/studio.js" in page and "http" not in page.replace("http-equiv", "")
     js = urllib.request.urlopen(studio_server.url + "static/studio.js", timeout=30).read()
     assert b"new WebSocket" in js
+
+
+def test_holding_an_object_pauses_refinement_until_release(studio_server, studio_engine):
+    import asyncio
+
+    rest = studio_engine.rest_poses["bunny"]
+    head = studio_engine.proxy.project(rest.position + [0.0, 0.04, 0.0])
+
+    async def go(a):
+        await a.wait_frame()
+        await a.send({"type": "method", "name": "onepass", "seq": 1})
+        await a.wait_frame(lambda h: h["seq"] == 1 and h["refine"] >= 2, timeout=180)
+        await a.send({"type": "pick", "x": head[0], "y": head[1]})
+        assert (await a.wait_json("picked"))["object"] == "bunny"
+        s = _latest_session(studio_engine)
+        n0 = studio_engine.call(lambda: s.refine).result(60)
+        await asyncio.sleep(1.0)  # four times the idle delay: held, so no refinement
+        n1 = studio_engine.call(lambda: s.refine).result(60)
+        await a.send({"type": "release"})
+        h, _ = await a.wait_frame(lambda h: h["refine"] > n1, timeout=120)
+        return n0, n1, h["refine"]
+
+    n0, n1, n2 = run_clients(studio_server.url, go)
+    assert n1 == n0 and n2 > n1

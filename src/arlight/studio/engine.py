@@ -54,6 +54,11 @@ REFINE_IDLE_S = 0.25
 seconds: a refinement frame cannot be interrupted, so none is started while the pointer is
 busy (a pick pauses it, and the drag that follows does not wait behind one)."""
 
+HOLD_TIMEOUT_S = 10.0
+"""While the pointer holds an object (a ``pick`` that found one, until ``release``) no
+refinement frame starts, so the drag never waits behind one; a tab that never sends
+``release`` gets refinement back after this many quiet seconds."""
+
 Post = Callable[[str, Any], None]
 """How the worker hands a message to a session's connection: ``post("json", dict)`` or
 ``post("frame", bytes)``; must be thread-safe (the server wraps ``call_soon_threadsafe``)."""
@@ -109,11 +114,13 @@ class Session:
     rendered_version: int = 0
     displayed_version: int = 0
     images: dict[str, np.ndarray] | None = None  # the current (accumulated) layers
+    shown: dict[str, Any] = field(default_factory=dict)  # seq, version, method, poses of them
     stats: dict[str, float] = field(default_factory=dict)
     accumulators: dict[str, Accumulator] = field(default_factory=dict)
     refine: int = 0  # frames accumulated for the current version (progressive methods)
     closed: bool = False
     last_message: float = 0.0  # time.monotonic() of the newest client message
+    holding: bool = False  # the pointer holds the picked object (pick .. release)
     frames_sent: int = 0
     superseded: int = 0
     errors: int = 0
@@ -378,9 +385,15 @@ class Engine:
                 return "display"
             if (s.refine and self.catalogue[s.method].progressive
                     and s.refine < self.config.max_refine
-                    and time.monotonic() - s.last_message >= REFINE_IDLE_S):
+                    and self._quiet(s)):
                 return "refine"
         return None
+
+    @staticmethod
+    def _quiet(s: Session) -> bool:
+        """Whether a progressive session may start a refinement frame (``s.lock`` held)."""
+        quiet = time.monotonic() - s.last_message
+        return quiet >= (HOLD_TIMEOUT_S if s.holding else REFINE_IDLE_S)
 
     def _serve(self, s: Session, kind: str) -> None:
         try:
@@ -452,6 +465,8 @@ class Engine:
                 s.poses[msg["object"]] = s.poses[msg["object"]].with_(
                     msg.get("yaw_deg"), msg.get("scale"))
                 s.bump(msg.seq)
+            elif kind == "release":
+                s.holding = False
             elif kind == "reset":
                 s.poses = dict(self.rest_poses)
                 s.pending_drag = None
@@ -481,7 +496,7 @@ class Engine:
             uv = self.proxy.project(poses[name].position)
             grab = (uv[0] - x, uv[1] - y) if uv is not None else (0.0, 0.0)
         with s.lock:
-            s.selected, s.grab = name, grab
+            s.selected, s.grab, s.holding = name, grab, name is not None
         return {"type": "picked", "object": name, "seq": seq}
 
     # ------------------------------------------------------------------ rendering
@@ -493,29 +508,30 @@ class Engine:
             self._states[name] = get_method(name).prepare(self.scene.world, self.settings)
         return self._states[name]
 
-    def _resolve_drag(self, s: Session) -> int:
+    def _resolve_drag(self, s: Session) -> tuple[int, int | None]:
         """Stand the picked object on the surface under the pending drag target; returns
-        the session version this covers (a message after it makes the frame stale)."""
+        the session version and client seq this covers (a later message makes the frame
+        stale)."""
         with s.lock:
-            version, target, name = s.version, s.pending_drag, s.selected
+            version, seq, target, name = s.version, s.seq, s.pending_drag, s.selected
             s.pending_drag = None
         if target is None or name is None:
-            return version
+            return version, seq
         hit = self.proxy.support(*target)
         if hit is None:
             s.post("json", {"type": "status", "message": "no real surface to stand on "
                             "there; the object stays"})
-            return version
+            return version, seq
         with s.lock:
             s.poses[name] = s.poses[name].moved_to(hit.position)
-        return version
+        return version, seq
 
     def _render(self, s: Session, refine: bool) -> None:
         t0 = time.perf_counter()
         with s.lock:
-            version = s.version
+            version, seq = s.version, s.seq
         if not refine:
-            version = self._resolve_drag(s)
+            version, seq = self._resolve_drag(s)
         with s.lock:
             method, poses = s.method, dict(s.poses)
             n = s.refine + 1 if refine else 1
@@ -540,6 +556,8 @@ class Engine:
             else:
                 s.rendered_version = version
             s.images, s.refine = self._fold(s, layers, n, progressive)
+            s.shown = {"seq": seq, "version": version, "method": method,
+                       "objects": {k: p.to_json() for k, p in poses.items()}}
             s.stats = {**{k: float(v) for k, v in layers.stats.items()
                           if k.startswith("time_")},
                        "time_place": t_place, "render_s": t_render}
@@ -565,10 +583,8 @@ class Engine:
                 return
             images, layer, ev = s.images, s.layer, s.exposure
             header: dict[str, Any] = {
-                "type": "frame", "seq": s.seq, "version": s.version, "method": s.method,
-                "layer": layer, "exposure": ev, "refine": s.refine,
-                "superseded": superseded, "stats": dict(s.stats),
-                "objects": {k: p.to_json() for k, p in s.poses.items()}}
+                "type": "frame", **s.shown, "layer": layer, "exposure": ev,
+                "refine": s.refine, "superseded": superseded, "stats": dict(s.stats)}
             s.displayed_version = s.display_version
         codes = imaging.display(layer, images, self.scene.camera.transfer, ev,
                                 self.ground_truth)

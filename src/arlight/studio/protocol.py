@@ -14,6 +14,7 @@ method     ``name``: switch to a registered interactive method
 exposure   ``ev``: display exposure offset, EV, in [−16, 16]
 layer      ``name``: composite, mixed, delta, mask or error
 reset      put every object back in its rest pose
+release    the pointer is up (a pick that found an object holds refinement until then)
 save       ``name``: file stem; writes ``<name>.toml`` (+ frame) and ``<name>.png``
 ========== ==================================================================================
 
@@ -57,6 +58,7 @@ FIELDS: dict[str, tuple[set[str], set[str]]] = {  # type -> (required, optional)
     "exposure": ({"ev"}, set()),
     "layer": ({"name"}, set()),
     "reset": (set(), set()),
+    "release": (set(), set()),
     "save": ({"name"}, set()),
 }
 

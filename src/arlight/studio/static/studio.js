@@ -27,10 +27,13 @@ function setStatus(text, isError) {
 }
 
 function send(msg, track) {
+  // track: a change that a frame will show; it gets a seq, echoed by that frame's header
   if (!ws || ws.readyState !== WebSocket.OPEN) return null;
-  studio.seq += 1;
-  msg.seq = studio.seq;
-  if (track) studio.sendTimes.set(msg.seq, {t: performance.now(), type: msg.type});
+  if (track) {
+    studio.seq += 1;
+    msg.seq = studio.seq;
+    studio.sendTimes.set(msg.seq, {t: performance.now(), type: msg.type});
+  }
   ws.send(JSON.stringify(msg));
   return msg.seq;
 }
@@ -208,7 +211,11 @@ canvas.addEventListener("pointermove", (ev) => {
   const p = pixel(ev);
   send({type: "drag", x: p.x, y: p.y}, true);
 });
-const endDrag = () => { dragging = false; canvas.classList.remove("dragging"); };
+const endDrag = () => {
+  dragging = false;
+  canvas.classList.remove("dragging");
+  send({type: "release"}, false);   // progressive refinement may resume
+};
 canvas.addEventListener("pointerup", endDrag);
 canvas.addEventListener("pointercancel", endDrag);
 canvas.addEventListener("wheel", (ev) => {
