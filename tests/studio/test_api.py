@@ -232,3 +232,34 @@ def test_holding_an_object_pauses_refinement_until_release(studio_server, studio
 
     n0, n1, n2 = run_clients(studio_server.url, go)
     assert n1 == n0 and n2 > n1
+
+
+def test_a_failing_render_is_reported_to_its_tab_only(studio_server, studio_engine,
+                                                      monkeypatch):
+    failing: set[int] = set()
+    render = studio_engine._render
+
+    def flaky(s, refine):
+        if s.id in failing:
+            raise RuntimeError("render exploded")
+        return render(s, refine)
+
+    monkeypatch.setattr(studio_engine, "_render", flaky)
+
+    async def go(a, b):
+        await a.wait_frame()
+        await b.wait_frame()
+        failing.add(_latest_session(studio_engine).id - 1)  # a's session (opened first)
+        await a.send({"type": "pose", "object": "bunny", "yaw_deg": 10, "seq": 1})
+        await b.send({"type": "pose", "object": "bunny", "yaw_deg": 20, "seq": 1})
+        err = await a.wait_json("error")
+        hb, _ = await b.wait_frame(lambda h: h["seq"] == 1)
+        failing.clear()  # the tab recovers with its next change
+        await a.send({"type": "pose", "object": "bunny", "yaw_deg": 30, "seq": 2})
+        ha, _ = await a.wait_frame(lambda h: h["seq"] == 2)
+        return err, hb, ha, [m for m in b.json if m["type"] == "error"]
+
+    err, hb, ha, b_errors = run_clients(studio_server.url, go, n=2)
+    assert "render exploded" in err["message"]
+    assert hb["objects"]["bunny"]["yaw_deg"] == 20 and not b_errors
+    assert ha["objects"]["bunny"]["yaw_deg"] == 30
