@@ -13,9 +13,11 @@ import pytest
 
 from tests.methods.test_dlpv import suite_quality
 
+SLOW = pytest.mark.slow  # ~5 s each on an idle machine; bunny-box runs in CI
 
-@pytest.mark.parametrize("name", ["bunny-box", "cornell-near-field", "red-paper",
-                                  "mirror-dragon", "outdoor-env", "glass-ring"])
+
+@pytest.mark.parametrize("name", ["bunny-box", *(pytest.param(n, marks=SLOW) for n in (
+    "cornell-near-field", "red-paper", "mirror-dragon", "outdoor-env", "glass-ring"))])
 def test_quality_against_ground_truth(name):
     r = suite_quality("dic", name)
     virtual = 0.8 if name == "glass-ring" else 0.3
