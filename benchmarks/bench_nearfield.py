@@ -106,7 +106,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     ap.add_argument("--quick", action="store_true", help="small images, few variants")
-    ap.add_argument("--tau", type=float, default=0.9)
+    ap.add_argument("--tau", type=float, default=0.6)
     args = ap.parse_args()
     q = args.quick
     suite = get_scene("cornell-near-field", quick=q)
@@ -159,7 +159,7 @@ def main() -> None:
                          vpl_light(srv, n, "direct", ours.sh)))
     variants.append(("(3) clustered VPLs without split (τ = 1), M = 16", clustered))
     variants.append((f"(4) ours: split τ = {args.tau:g} + 16 VALs + SH", ours))
-    for tau in ((0.75,) if q else (0.5, 0.6, 0.75, 0.98)):
+    for tau in ((0.9,) if q else (0.5, 0.75, 0.9, 0.98)):
         variants.append((f"(4) ours, τ = {tau:g}", server_for(tau).light))
     variants.append(("(4) ours, M = 64", server_for(args.tau, 64).light))
     variants.append(("(5) PRT alone (τ = 0: SH only)", prt_only))

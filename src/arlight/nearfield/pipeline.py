@@ -58,7 +58,8 @@ class NearFieldSettings:
         atlas_resolution: atlas side, texels (Rohmer: 1024).
         supersample: sub-samples per texel side for texel area / position.
         dilation: dilation range, texels (2).
-        tau: direct share of the total radiant intensity, in [0, 1] (examples: 0.75–0.98).
+        tau: direct share of the total radiant intensity, in [0, 1] (Rohmer's examples:
+            0.75–0.98; 0.6 measured best on cornell-near-field, benchmarks/RESULTS.md).
         vals: number of VALs M (8–64; 16 in Table 1).
         samples: importance samples for the clustering (4096).
         iterations: k-means iterations per update (20).
@@ -71,7 +72,7 @@ class NearFieldSettings:
     atlas_resolution: int = 256
     supersample: int = 4
     dilation: int = 2
-    tau: float = 0.9
+    tau: float = 0.6
     vals: int = 16
     samples: int = 4096
     iterations: int = 20
