@@ -105,7 +105,7 @@ def test_unknown_option_lists_the_known_ones_for_every_method():
                                          r"light_sampling, mirror_lower_hemisphere, mode, "
                                          r"photon_radius, photons, ppm_alpha, "
                                          r"ppm_iterations, replica_mode, replicas, "
-                                         r"reproject, sampler"):
+                                         r"reproject, sample_offset, sampler"):
         get_method("onepass").spec.parse_options({"reprojct": False})
     with pytest.raises(InputError, match=r"options\.spp: .*reference takes no options"):
         get_method("reference")(small(), RenderSettings(spp=1, options={"spp": 4}))
@@ -122,7 +122,7 @@ def test_option_types_defaults_and_command_line_strings():
                                      "photon_radius": 0.01, "ppm_iterations": 1,
                                      "ppm_alpha": 0.7, "sampler": "sobol",
                                      "replicas": 16, "replica_mode": "scrambles",
-                                     "light_sampling": "solid_angle"}
+                                     "light_sampling": "solid_angle", "sample_offset": 0}
     opts = spec.parse_options({"reproject": "false", "mode": "twopass"})
     assert opts.reproject is False and opts["mode"] == "twopass" and opts.env_mode == "mis"
     assert spec.parse_options({"reproject": "TRUE"}).reproject is True

@@ -112,7 +112,8 @@ def effective_replicas(spp: int, replicas: int) -> int:
 def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                spp_per_pass: int | None = None, progress: str | None = None,
                max_lanes: int = 2_000_000, sampler: str | None = None,
-               replicas: int = 1, scramble_replicas: bool = True) -> PassResult:
+               replicas: int = 1, scramble_replicas: bool = True,
+               sample_offset: int = 0) -> PassResult:
     """Evaluate ``kernel`` on ``spp`` camera samples per pixel and accumulate moments.
 
     Args:
@@ -132,6 +133,10 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             scrambled sequence of ``spp`` points per pixel — the whole pixel is one net (the
             lower error of a single sequence), and the spread of the block means gives a
             conservative standard error (blocks of one net are negatively correlated).
+        sample_offset: with a ``sampler``, the render draws samples ``[sample_offset,
+            sample_offset + spp)`` of every pixel's sequences (a multiple of the replicas):
+            renders with the same seed and consecutive offsets continue one low-discrepancy
+            sequence (progressive refinement), their mean is a render of all their samples.
     """
     if sampler is not None and sampler not in SAMPLERS:
         raise InputError(f"unknown sampler {sampler!r} (expected one of {SAMPLERS})",
@@ -143,6 +148,13 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
     n_rep = effective_replicas(spp, replicas)
     per_pass = spp_per_pass or max(1, min(spp, max_lanes // n_pix))
     per_pass = max(n_rep, per_pass // n_rep * n_rep)
+    if sample_offset < 0 or sample_offset % n_rep:
+        raise InputError(f"must be >= 0 and a multiple of the {n_rep} replicas, got "
+                         f"{sample_offset}", field="sample_offset")
+    offset_u = dr.opaque(mi.UInt32, sample_offset)
+    # the multi-jittered camera of `independent` stratifies spp samples: other offsets
+    # (other frames) get other patterns through the seed
+    cmj_seed = (seed ^ (sample_offset * 0x2C1B3C6D)) & 0xFFFFFFFF
     result = PassResult()
     start = time.perf_counter()
     bar = _progress(progress, spp)
@@ -159,21 +171,24 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             j = t % m + dr.opaque(mi.UInt32, k0 // n_rep)  # sample index within the replica
             k = j * n_rep + replica  # sample index within the pixel
             seed_u = dr.opaque(mi.UInt32, seed)
+            cmj_u = dr.opaque(mi.UInt32, cmj_seed)
             pass_seed = dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + k0 * 0x85EBCA77) & 0xFFFFFFFF)
             if sampler is None:
-                rays = generate_rays(camera, pixel, k, spp, seed_u)
+                rays = generate_rays(camera, pixel, k, spp, cmj_u)
                 outputs = kernel(rays, pixel, pass_seed, lanes)
             else:
-                if scramble_replicas:
-                    stream = LaneSampler.for_samples(sampler, pixel, replica, j, seed_u)
-                else:  # block r of one sequence: index r·spp/R + j, one scramble per pixel
+                if scramble_replicas:  # sample offset/R + j of replica r's own sequence
+                    stream = LaneSampler.for_samples(sampler, pixel, replica,
+                                                     j + offset_u // n_rep, seed_u)
+                else:  # block r of one sequence: index offset + r·spp/R + j
                     stream = LaneSampler.for_samples(sampler, pixel, mi.UInt32(0),
-                                                     replica * (spp // n_rep) + j, seed_u)
+                                                     offset_u + replica * (spp // n_rep) + j,
+                                                     seed_u)
                 if sampler == "sobol":
                     lens = stream.next_2d(CAMERA_LENS) if camera.aperture_radius > 0 else None
                     rays = rays_from_samples(camera, pixel, stream.next_2d(CAMERA_PIXEL), lens)
                 else:
-                    rays = generate_rays(camera, pixel, k, spp, seed_u)
+                    rays = generate_rays(camera, pixel, k, spp, cmj_u)
                 outputs = kernel(rays, pixel, pass_seed, lanes, stream)
             dr.eval(outputs)  # one render kernel; the reductions below read its results
             sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n),

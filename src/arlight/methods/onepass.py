@@ -11,7 +11,8 @@ prints them): ``env_mode`` (``mis`` | ``miss_only``), ``mirror_lower_hemisphere`
 ``reproject``, ``mode`` (``onepass`` | ``twopass``: the same tracer run separately on the mixed
 and the real view, with the same random numbers — the baseline of the equivalence test and
 of the ray counts), ``sampler`` (``sobol`` | ``independent``), ``replicas`` and
-``replica_mode`` (the standard errors' independent randomisations, :mod:`arlight.backend.passes`),
+``replica_mode`` (the standard errors' independent randomisations), ``sample_offset``
+(progressive frames continuing one sequence, :mod:`arlight.backend.passes`),
 ``light_sampling`` (``solid_angle`` | ``mitsuba``, :mod:`arlight.sampling.lights`), ``caustics``
 (``none`` | ``photons``: differential caustic photon mapping, :mod:`arlight.methods.photons`)
 with ``photons``, ``photon_radius`` (m), ``ppm_iterations``, ``ppm_alpha``.
@@ -82,6 +83,9 @@ OPTIONS: dict[str, Field] = {
                           "scrambling (unbiased errors); `blocks`: the replicas are blocks of "
                           "one scrambled sequence per pixel (lower error, conservative "
                           "standard errors)", choices=("scrambles", "blocks")),
+    "sample_offset": Field("int", 0, "first sample index drawn in every pixel (a multiple of "
+                           "the replicas): progressive frames with one seed and offsets n·spp "
+                           "continue one Sobol sequence", min=0, max=2**31 - 1),
     "light_sampling": Field("choice", "solid_angle", "`solid_angle`: lights chosen by "
                             "estimated power, rectangular lights sampled by solid angle "
                             "(spherical rectangles, Ureña 2013); `mitsuba`: the scene's own "
@@ -210,7 +214,8 @@ class OnePassMethod(BaseMethod):
                              spp_per_pass=settings.spp_per_pass,
                              progress="onepass" if settings.progress else None,
                              sampler=options.sampler, replicas=options.replicas,
-                             scramble_replicas=options.replica_mode == "scrambles")
+                             scramble_replicas=options.replica_mode == "scrambles",
+                             sample_offset=options.sample_offset)
         with timer.stage("assemble"):
             stats = ray_stats(counts, res.lanes)
             stats["stderr_replicas"] = float(res.moments["mixed"].replicas)
