@@ -46,3 +46,14 @@ def test_static_input_gives_identical_vals_and_names_work(setup):
     assert b.sequence == 3
     with pytest.raises(InputError, match="images"):
         s.update(imgs[:-1])
+
+
+def test_settings_change_between_updates(setup):
+    w, rig, imgs = setup
+    s = NearFieldServer(w, rig, NearFieldSettings(atlas_resolution=48, tau=0.8, vals=6))
+    assert s.update(imgs).count == 6
+    new = NearFieldSettings(atlas_resolution=999, tau=0.8, vals=3)
+    assert s.update(imgs, settings=new).count == 3
+    assert new.atlas_resolution == 999 and s.settings.atlas_resolution == 48
+    with pytest.raises(InputError, match="τ"):
+        s.update(imgs, settings=NearFieldSettings(tau=1.5))

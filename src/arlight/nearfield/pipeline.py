@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -203,8 +203,9 @@ class NearFieldServer:
             images: one linear HDR image ``(H, W, 3)`` per camera, in rig order (or by
                 camera name).
             timestamp: seconds since the epoch (default: now).
-            settings: replaces τ / M / … for this and later updates (the atlas resolution
-                and supersampling stay those of the constructor).
+            settings: replaces τ / M / … for this and later updates (the atlas resolution,
+                supersampling and cube-map side stay those of the constructor; the caller's
+                object is not modified).
 
         Raises:
             InputError: wrong number of images, an image that does not match its camera, a
@@ -212,9 +213,9 @@ class NearFieldServer:
         """
         if settings is not None:
             settings.check()
-            keep = (self.settings.atlas_resolution, self.settings.supersample)
-            self.settings = settings
-            self.settings.atlas_resolution, self.settings.supersample = keep
+            self.settings = replace(settings, atlas_resolution=self.settings.atlas_resolution,
+                                    supersample=self.settings.supersample,
+                                    cube_resolution=self.settings.cube_resolution)
         s = self.settings
         if isinstance(images, Mapping):
             missing = [c.name for c in self.cameras if c.name not in images]
