@@ -138,3 +138,32 @@ def test_save_button_writes_a_valid_scene_file(page, studio_engine):
     pose = studio_engine.rest_poses["bunny"].moved_to(np.array(pos))
     np.testing.assert_allclose(bunny.to_world, pose.matrix() @ rest.to_world, atol=1e-9)
     assert (studio_engine.save_dir / "from_browser.png").is_file()
+
+
+def test_scale_and_rotate_sliders_exposure_and_layers(page, studio_engine):
+    before = _snapshot(studio_engine)["mask"].sum()
+    page.fill("#scale", "1")  # log2 scale: 2×
+    page.wait_for_function("window.studio.header.objects.bunny.scale === 2 && "
+                           "!window.studio.header.superseded", timeout=TIMEOUT_MS)
+    ratio = _snapshot(studio_engine)["mask"].sum() / before
+    assert 3.0 < ratio < 5.0, ratio  # twice the size: about four times the area
+    page.fill("#yaw", "90")
+    page.wait_for_function("window.studio.header.objects.bunny.yaw_deg === 90",
+                           timeout=TIMEOUT_MS)
+    page.click("#layers input[value=mask]")
+    page.wait_for_function("window.studio.header.layer === 'mask'", timeout=TIMEOUT_MS)
+    mask = _canvas(page)
+    grey = mask.mean(axis=2)
+    assert (grey > 200).mean() > 0.01 and (grey < 30).mean() > 0.8  # object, white on black
+    page.click("#layers input[value=composite]")
+    page.fill("#exposure", "2")
+    page.wait_for_function("window.studio.header.exposure === 2 && "
+                           "window.studio.header.layer === 'composite'", timeout=TIMEOUT_MS)
+    assert page.inner_text("#exposure-out") == "+2.0 EV"
+    page.fill("#exposure", "0")
+    page.fill("#scale", "0")
+    page.fill("#yaw", "0")
+    page.wait_for_function("window.studio.header.objects.bunny.scale === 1 && "
+                           "window.studio.header.objects.bunny.yaw_deg === 0 && "
+                           "window.studio.header.exposure === 0", timeout=TIMEOUT_MS)
+    assert not page.errors
