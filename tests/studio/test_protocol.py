@@ -76,3 +76,24 @@ def test_frame_message_round_trip():
     assert split_frame(data) == (header, b"\xff\xd8jpeg")
     with pytest.raises(ValueError):
         frame_message({"x": float("nan")}, b"")
+
+
+def test_outbox_keeps_the_newest_frame_and_a_bounded_json_queue():
+    import asyncio
+
+    from arlight.studio.server import MAX_QUEUED_JSON, Outbox
+
+    loop = asyncio.new_event_loop()
+    try:
+        box = Outbox(loop)
+        for i in range(3):
+            box._put("frame", bytes([i]))
+        for i in range(MAX_QUEUED_JSON + 10):
+            box._put("json", {"i": i})
+        assert len(box.json) == MAX_QUEUED_JSON and box.json[0] == {"i": 10}
+        assert box.dropped == 2 + 10
+        got = [loop.run_until_complete(box.next()) for _ in range(MAX_QUEUED_JSON + 1)]
+        assert got[-1] == ("frame", b"\x02")  # JSON in order first, then the newest frame
+        assert [m["i"] for _, m in got[:-1]] == list(range(10, MAX_QUEUED_JSON + 10))
+    finally:
+        loop.close()

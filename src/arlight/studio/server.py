@@ -31,6 +31,9 @@ STATIC_FILES = {"studio.js": "text/javascript", "studio.css": "text/css"}
 """The static files served (from ``arlight/studio/static``), with their content types."""
 
 ENGINE_KEY = web.AppKey("engine", Engine)
+MAX_QUEUED_JSON = 256
+"""Most JSON messages kept for a client that does not read (the oldest are dropped): a
+flood of bad messages from a tab that never reads its replies cannot grow the server."""
 
 
 def _static(name: str) -> bytes:
@@ -49,7 +52,7 @@ class Outbox:
         self.json: collections.deque[dict[str, Any]] = collections.deque()
         self.frame: bytes | None = None
         self.event = asyncio.Event()
-        self.dropped = 0  # frames replaced before they were sent
+        self.dropped = 0  # frames replaced and JSON messages dropped before they were sent
 
     def post(self, kind: str, payload: Any) -> None:
         """Thread-safe: queue ``payload`` (``kind`` "json" or "frame")."""
@@ -64,6 +67,9 @@ class Outbox:
                 self.dropped += 1
             self.frame = payload
         else:
+            if len(self.json) >= MAX_QUEUED_JSON:
+                self.json.popleft()
+                self.dropped += 1
             self.json.append(payload)
         self.event.set()
 
