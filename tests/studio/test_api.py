@@ -175,23 +175,29 @@ def test_save_writes_a_scene_that_loads_with_the_new_pose(studio_server, studio_
     assert np.array_equal(sc.frame_codes, studio_engine.full.frame_codes)
 
 
-def test_save_never_overwrites_the_scene_inputs(studio_server, studio_engine):
+def test_save_never_overwrites_the_scene_inputs(studio_server, studio_engine, tmp_path,
+                                                monkeypatch):
+    # the engine's inputs include the scene file and every file it references
     from arlight.demo import DEMO_DIR
 
-    before = (DEMO_DIR / "scene.toml").read_bytes()
-    saved_dir = studio_engine.save_dir
-    studio_engine.save_dir = DEMO_DIR.resolve()
-    try:
-        async def go(a):
-            await a.wait_frame()
-            await a.send({"type": "save", "name": "scene"})
-            return await a.wait_json("error")
+    for name in ("scene.toml", "frame.png", "bunny.ply", "lebombo_512x256.hdr"):
+        assert (DEMO_DIR / name).resolve() in studio_engine.inputs
+    # a save folder holding an input (here a stand-in, so that a broken check cannot
+    # overwrite the bundled scene): refused, the file untouched
+    sentinel = tmp_path / "scene.toml"
+    sentinel.write_text("original")
+    monkeypatch.setattr(studio_engine, "save_dir", tmp_path.resolve())
+    monkeypatch.setattr(studio_engine, "inputs", {*studio_engine.inputs, sentinel.resolve()})
 
-        err = run_clients(studio_server.url, go)
-    finally:
-        studio_engine.save_dir = saved_dir
+    async def go(a):
+        await a.wait_frame()
+        await a.send({"type": "save", "name": "scene"})
+        return await a.wait_json("error")
+
+    err = run_clients(studio_server.url, go)
     assert "input of the scene" in err["message"]
-    assert (DEMO_DIR / "scene.toml").read_bytes() == before
+    assert sentinel.read_text() == "original"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
 
 
 @pytest.mark.parametrize("path", ["static/../engine.py", "static/%2E%2E%2Fengine.py",
