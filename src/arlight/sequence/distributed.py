@@ -53,9 +53,13 @@ def _check_reachable(address: str) -> None:
                          "`ray start --head` (see docs/sequence.md)", field="--ray") from exc
 
 
-def connect(address: str, workers: int | None) -> dict[str, Any]:
-    """Start or join Ray; returns ``{"address", "cpus", "nodes"}``. InputError when Ray is
-    not installed or the cluster cannot be reached."""
+def connect(address: str, workers: int | None, threads: int = 1) -> dict[str, Any]:
+    """Start or join Ray; returns ``{"address", "cpus", "nodes", "max_node_cpus"}``.
+
+    ``auto`` starts a local instance with ``workers × threads`` CPUs (``workers`` default:
+    all CPUs / ``threads``), so that ``workers`` tasks of ``threads`` CPUs each run at once.
+    InputError when Ray is not installed, the cluster cannot be reached, or no node has
+    ``threads`` CPUs (the tasks could never be scheduled)."""
     try:
         import ray
     except ImportError as exc:
@@ -67,7 +71,8 @@ def connect(address: str, workers: int | None) -> dict[str, Any]:
                           "configure_logging": False}
     try:
         if address == "auto":
-            ray.init(num_cpus=workers or os.cpu_count() or 1, **kw)
+            n = workers or max(1, (os.cpu_count() or 1) // threads)
+            ray.init(num_cpus=n * threads, **kw)
         else:
             _check_reachable(address)
             ray.init(address=address, **kw)
@@ -77,8 +82,14 @@ def connect(address: str, workers: int | None) -> dict[str, Any]:
         raise InputError(f"cannot start or join Ray at {address!r} "
                          f"({type(exc).__name__}: {exc})", field="--ray") from exc
     res = ray.cluster_resources()
-    return {"address": address, "cpus": float(res.get("CPU", 0)),
-            "nodes": len([n for n in ray.nodes() if n.get("Alive")])}
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    biggest = max((float(n.get("Resources", {}).get("CPU", 0)) for n in nodes), default=0.0)
+    if biggest < threads:
+        ray.shutdown()
+        raise InputError(f"each task asks for {threads} CPUs (--threads) but the largest Ray "
+                         f"node has {biggest:g}; lower --threads", field="--threads")
+    return {"address": address, "cpus": float(res.get("CPU", 0)), "nodes": len(nodes),
+            "max_node_cpus": biggest}
 
 
 def shutdown() -> None:

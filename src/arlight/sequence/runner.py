@@ -162,7 +162,7 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
     if opts.ray is not None:
         from arlight.sequence import distributed
 
-        info = distributed.connect(opts.ray, opts.workers)  # an unreachable cluster: here
+        info = distributed.connect(opts.ray, opts.workers, job.threads or 1)  # fails here
     connected = time.perf_counter()
     try:
         done = store.open(opts.restart)
@@ -199,7 +199,7 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
             else:
                 from arlight.sequence import distributed
 
-                summary.workers = int(opts.workers or info["cpus"] or 1)
+                summary.workers = int(opts.workers or info["cpus"] // (job.threads or 1) or 1)
                 distributed.run(job, frames, summary.workers, take)
         except KeyboardInterrupt:
             bar.close()
