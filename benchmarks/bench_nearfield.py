@@ -178,7 +178,7 @@ def main() -> None:
         print(name, {k: v for k, v in m.items() if k != "stages"}, flush=True)
 
     # ---------------------------------------------------------------- client budget
-    stage_names = ["gbuffer", "indirect", "shadow_maps", "direct", "assemble"]
+    stage_names = ["gbuffer", "indirect", "shadow_maps", "cull", "direct", "assemble"]
     budgets = {}
     for case in ("new light state (maps rebuilt)", "same light state (maps reused)"):
         runs_c = []

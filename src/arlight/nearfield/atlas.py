@@ -325,26 +325,40 @@ def rasterize(mesh: ProxyMesh, layout: AtlasLayout, supersample: int = 4) -> Atl
 def dilate(values: np.ndarray, valid: np.ndarray, steps: int = 2) -> np.ndarray:
     """Fill texels within ``steps`` texels of valid ones with the mean of their valid
     8-neighbours, one ring per step (Rohmer §4.1: "dilatation … with a range of 2 texels"
-    hides seams); valid texels are unchanged."""
-    out = np.array(values, np.float64, copy=True)
-    ok = np.asarray(valid, bool).copy()
-    R0, R1 = ok.shape
+    hides seams); valid texels are unchanged. Only the ring texels are computed (a gather
+    from a 1-texel padded copy); float32 input stays float32."""
+    values = np.asarray(values)
+    dt = np.float32 if values.dtype == np.float32 else np.float64
+    R0, R1 = values.shape[:2]
+    C = values.shape[2] if values.ndim == 3 else 1
+    W = R1 + 2
+    pad = np.zeros((R0 + 2, W, C), dt)
+    pad[1:-1, 1:-1] = values.reshape(R0, R1, C)
+    ok = np.zeros((R0 + 2, W), bool)
+    ok[1:-1, 1:-1] = np.asarray(valid, bool)
+    flat_v, flat_ok = pad.reshape(-1, C), ok.reshape(-1)
+    offsets = [dy * W + dx for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+    inner = np.zeros_like(ok)
+    inner[1:-1, 1:-1] = True
     for _ in range(int(steps)):
-        acc = np.zeros_like(out)
-        n = np.zeros(ok.shape)
-        pad_v = np.pad(out * ok[..., None] if out.ndim == 3 else out * ok, [(1, 1), (1, 1)]
-                       + [(0, 0)] * (out.ndim - 2))
-        pad_m = np.pad(ok.astype(np.float64), 1)
+        near = np.zeros_like(ok)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
-                if dy == 0 and dx == 0:
-                    continue
-                acc += pad_v[1 + dy:1 + dy + R0, 1 + dx:1 + dx + R1]
-                n += pad_m[1 + dy:1 + dy + R0, 1 + dx:1 + dx + R1]
-        fill = ~ok & (n > 0)
-        out[fill] = acc[fill] / (n[fill][:, None] if out.ndim == 3 else n[fill])
-        ok |= fill
-    return out
+                if dy or dx:
+                    near[1:-1, 1:-1] |= ok[1 + dy:R0 + 1 + dy, 1 + dx:R1 + 1 + dx]
+        idx = np.flatnonzero(near & ~ok & inner)
+        if len(idx) == 0:
+            break
+        acc = np.zeros((len(idx), C), dt)
+        n = np.zeros(len(idx), dt)
+        for o in offsets:
+            m = flat_ok[idx + o]
+            acc += flat_v[idx + o] * m[:, None]
+            n += m
+        flat_v[idx] = acc / n[:, None]
+        flat_ok[idx] = True
+    out = pad[1:-1, 1:-1]
+    return out.copy() if values.ndim == 3 else out[..., 0].copy()
 
 
 __all__ = ["GUTTER", "AtlasGeometry", "AtlasLayout", "ProxyMesh", "dilate", "layout_charts",

@@ -190,7 +190,7 @@ class NearFieldServer:
     # ------------------------------------------------------------------ update
     def _atlas_image(self, values: np.ndarray) -> np.ndarray:
         R = self.settings.atlas_resolution
-        img = np.zeros((R * R, 3))
+        img = np.zeros((R * R, 3), np.float32)
         img[self._texels] = values
         return img.reshape(R, R, 3)
 
@@ -240,10 +240,10 @@ class NearFieldServer:
         with timer.stage("split"):
             direct_img = self._atlas_image(sp.direct)
             indirect_img = self._atlas_image(sp.indirect)
-        with timer.stage("dilate"):
-            cov = self.geometry.covered
-            direct_img = dilate(direct_img, cov, s.dilation)
-            indirect_img = dilate(indirect_img, cov, s.dilation)
+        with timer.stage("dilate"):  # both atlases in one pass (6 channels)
+            both = dilate(np.concatenate([direct_img, indirect_img], axis=2),
+                          self.geometry.covered, s.dilation)
+            direct_img, indirect_img = both[..., :3], both[..., 3:]
         vals = extract_vals(self.position, self.normal, self.area, sp.direct, sp.any_direct,
                             s.vals, self.scale, s.samples, s.iterations, s.normal_weight,
                             self.centres, s.seed, timer)

@@ -97,7 +97,7 @@ def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
                          field=f"cameras.{cam.name}")
     rad = np.zeros((len(w), 3))
     seen = w > 0
-    rad[seen] = bilinear(img[..., :3].astype(np.float64), pix[seen])
+    rad[seen] = bilinear(img[..., :3], pix[seen])
     return CameraProjection(w, rad)
 
 
