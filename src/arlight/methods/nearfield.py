@@ -216,7 +216,7 @@ def render_with_light(data: NearFieldData, view: FrameView, options: Options,
         with timer.stage("cull"):
             lanes = None
             if data.sphere is not None:
-                lanes = tile_lanes(light, np.array(gb.position, np.float64).T,
+                lanes = tile_lanes(light, np.array(gb.position).T,
                                    np.array(gb.valid, bool), np.array(gb.virtual, bool),
                                    gb.width, gb.height, gb.spp, data.sphere)
         with timer.stage("direct"):

@@ -219,12 +219,7 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
     corners = np.stack([np.where(np.array(b)[None, :] == 1, hi, lo) for b in
                         np.ndindex(2, 2, 2)], axis=1)  # (tiles, 8, 3)
     corners = np.where(has[:, None, None], corners, 0.0)
-    lane = np.flatnonzero(ok)
-    pix = lane // spp
-    tile = (pix // width // T) * tx + (pix % width) // T
-    order = np.argsort(tile, kind="stable")  # valid lanes grouped by tile (CSR)
-    counts = np.bincount(tile, minlength=ty * tx)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    lanes_of_tile = tiled(np.where(ok, np.arange(len(ok)), -1)[:, None], -1)[..., 0]
     fr = frusta(light, sphere)
     out = []
     for j in range(light.count):
@@ -237,11 +232,8 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
                        | np.all(front & (s <= -1), 1) | np.all(front & (q >= 1), 1)
                        | np.all(front & (q <= -1), 1))
             keep &= has_virtual | ~outside
-        k = np.flatnonzero(keep)
-        sizes = counts[k]
-        total = int(sizes.sum())
-        offs = np.repeat(starts[k] - np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes)
-        out.append(lane[order[offs + np.arange(total)]].astype(np.uint32))
+        cand = lanes_of_tile[keep].reshape(-1)
+        out.append(cand[cand >= 0].astype(np.uint32))
     return out
 
 
@@ -324,14 +316,15 @@ class _Lanes:
     to_eye: mi.Vector3f
     virtual: mi.Bool
     valid: mi.Bool
-    kind: mi.Int32
-    ks: mi.Color3f
-    ex: mi.Float
-    eta: mi.Color3f
-    k: mi.Color3f
+    kind: mi.Int32 | None = None  # the material fields are None when every shape is diffuse
+    ks: mi.Color3f | None = None
+    ex: mi.Float | None = None
+    eta: mi.Color3f | None = None
+    k: mi.Color3f | None = None
 
     def take(self, idx: mi.UInt32) -> _Lanes:
-        return _Lanes(*[dr.gather(type(a), a, idx) for a in vars(self).values()])
+        return _Lanes(*[None if a is None else dr.gather(type(a), a, idx)
+                        for a in vars(self).values()])
 
 
 def _shade_one(lanes: _Lanes, tab: _Tables, jj: mi.UInt32, maps: ShadowMaps | None,
@@ -349,13 +342,15 @@ def _shade_one(lanes: _Lanes, tab: _Tables, jj: mi.UInt32, maps: ShadowMaps | No
     e = mi.Color3f(dr.gather(mi.Vector3f, tab.I, jj)) * (
         cos_r * cos_s / (r2 + dr.gather(mi.Float, tab.R2, jj)))  # irradiance, W/m²
     active = lanes.valid & (cos_r > 0) & (cos_s > 0)
-    h = dr.normalize(ell + lanes.to_eye)
-    lobe = (lanes.ex + 2.0) * (0.5 / math.pi) * dr.power(dr.maximum(dr.dot(n, h), 0.0),
-                                                         lanes.ex)
-    fres = schlick_complex(dr.maximum(dr.dot(h, lanes.to_eye), 0.0), lanes.eta, lanes.k)
-    spec = dr.select(lanes.kind == KIND_METAL, fres, lanes.ks) * lobe
-    spec_on = (lanes.kind != KIND_DIFFUSE) & lanes.virtual
-    brdf = lanes.albedo * (1.0 / math.pi) + dr.select(spec_on, spec, mi.Color3f(0.0))
+    brdf = lanes.albedo * (1.0 / math.pi)
+    if lanes.kind is not None:
+        h = dr.normalize(ell + lanes.to_eye)
+        lobe = (lanes.ex + 2.0) * (0.5 / math.pi) * dr.power(dr.maximum(dr.dot(n, h), 0.0),
+                                                             lanes.ex)
+        fres = schlick_complex(dr.maximum(dr.dot(h, lanes.to_eye), 0.0), lanes.eta, lanes.k)
+        spec = dr.select(lanes.kind == KIND_METAL, fres, lanes.ks) * lobe
+        spec_on = (lanes.kind != KIND_DIFFUSE) & lanes.virtual
+        brdf = brdf + dr.select(spec_on, spec, mi.Color3f(0.0))
     L = dr.select(active, brdf * e, mi.Color3f(0.0))
     if maps is not None:
         v, vh = _lookup(maps, tab, jj, p, bias_texels)
@@ -381,13 +376,15 @@ def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: m
     parameters are read through an opaque index, so one kernel serves every VAL.
     """
     sid = mi.UInt32(dr.maximum(shape, 0))
-    lanes = _Lanes(p, n, albedo, to_eye, mi.Bool(virtual), mi.Bool(valid),
-                   dr.gather(mi.Int32, mats.kind, sid, valid),
-                   dr.gather(mi.Color3f, mats.ks, sid, valid),
-                   dr.gather(mi.Float, mats.exponent, sid, valid),
-                   dr.gather(mi.Color3f, mats.eta, sid, valid),
-                   dr.gather(mi.Color3f, mats.k, sid, valid))
-    dr.eval(*vars(lanes).values())
+    lanes = _Lanes(p, n, albedo, to_eye, mi.Bool(virtual), mi.Bool(valid))
+    if np.any(np.array(mats.kind) != KIND_DIFFUSE):  # glossy / metal shapes exist
+        lanes = _Lanes(p, n, albedo, to_eye, mi.Bool(virtual), mi.Bool(valid),
+                       dr.gather(mi.Int32, mats.kind, sid, valid),
+                       dr.gather(mi.Color3f, mats.ks, sid, valid),
+                       dr.gather(mi.Float, mats.exponent, sid, valid),
+                       dr.gather(mi.Color3f, mats.eta, sid, valid),
+                       dr.gather(mi.Color3f, mats.k, sid, valid))
+    dr.eval(*[a for a in vars(lanes).values() if a is not None])
     tab = _tables(light, maps, disc)
     width = dr.width(p)
     lit = dr.zeros(mi.Color3f, width)
