@@ -19,6 +19,10 @@ tightly contains the virtual objects' bounding sphere (outside it ``V̂ = 1`` an
 changes); a VAL inside that sphere falls back to rays. ``"rays"`` — one shadow ray per
 sample, VAL and scene (exact, slower).
 
+Tile culling (:func:`tile_lanes`, Rohmer's 8×8 tiles): a VAL shades only the tiles whose
+hit points can change — not behind its plane, and inside its frustum unless the tile holds
+virtual samples.
+
 Glossy and metal materials: :mod:`arlight.nearfield.materials`.
 """
 
