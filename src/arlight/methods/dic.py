@@ -106,7 +106,8 @@ SPEC = MethodSpec(
 
 
 def record_keys(ident: np.ndarray, seed: int) -> np.ndarray:
-    """32-bit random-sequence keys of records by id (a fixed hash of id and seed)."""
+    """32-bit random-sequence keys (a fixed hash of an integer, e.g. a pixel index, and the
+    seed)."""
     with np.errstate(over="ignore"):  # arithmetic modulo 2^64
         x = (ident.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
              + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0xBF58476D1CE4E5B9))
@@ -205,7 +206,9 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
             break
         with timer.stage("records"):
             ident = np.arange(next_id, next_id + len(pix), dtype=np.int64)
-            keys = record_keys(ident, settings.seed)
+            # the key hashes the pixel the record starts at: a record dropped and created
+            # again at the same pixel (an object moved nearby) reuses its random sequence
+            keys = record_keys(pix.astype(np.int64), settings.seed)
             vals = evaluate(geom.position[pix], geom.normal[pix], keys)
             new = _records(geom.position[pix], geom.normal[pix], keys, ident, vals,
                            batch=next_batch)
