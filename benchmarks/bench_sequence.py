@@ -82,9 +82,11 @@ def quality(seq, spp: int) -> str:
              f"6 cm and turns 60°), ground truth {GT_SPP} spp; methods at {spp} spp, seed 0 "
              "every frame unless noted. PSNR on display values (Franke Eq. 5.28, R = 1); "
              "flicker = mean over t of mean |e(t+1) − e(t)|, e = composite − GT (radiance, "
-             "and display ×1000). The ground truth's own noise alone gives a radiance flicker "
-             f"of about {ground_truth_flicker_floor(seq):.5f} (from its per-pixel standard "
-             "errors): an exact method would score that.", "",
+             "and display ×1000). Frames and ground truth are rendered with the same seeds in "
+             "every frame, so their noise is correlated from frame to frame (independent noise "
+             f"of their standard errors would give up to {ground_truth_flicker_floor(seq):.4f}"
+             "); the 'frame only' row (e = I_c − GT) is the flicker of the photographs' own "
+             "noise and proxy differences.", "",
              "| method | PSNR mean (dB) | PSNR worst (dB) | flicker (radiance) | "
              "flicker (display ×1000) | ms/frame | prepare (s) |",
              "|---|---|---|---|---|---|---|"]

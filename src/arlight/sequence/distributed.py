@@ -3,10 +3,12 @@
 Ray is imported here only, when a run asks for it; nothing else in arlight needs it.
 
 * **Connecting** (:func:`connect`): ``auto`` starts a private local Ray instance with
-  ``workers`` CPUs; ``HOST:PORT`` (the head node's GCS address, as printed by ``ray start
-  --head``) or ``ray://HOST:PORT`` (Ray Client) joins an existing cluster. The address is
-  checked with a plain TCP connection first (:data:`CONNECT_TIMEOUT_S`), so an unreachable
-  cluster is a clear :class:`InputError` before any output exists.
+  ``workers × threads`` CPUs and un-niced workers (Ray's default niceness 15 starves the
+  rendering on a machine shared with other work); ``HOST:PORT`` (the head node's GCS
+  address, as printed by ``ray start --head``) or ``ray://HOST:PORT`` (Ray Client) joins
+  an existing cluster. The address is checked with a plain TCP connection first
+  (:data:`CONNECT_TIMEOUT_S`), so an unreachable cluster is a clear :class:`InputError`
+  before any output exists.
 * **Tasks**: one task per frame (per part of a frame with ``split``), ``num_cpus =
   threads`` (the Dr.Jit threads each worker process uses,
   :func:`arlight.sequence.job.configure_threads`), ``max_retries`` =
@@ -72,7 +74,9 @@ def connect(address: str, workers: int | None, threads: int = 1) -> dict[str, An
     try:
         if address == "auto":
             n = workers or max(1, (os.cpu_count() or 1) // threads)
-            ray.init(num_cpus=n * threads, **kw)
+            # Ray nices its workers to 15 by default: on a machine shared with other work
+            # the rendering would then get only the CPU time nobody else wants
+            ray.init(num_cpus=n * threads, _system_config={"worker_niceness": 0}, **kw)
         else:
             _check_reachable(address)
             ray.init(address=address, **kw)

@@ -153,10 +153,11 @@ def sequence_job(seq: SyntheticSequence, method: str, settings: RenderSettings,
 
 
 def ground_truth_flicker_floor(seq: SyntheticSequence) -> float:
-    """The flicker (radiance) that the ground truth's own Monte Carlo noise contributes:
-    ``mean_t mean_pixels sqrt(2/π)·sqrt(se_t² + se_{t+1}²)``, the mean of |N(0, σ²)| for the
-    difference of two independent errors with the per-pixel standard errors ``se``. A
-    method whose composite were exact would score about this."""
+    """The flicker (radiance) the ground truth's Monte Carlo noise would contribute if it
+    were independent from frame to frame: ``mean_t mean_pixels sqrt(2/π)·sqrt(se_t² +
+    se_{t+1}²)``, the mean of |N(0, σ²)| for the difference of two independent errors with
+    the per-pixel standard errors ``se``. The sequence renders every frame with the same
+    seeds, so its noise is correlated between frames and contributes less: an upper bound."""
     se = np.asarray(seq.ground_truth_stderr, np.float64)
     return float(np.mean(math.sqrt(2 / math.pi) * np.sqrt(se[1:] ** 2 + se[:-1] ** 2)))
 
