@@ -13,7 +13,13 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from arlight.sampling.sobol import direction_numbers, owen_scramble, sobol_1d, sobol_2d
+from arlight.sampling.sobol import (
+    direction_numbers,
+    owen_scramble,
+    sobol_1d,
+    sobol_2d,
+    sobol_4d_half,
+)
 from arlight.sampling.stream import LaneSampler
 
 
@@ -48,10 +54,26 @@ def test_unscrambled_points_match_scipy_sobol():
             if (i >> k) & 1:
                 x ^= v[k]
         return x / 2**32
-    ref = qmc.Sobol(2, scramble=False).random(64)
-    ours = np.array([[point(i, 0), point(i, 1)] for i in range(64)])
-    for n in (4, 16, 64):
+    ref = qmc.Sobol(4, scramble=False).random(256)
+    ours = np.array([[point(i, d) for d in range(4)] for i in range(256)])
+    for n in (4, 16, 64, 256):
         assert sorted(map(tuple, ours[:n])) == sorted(map(tuple, ref[:n]))
+
+
+def test_4d_sets_are_jointly_stratified():
+    """The two halves of a 4D set: the first is a (0, m, 2)-net, and the 4D point set puts
+    exactly two points in every 4×4×4×2 cell (volume 2^(1−m), t = 1) — what independent
+    2D paddings cannot do (random pairing leaves cells empty and others crowded)."""
+    idx = dr.arange(mi.UInt32, 256)
+    a, b = sobol_4d_half(idx, mi.UInt32(99), 0), sobol_4d_half(idx, mi.UInt32(99), 1)
+    x = np.stack([np.array(a.x), np.array(a.y), np.array(b.x), np.array(b.y)], 1)
+    assert _net_cells(x[:, 0], x[:, 1], 8) == {256}
+    cells = (x * [4, 4, 4, 2]).astype(int)
+    _, counts = np.unique(cells, axis=0, return_counts=True)
+    assert len(counts) == 128 and set(counts) == {2}
+    np.testing.assert_array_equal(x[:, :2], np.stack([np.array(sobol_2d(idx, mi.UInt32(99)).x),
+                                                      np.array(sobol_2d(idx, mi.UInt32(99)).y)],
+                                                     1))
 
 
 def test_owen_scramble_permutes_aligned_blocks():

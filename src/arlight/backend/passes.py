@@ -184,9 +184,10 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                     stream = LaneSampler.for_samples(sampler, pixel, mi.UInt32(0),
                                                      offset_u + replica * (spp // n_rep) + j,
                                                      seed_u)
-                if sampler == "sobol":
+                if sampler != "independent":
                     lens = stream.next_2d(CAMERA_LENS) if camera.aperture_radius > 0 else None
-                    rays = rays_from_samples(camera, pixel, stream.next_2d(CAMERA_PIXEL), lens)
+                    rays = rays_from_samples(camera, pixel,
+                                             stream.next_2d_of_4d(CAMERA_PIXEL, 0), lens)
                 else:
                     rays = generate_rays(camera, pixel, k, spp, cmj_u)
                 outputs = kernel(rays, pixel, pass_seed, lanes, stream)

@@ -74,7 +74,7 @@ OPTIONS: dict[str, Field] = {
     "sampler": Field("choice", "sobol", "`sobol`: shuffled Owen-scrambled Sobol points "
                      "(Burley 2020) for the pixel, lens, light, BSDF and roulette dimensions; "
                      "`independent`: hashed uniform numbers (docs/methods/onepass.md#sampling)",
-                     choices=("sobol", "independent")),
+                     choices=("sobol", "sobol2d", "independent")),
     "replicas": Field("int", 16, "independent randomisations whose spread gives the standard "
                       "errors (the largest divisor of spp not above it; 1: per-sample "
                       "variance, which overstates the error of Sobol samples)", min=1,

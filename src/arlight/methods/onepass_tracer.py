@@ -58,7 +58,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
 from arlight.sampling.lights import LightSampler
-from arlight.sampling.stream import LaneSampler
+from arlight.sampling.stream import CAMERA_PIXEL, LaneSampler
 from arlight.scene.camera import Camera
 
 RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
@@ -143,6 +143,25 @@ def _rand1(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Float:
 
 def _rand2(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Point2f:
     return key.next_2d(depth * _DIMS_PER_DEPTH + dim)
+
+
+def _rand_bsdf(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
+    """BSDF direction sample at ``depth``: with joint 4D sets (``sobol``) the first half of
+    the set it shares with the next vertex's light sample."""
+    if key.joint_4d:
+        return key.next_2d_of_4d(depth * _DIMS_PER_DEPTH + _DIM_BSDF2, 0)
+    return _rand2(key, depth, _DIM_BSDF2)
+
+
+def _rand_nee(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
+    """Light sample at ``depth``: with joint 4D sets the second half of the set of the
+    previous vertex's BSDF direction (at depth 0: of the camera's pixel sample), so the
+    light reached through a bounce is stratified over both (Burley's 4D padding)."""
+    if key.joint_4d:
+        prev = dr.select(depth == 0, mi.UInt32(CAMERA_PIXEL),
+                         (depth - 1) * _DIMS_PER_DEPTH + _DIM_BSDF2)
+        return key.next_2d_of_4d(prev, 1)
+    return _rand2(key, depth, _DIM_NEE)
 
 
 @dataclass
@@ -418,14 +437,14 @@ class OnePassTracer:
             reproj &= depth + 1 < self.opts.max_depth
         bsdf = si.bsdf()
         active_em = (active_next | reproj) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds, em_weight = self._sample_emitter(view, si, _rand2(key, depth, _DIM_NEE), active_em)
+        ds, em_weight = self._sample_emitter(view, si, _rand_nee(key, depth), active_em)
         active_em &= ds.pdf != 0.0
         if self.miss_only:
             active_em &= ~self._is_env(ds.emitter)
         wo = si.to_local(ds.d)
         # one BSDF call for the NEE evaluation and the bounce sample (as Mitsuba's ``path``)
         f_em, pdf_em, bs, weight = bsdf.eval_pdf_sample(
-            self.ctx, si, wo, _rand1(key, depth, _DIM_BSDF1), _rand2(key, depth, _DIM_BSDF2),
+            self.ctx, si, wo, _rand1(key, depth, _DIM_BSDF1), _rand_bsdf(key, depth),
             active_next | reproj)
         # a reprojected path ends here: its NEE is the only strategy (weight 1)
         mis_em = dr.select(ds.delta | reproj, 1.0, mis_weight(ds.pdf, pdf_em))

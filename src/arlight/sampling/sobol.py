@@ -20,14 +20,15 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-# Joe & Kuo (2008) primitive polynomial of dimension 1: (degree s, coefficients a, m_1..m_s)
-_JOE_KUO = {1: (1, 0, (1,))}
+# Joe & Kuo (2008) primitive polynomials of dimensions 1–3: (degree s, coefficients a,
+# initial m_1..m_s)
+_JOE_KUO = {1: (1, 0, (1,)), 2: (2, 1, (1, 3)), 3: (3, 1, (1, 3, 1))}
 
 
 def direction_numbers(dim: int) -> list[int]:
     """The 32 direction numbers ``V_k`` (as 32-bit integers) of Sobol dimension ``dim``.
 
-    Dimension 0 is the van der Corput sequence (``V_k = 2^(31−k)``); 1 follows the
+    Dimension 0 is the van der Corput sequence (``V_k = 2^(31−k)``); 1–3 follow the
     recurrence ``V_k = V_{k−s} ⊕ (V_{k−s} ≫ s) ⊕ ⊕_j a_j V_{k−j}`` (Bratley & Fox 1988) with
     Joe & Kuo's polynomials.
     """
@@ -44,11 +45,11 @@ def direction_numbers(dim: int) -> list[int]:
     return v
 
 
-_V = {d: direction_numbers(d) for d in range(2)}
+_V = {d: direction_numbers(d) for d in range(4)}
 
 
 def sobol_u32(index: mi.UInt32, dim: int) -> mi.UInt32:
-    """Sobol coordinate ``dim`` (0 or 1) of points ``index`` as 32-bit fixed point."""
+    """Sobol coordinate ``dim`` (0–3) of points ``index`` as 32-bit fixed point."""
     if dim == 0:
         return dr.brev(index)
     x = dr.zeros(mi.UInt32, dr.width(index))
@@ -102,6 +103,18 @@ def sobol_2d(index: mi.UInt32, seed: mi.UInt32) -> mi.Point2f:
     return mi.Point2f(to_unit(x), to_unit(y))
 
 
+def sobol_4d_half(index: mi.UInt32, seed: mi.UInt32, half: int) -> mi.Point2f:
+    """Coordinates ``(0, 1)`` (``half = 0``) or ``(2, 3)`` (``half = 1``) of the shuffled,
+    Owen-scrambled 4D Sobol point ``index`` of the dimension set ``seed``: two 2D sets read
+    from one 4D point are stratified jointly (Burley §4 pads by 4D sets). Either half alone
+    costs two Sobol dimensions."""
+    i = owen_scramble(index, seed)
+    d0, d1 = 2 * half, 2 * half + 1
+    x = owen_scramble(sobol_u32(i, d0), hash_combine(seed, d0 + 1))
+    y = owen_scramble(sobol_u32(i, d1), hash_combine(seed, d1 + 1))
+    return mi.Point2f(to_unit(x), to_unit(y))
+
+
 def sobol_1d(index: mi.UInt32, seed: mi.UInt32) -> mi.Float:
     """Shuffled, Owen-scrambled 1D Sobol (van der Corput) value ``index`` in ``[0, 1)``."""
     i = owen_scramble(index, seed)
@@ -114,4 +127,4 @@ def to_unit(x: mi.UInt32) -> mi.Float:
 
 
 __all__ = ["direction_numbers", "hash_combine", "hash_u32", "laine_karras", "owen_scramble",
-           "sobol_1d", "sobol_2d", "sobol_u32", "to_unit"]
+           "sobol_1d", "sobol_2d", "sobol_4d_half", "sobol_u32", "to_unit"]

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from arlight.sampling.sobol import hash_combine, sobol_1d, sobol_2d
+from arlight.sampling.sobol import hash_combine, sobol_1d, sobol_2d, sobol_4d_half
 
-SAMPLERS = ("sobol", "independent")
+SAMPLERS = ("sobol", "sobol2d", "independent")
 _CAMERA_BASE = 0xC0000000  # dimension ids of the camera's sets (far from path dimensions)
 CAMERA_PIXEL, CAMERA_LENS = _CAMERA_BASE, _CAMERA_BASE + 1
 
@@ -63,8 +63,8 @@ class LaneSampler:
         keeps the index and seeds the scrambles by (pixel, replica).
         """
         base = hash_combine(pixel_key(pixel, seed), replica)
-        if kind == "sobol":
-            return LaneSampler("sobol", base, mi.UInt32(index))
+        if kind in ("sobol", "sobol2d"):
+            return LaneSampler(kind, base, mi.UInt32(index))
         if kind == "independent":
             return LaneSampler("independent", mi.sample_tea_32(base, index, 4)[0])
         raise ValueError(f"unknown sampler {kind!r} (expected one of {SAMPLERS})")
@@ -81,6 +81,19 @@ class LaneSampler:
         if self.index is None:
             return mi.Point2f(self.next_1d(dim), self.next_1d(dim + 1))
         return sobol_2d(self.index, hash_combine(self.key, dim))
+
+    @property
+    def joint_4d(self) -> bool:
+        """Whether paired 2D sets come from one 4D point (``sobol``; not ``sobol2d``)."""
+        return self.kind == "sobol"
+
+    def next_2d_of_4d(self, dim, half: int) -> mi.Point2f:
+        """Half ``half`` (0: coordinates 0–1, 1: 2–3) of the 4D set ``dim``: two 2D draws
+        from one set are jointly stratified under ``sobol``. Under ``independent``: the 2D
+        set ``dim + 2·half``."""
+        if not self.joint_4d:
+            return self.next_2d(dim + 2 * half)
+        return sobol_4d_half(self.index, hash_combine(self.key, dim), half)
 
     def gather(self, idx: mi.UInt32) -> LaneSampler:
         """The sampler of the lanes ``idx`` (after a compaction)."""
