@@ -72,8 +72,10 @@ OPTIONS: dict[str, Field] = {
                   "`twopass`: the same tracer on each view separately (baseline)",
                   choices=("onepass", "twopass")),
     "sampler": Field("choice", "sobol", "`sobol`: shuffled Owen-scrambled Sobol points "
-                     "(Burley 2020) for the pixel, lens, light, BSDF and roulette dimensions; "
-                     "`independent`: hashed uniform numbers (docs/methods/onepass.md#sampling)",
+                     "(Burley 2020) for the pixel, lens, light, BSDF and roulette dimensions, "
+                     "4D sets pairing each BSDF direction with the next light sample; "
+                     "`sobol2d`: 2D sets only; `independent`: hashed uniform numbers "
+                     "(docs/methods/onepass.md#sampling)",
                      choices=("sobol", "sobol2d", "independent")),
     "replicas": Field("int", 16, "independent randomisations whose spread gives the standard "
                       "errors (the largest divisor of spp not above it; 1: per-sample "
