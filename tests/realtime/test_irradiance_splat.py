@@ -22,12 +22,15 @@ def test_dr_splat_matches_numpy_reference():
     tilt = rng.normal(0, 0.05, (40, 3))
     recs.normal = recs.normal + tilt
     recs.normal /= np.linalg.norm(recs.normal, axis=1, keepdims=True)
+    recs.stderr_mixed, recs.stderr_delta = rng.random((40, 3)), rng.random((40, 3))
     for kappa, lo, hi in ((1.0, 0.5, 1000.0), (0.5, 2.0, 5.0), (3.0, 0.5, 9.0)):
         ref = splat(recs, geom, cam, kappa, lo, hi)
         got = splat_dr(recs, geom, cam, kappa, lo, hi, bin_px=4)
         np.testing.assert_allclose(got.weight, ref.weight, atol=1e-5, rtol=1e-5)
         np.testing.assert_allclose(got.w_mixed, ref.w_mixed, atol=1e-5, rtol=1e-5)
         np.testing.assert_allclose(got.w_delta, ref.w_delta, atol=1e-5, rtol=1e-5)
+        np.testing.assert_allclose(got.w2_var_mixed, ref.w2_var_mixed, atol=1e-5, rtol=1e-5)
+        np.testing.assert_allclose(got.w2_var_delta, ref.w2_var_delta, atol=1e-5, rtol=1e-5)
         again = splat_dr(recs, geom, cam, kappa, lo, hi, bin_px=4)
         assert np.array_equal(again.w_mixed, got.w_mixed)
     assert splat_dr(recs.take(np.arange(0)), geom, cam, 1.0, 1.0, 2.0).weight.sum() == 0

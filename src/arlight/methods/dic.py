@@ -242,10 +242,29 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
         stats.update(_ray_stats("record", rec_counts))
         stats.update(_ray_stats("camera", cam_counts))
         layers = layers_from_passes(frame, res, **stats)
+        _add_record_noise(layers, geom, buf)
     if not data.world.has_virtual:  # every path is shared: L_m == L_r, E_d == 0 exactly
         assert not np.any(layers.delta), "dic delta must vanish without virtual objects"
     return FrameResult(layers, DicCache(records, next_id, next_batch,
                                         dict(view.object_transforms), bounds), buf, geom)
+
+
+def _add_record_noise(layers: Layers, geom: SplatGeometry, buf: SplatBuffer) -> None:
+    """Add the records' Monte Carlo noise to the layers' standard errors (the camera samples
+    of a pixel share its interpolated irradiance, so the passes' errors miss it): ``ρ/π`` of
+    the pixel's own surface times the interpolated irradiance's standard error, for the
+    mixed, delta and composite layers. Specular paths that read other pixels and the
+    interpolation's bias are not included."""
+    var_m, var_d = buf.variance()
+    scale = np.square(geom.albedo / np.pi)
+    h, w = layers.mask.shape
+    vm, vd = (scale * var_m).reshape(h, w, 3), (scale * var_d).reshape(h, w, 3)
+    m = layers.mask[..., None].astype(np.float64)
+    extra = {"mixed": vm, "delta": vd, "composite": np.square(m) * vm + np.square(1 - m) * vd}
+    for name, var in extra.items():
+        if name in layers.stderr:
+            se = np.asarray(layers.stderr[name], np.float64)
+            layers.stderr[name] = np.sqrt(np.square(se) + var)
 
 
 def _records(pos: np.ndarray, nrm: np.ndarray, keys: np.ndarray, ident: np.ndarray,

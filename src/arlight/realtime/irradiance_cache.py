@@ -152,19 +152,32 @@ class SplatGeometry:
 
 @dataclass
 class SplatBuffer:
-    """Accumulated ``Σ w``, ``Σ w E_m`` and ``Σ w E_d`` per pixel (float64, flat)."""
+    """Accumulated ``Σ w``, ``Σ w E_m``, ``Σ w E_d`` and, for the standard errors,
+    ``Σ w² se²(E_m)``, ``Σ w² se²(E_d)`` per pixel (float64, flat)."""
 
     weight: np.ndarray
     w_mixed: np.ndarray
     w_delta: np.ndarray
+    w2_var_mixed: np.ndarray
+    w2_var_delta: np.ndarray
 
     @staticmethod
     def zeros(pixels: int) -> SplatBuffer:
-        return SplatBuffer(np.zeros(pixels), np.zeros((pixels, 3)), np.zeros((pixels, 3)))
+        return SplatBuffer(np.zeros(pixels), *(np.zeros((pixels, 3)) for _ in range(4)))
 
     def add(self, other: SplatBuffer) -> SplatBuffer:
         return SplatBuffer(self.weight + other.weight, self.w_mixed + other.w_mixed,
-                           self.w_delta + other.w_delta)
+                           self.w_delta + other.w_delta, self.w2_var_mixed + other.w2_var_mixed,
+                           self.w2_var_delta + other.w2_var_delta)
+
+    def variance(self) -> tuple[np.ndarray, np.ndarray]:
+        """Variances of the interpolated ``(E_m, E_d)`` from the records' Monte Carlo noise
+        (independent records: ``Σ w² se² / (Σ w)²``), ``(P, 3)``; 0 where no record
+        contributes. The interpolation's bias is not in it."""
+        w2 = np.square(self.weight)[:, None]
+        safe = np.where(w2 > 0, w2, 1.0)
+        return (np.where(w2 > 0, self.w2_var_mixed / safe, 0.0),
+                np.where(w2 > 0, self.w2_var_delta / safe, 0.0))
 
     def irradiance(self) -> tuple[np.ndarray, np.ndarray]:
         """``(E_m, E_d)`` per pixel by Eq. 4.11, ``(P, 3)`` float64; 0 where no record
@@ -248,11 +261,16 @@ def splat(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
             pos = w > 0
             rec, pix, w = rec[pos], pix[pos], w[pos]
             out.weight += np.bincount(pix, weights=w, minlength=n_pix)
+            w2 = w * w
             for c in range(3):
                 out.w_mixed[:, c] += np.bincount(pix, weights=w * records.e_mixed[rec, c],
                                                  minlength=n_pix)
                 out.w_delta[:, c] += np.bincount(pix, weights=w * records.e_delta[rec, c],
                                                  minlength=n_pix)
+                out.w2_var_mixed[:, c] += np.bincount(
+                    pix, weights=w2 * np.square(records.stderr_mixed[rec, c]), minlength=n_pix)
+                out.w2_var_delta[:, c] += np.bincount(
+                    pix, weights=w2 * np.square(records.stderr_delta[rec, c]), minlength=n_pix)
         start = stop
     return out
 

@@ -82,16 +82,18 @@ def splat_dr(records: Records, geom: SplatGeometry, camera: Camera, kappa: float
     lst = mi.UInt32(rec_sorted.astype(np.uint32))
     t_pos, t_nrm = _vec(mi.Point3f, records.position), _vec(mi.Vector3f, records.normal)
     t_em, t_ed = _vec(mi.Color3f, records.e_mixed), _vec(mi.Color3f, records.e_delta)
+    t_vm = _vec(mi.Color3f, np.square(records.stderr_mixed))  # inf for one-ray records
+    t_vd = _vec(mi.Color3f, np.square(records.stderr_delta))
     t_half_r = mi.Float(_f32(0.5 * radius))
     t_box = [mi.Int32(b.astype(np.int32)) for b in (c0, c1, r0, r1)]
     k = float(kappa)
     ns = float(NORMAL_SCALE / math.sqrt(2.0))
     m = len(pix)
 
-    def cond(j, ws, wm, wd):
+    def cond(j, ws, wm, wd, vm, vd):
         return j < j1
 
-    def body(j, ws, wm, wd):
+    def body(j, ws, wm, wd, vm, vd):
         act = j < j1
         r = dr.gather(mi.UInt32, lst, j, act)
         a0, a1, b0, b1 = (dr.gather(mi.Int32, t, r, act) for t in t_box)
@@ -104,15 +106,20 @@ def splat_dr(records: Records, geom: SplatGeometry, camera: Camera, kappa: float
         ws = ws + dr.select(act, w, 0.0)
         wm = wm + dr.select(act, w * dr.gather(mi.Color3f, t_em, r, act), 0.0)
         wd = wd + dr.select(act, w * dr.gather(mi.Color3f, t_ed, r, act), 0.0)
-        return j + 1, ws, wm, wd
+        vm = vm + dr.select(act, w * w * dr.gather(mi.Color3f, t_vm, r, act), 0.0)
+        vd = vd + dr.select(act, w * w * dr.gather(mi.Color3f, t_vd, r, act), 0.0)
+        return j + 1, ws, wm, wd, vm, vd
 
-    _, ws, wm, wd = dr.while_loop(state=(mi.UInt32(j0), dr.zeros(mi.Float, m),
-                                         dr.zeros(mi.Color3f, m), dr.zeros(mi.Color3f, m)),
-                                  cond=cond, body=body, label="dic_splat")
-    dr.eval(ws, wm, wd)
+    zc = dr.zeros(mi.Color3f, m)
+    _, ws, wm, wd, vm, vd = dr.while_loop(
+        state=(mi.UInt32(j0), dr.zeros(mi.Float, m), zc, mi.Color3f(zc), mi.Color3f(zc),
+               mi.Color3f(zc)), cond=cond, body=body, label="dic_splat")
+    dr.eval(ws, wm, wd, vm, vd)
     out.weight[pix] = np.asarray(ws, np.float64)
     out.w_mixed[pix] = np.stack([np.asarray(c, np.float64) for c in (wm.x, wm.y, wm.z)], 1)
     out.w_delta[pix] = np.stack([np.asarray(c, np.float64) for c in (wd.x, wd.y, wd.z)], 1)
+    out.w2_var_mixed[pix] = np.stack([np.asarray(c, np.float64) for c in (vm.x, vm.y, vm.z)], 1)
+    out.w2_var_delta[pix] = np.stack([np.asarray(c, np.float64) for c in (vd.x, vd.y, vd.z)], 1)
     return out
 
 
