@@ -59,7 +59,7 @@ from arlight.realtime.irradiance_cache import (
     invalidate_near,
     splat_batches,
 )
-from arlight.realtime.irradiance_eval import evaluate_records, record_tracer
+from arlight.realtime.irradiance_eval import evaluate_records, record_radius, record_tracer
 from arlight.realtime.irradiance_shading import CameraWalk, SplatLookup, splat_geometry
 from arlight.realtime.irradiance_splat import splat_dr
 from arlight.realtime.shading import virtual_bounds
@@ -197,11 +197,17 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
                 stats["records_reevaluated"] = float(len(stale))
     with timer.stage("splat"):
         buf = splat_batches(records, geom, camera, kappa, lo_px, hi_px, splat_dr)
+    # DetectCacheMiss iterations need only the splat weights, which depend on x, n and R_i:
+    # each iteration's new records get R_i from their rays' first hits (one intersection
+    # kernel), and all of them are path traced together afterwards in one wavefront (the
+    # values are those of Algorithm 4.1's per-iteration EvaluateIrradiance: a record's
+    # estimate depends only on its key)
     scanner = TileScanner(camera.width, camera.height, options.tile)
-    n_new = 0
+    weight = buf.weight.copy()
+    batches: list[Records] = []
     while scanner.iterations < options.max_iterations:
         with timer.stage("miss"):
-            pix = scanner.misses(buf.weight, geom.needs)
+            pix = scanner.misses(weight, geom.needs)
         if len(pix) == 0:
             break
         with timer.stage("records"):
@@ -209,15 +215,27 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
             # the key hashes the pixel the record starts at: a record dropped and created
             # again at the same pixel (an object moved nearby) reuses its random sequence
             keys = record_keys(pix.astype(np.int64), settings.seed)
-            vals = evaluate(geom.position[pix], geom.normal[pix], keys)
-            new = _records(geom.position[pix], geom.normal[pix], keys, ident, vals,
-                           batch=next_batch)
+            pos, nrm = geom.position[pix], geom.normal[pix]
+            radius = record_radius(views, pos, nrm, keys, options.rays)
+            z3 = np.zeros((len(pix), 3))
+            new = Records(pos, nrm, z3, z3, radius, np.zeros(len(pix), np.int64), keys, ident,
+                          batch=np.full(len(pix), next_batch, np.int64))
         with timer.stage("splat"):
-            buf = buf.add(splat_dr(new, geom, camera, kappa, lo_px, hi_px))
-        records = records.concat(new)
+            weight = weight + splat_dr(new, geom, camera, kappa, lo_px, hi_px).weight
+        batches.append(new)
         next_id += len(pix)
         next_batch += 1
-        n_new += len(pix)
+    n_new = sum(len(b) for b in batches)
+    if batches:
+        with timer.stage("records"):  # EvaluateIrradiance of every new record, one launch
+            new = batches[0]
+            for b in batches[1:]:
+                new = new.concat(b)
+            vals = evaluate(new.position, new.normal, new.key)
+            new = _records(new.position, new.normal, new.key, new.ident, vals, new.batch)
+        with timer.stage("splat"):
+            buf = splat_batches(new, geom, camera, kappa, lo_px, hi_px, splat_dr, start=buf)
+        records = records.concat(new)
     with timer.stage("splat"):
         e_mixed, e_delta = buf.irradiance()
     with timer.stage("setup"):

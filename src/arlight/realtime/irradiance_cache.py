@@ -276,14 +276,16 @@ def splat(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
 
 
 def splat_batches(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
-                  min_px: float, max_px: float, splat_fn=None) -> SplatBuffer:
+                  min_px: float, max_px: float, splat_fn=None,
+                  start: SplatBuffer | None = None) -> SplatBuffer:
     """:func:`splat` batch by batch (runs of equal ``records.batch``), the buffers added in
     order — bitwise the buffer the miss loop built when it splatted each new batch onto the
     previous ones, so a static scene's next frame splats the same bits without re-splatting
     the whole cache in a fixed order each frame. ``splat_fn``: :func:`splat` (default) or
-    the Dr.Jit :func:`arlight.realtime.irradiance_splat.splat_dr`."""
+    the Dr.Jit :func:`arlight.realtime.irradiance_splat.splat_dr`; ``start``: the buffer the
+    batches are added to (default zeros)."""
     splat_fn = splat_fn or splat
-    buf = SplatBuffer.zeros(geom.width * geom.height)
+    buf = start if start is not None else SplatBuffer.zeros(geom.width * geom.height)
     if len(records) == 0:
         return buf
     cuts = np.flatnonzero(np.diff(records.batch)) + 1

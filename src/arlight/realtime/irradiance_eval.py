@@ -83,6 +83,38 @@ def _record_rays(pos: mi.Point3f, nrm: mi.Vector3f, key: mi.UInt32, k: mi.UInt32
     return mi.Ray3f(origin, d), lane_key
 
 
+def _chunk_rays(position: np.ndarray, normal: np.ndarray, keys: np.ndarray, n_rays: int,
+                a: int, b: int) -> tuple[mi.Ray3f, mi.UInt32]:
+    """The rays (and tracer keys) of records ``a:b``, lane ``l`` = ray ``l % N`` of record
+    ``a + l // N``."""
+    lanes = (b - a) * n_rays
+    lane = dr.arange(mi.UInt32, lanes)
+    rec = lane // n_rays
+    k = lane - rec * n_rays
+    p = np.ascontiguousarray(position[a:b], np.float32)
+    n = np.ascontiguousarray(normal[a:b], np.float32)
+    pos = dr.gather(mi.Point3f, mi.Point3f(p[:, 0], p[:, 1], p[:, 2]), rec)
+    nrm = dr.gather(mi.Vector3f, mi.Vector3f(n[:, 0], n[:, 1], n[:, 2]), rec)
+    key = dr.gather(mi.UInt32, mi.UInt32(np.ascontiguousarray(keys[a:b], np.uint32)), rec)
+    return _record_rays(pos, nrm, key, k, n_rays)
+
+
+def record_radius(views: SceneViews, position: np.ndarray, normal: np.ndarray,
+                  keys: np.ndarray, n_rays: int) -> np.ndarray:
+    """``R_i`` alone (m): the minimum first-hit distance of exactly the rays
+    :func:`evaluate_records` traces, from one intersection kernel — what splat weights and
+    cache-miss detection need, without the paths."""
+    m = len(position)
+    radius = np.full(m, np.inf)
+    per = max(MAX_LANES // n_rays, 1)
+    for a in range(0, m, per):
+        b = min(a + per, m)
+        rays, _ = _chunk_rays(position, normal, keys, n_rays, a, b)
+        t = views.mixed.scene.ray_intersect_preliminary(rays).t
+        radius[a:b] = np.asarray(t, np.float64).reshape(b - a, n_rays).min(axis=1)
+    return radius
+
+
 def evaluate_records(tracer: OnePassTracer, views: SceneViews, position: np.ndarray,
                      normal: np.ndarray, keys: np.ndarray, n_rays: int) -> RecordValues:
     """Mixed and real indirect irradiance at records ``(M, 3)`` with ``n_rays`` rays each.
@@ -101,16 +133,7 @@ def evaluate_records(tracer: OnePassTracer, views: SceneViews, position: np.ndar
     per = max(MAX_LANES // n_rays, 1)
     for a in range(0, m, per):
         b = min(a + per, m)
-        lanes = (b - a) * n_rays
-        lane = dr.arange(mi.UInt32, lanes)
-        rec = lane // n_rays
-        k = lane - rec * n_rays
-        p = np.ascontiguousarray(position[a:b], np.float32)
-        n = np.ascontiguousarray(normal[a:b], np.float32)
-        pos = dr.gather(mi.Point3f, mi.Point3f(p[:, 0], p[:, 1], p[:, 2]), rec)
-        nrm = dr.gather(mi.Vector3f, mi.Vector3f(n[:, 0], n[:, 1], n[:, 2]), rec)
-        key = dr.gather(mi.UInt32, mi.UInt32(np.ascontiguousarray(keys[a:b], np.uint32)), rec)
-        rays, lane_key = _record_rays(pos, nrm, key, k, n_rays)
+        rays, lane_key = _chunk_rays(position, normal, keys, n_rays, a, b)
         t = views.mixed.scene.ray_intersect_preliminary(rays).t
         res = tracer.trace_onepass(rays, lane_key)
         dr.eval(res.mixed, res.real, t)
@@ -140,4 +163,4 @@ def _to_np(c: mi.Color3f) -> np.ndarray:
                      np.asarray(c.z, np.float64)], axis=1)
 
 
-__all__ = ["RecordValues", "evaluate_records", "record_tracer"]
+__all__ = ["RecordValues", "evaluate_records", "record_radius", "record_tracer"]
