@@ -8,9 +8,13 @@ Per frame (Algorithm 4.1):
 2. *SplatIrradiance*: every record is splatted into a per-pixel buffer against the pinhole
    G-buffer (Tabellion's weight, Eq. 2.15; :mod:`arlight.realtime.irradiance_cache`).
 3. *DetectCacheMiss* by tiles (≤ 1 new record per tile per iteration, each tile resuming where
-   it stopped); *EvaluateIrradiance* of all new records in one Dr.Jit wavefront — one-pass
-   path tracing from the record with Kán's four ray types, multi-bounce, cosine-weighted
-   (:mod:`arlight.realtime.irradiance_eval`); splat them; repeat until no tile has a miss.
+   it stopped); the new records' ``R_i`` (one first-hit kernel) and splat weights; repeat
+   until no tile has a miss. Then *EvaluateIrradiance* of all new records in one Dr.Jit
+   wavefront — one-pass path tracing from the record with Kán's four ray types,
+   multi-bounce, cosine-weighted (:mod:`arlight.realtime.irradiance_eval`) — and their splat.
+   (Miss detection needs only the weights, which do not depend on the irradiance: the same
+   records and values as evaluating inside the loop, one launch instead of one per
+   iteration.)
 4. Final shading from the camera (:mod:`arlight.realtime.irradiance_shading`): direct light
    with the one-pass rules (the virtual objects' shadows on the real scene, their real
    continuation rays) plus ``ρ_d/π · E`` read from the splat buffer through the reprojection
