@@ -169,8 +169,14 @@ def scaling(seq, repeats: int, spp: int) -> str:
                      ("ray-2", "Ray, 2 workers × 1 thread")):
         lines.append(f"| {label} | {fps[k]:.2f} | {fps[k] / seq_fps:.3f} |")
     over = 1 - fps["ray-1"] / seq_fps
+    task_med = statistics.median(tasks_wo)
     lines += ["", f"Ray overhead at 1 worker: {over * 100:+.1f} % of the sequential "
-              f"throughput (target ≤ 10 %: {'met' if over <= 0.10 else 'not met'}).", "",
+              f"throughput (target ≤ 10 %: {'met' if over <= 0.10 else 'not met'}). On the "
+              "shared machine the load changes between the interleaved runs by more than "
+              "Ray costs, so the ratio is noisy; the overhead measured inside the Ray run — "
+              "loop time not spent in tasks or in the driver's writing — is "
+              f"{overhead * 1e3:.1f} ms per {task_med * 1e3:.0f} ms task "
+              f"({overhead / task_med * 100:.1f} %).", "",
               f"Simulated N workers (each a machine like this one) on a 1000-frame video, from "
               f"the 1-worker run: task {statistics.median(tasks_wo) * 1e3:.0f} ms median, "
               f"preparation {prepare:.2f} s per worker, scheduling overhead "
