@@ -406,8 +406,10 @@ def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: m
                 continue
             idx = mi.UInt32(lanes_per_val[j])
             a, b = _shade_one(lanes.take(idx), tab, jj, m, proxy, occluder, bias_texels)
-            dr.scatter_add(lit, a, idx)
-            dr.scatter_add(lost, b, idx)
+            # a VAL's lanes are distinct: plain read-modify-write, no atomics or the
+            # full-size per-thread buffers of the default (Local/Expand) reduction
+            dr.scatter_add(lit, a, idx, mode=dr.ReduceMode.NoConflicts)
+            dr.scatter_add(lost, b, idx, mode=dr.ReduceMode.NoConflicts)
         dr.eval(lit, lost)
     return lit, lost
 
