@@ -69,8 +69,7 @@ def _run_until(tiny, out: Path, frames_done: int, sig: int) -> int:
     return len([x for x in log.read_text().splitlines() if x.strip()])
 
 
-@pytest.mark.parametrize("sig", [pytest.param(signal.SIGINT, marks=pytest.mark.slow),
-                                 signal.SIGKILL])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL])
 def test_interrupted_run_resumes_only_missing_frames(tiny, full_run, tmp_path, sig):
     out = tmp_path / "out"
     done = _run_until(tiny, out, 3, sig)
