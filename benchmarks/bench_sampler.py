@@ -13,6 +13,9 @@ and, per configuration and ``spp`` in ``--spp``, the composite MSE over ``--seed
 * ``sobol/blocks+lights``: one scrambled Sobol sequence per pixel (16 blocks for the
   errors) and the new light sampling.
 
+``sobol`` is the default sampler (4D sets since the 4D commit; the first RESULTS table of
+issue 22 was measured before it, i.e. with today's ``sobol2d``).
+
 Reported: the slope of log RMSE against log spp (least squares over the ``spp`` list; plain
 Monte Carlo is −0.5) and the per-sample MSE (MSE · spp) ratio independent / Sobol at 16 and
 64 spp (> 1: Sobol better), plus the mean ``z²`` of each render against the converged image
