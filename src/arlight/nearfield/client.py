@@ -222,21 +222,25 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
     has_virtual = np.any(tiled((ok & np.asarray(virtual, bool))[:, None], False)[..., 0], 1)
     corners = np.stack([np.where(np.array(b)[None, :] == 1, hi, lo) for b in
                         np.ndindex(2, 2, 2)], axis=1)  # (tiles, 8, 3)
-    corners = np.where(has[:, None, None], corners, 0.0)
+    corners = np.where(has[:, None, None], corners, 0.0).astype(np.float32)
     lanes_of_tile = tiled(np.where(ok, np.arange(len(ok)), -1)[:, None], -1)[..., 0]
     fr = frusta(light, sphere)
+    # all VALs at once: (M, tiles, 8) corner tests
+    d = corners[None] - fr.origin[:, None, None, :].astype(np.float32)
+    behind = np.all(np.einsum("mtci,mi->mtc", d, light.normals.astype(np.float32)) <= 0, 2)
+    keep = has[None] & ~behind
+    z = np.einsum("mtci,mi->mtc", d, fr.axis.astype(np.float32))
+    zt = np.maximum(z * fr.tan_half[:, None, None].astype(np.float32), 1e-12)
+    sc = np.einsum("mtci,mi->mtc", d, fr.u.astype(np.float32)) / zt
+    qc = np.einsum("mtci,mi->mtc", d, fr.v.astype(np.float32)) / zt
+    front = z > 0
+    outside = (np.all(~front, 2) | np.all(front & (sc >= 1), 2) | np.all(front & (sc <= -1), 2)
+               | np.all(front & (qc >= 1), 2) | np.all(front & (qc <= -1), 2))
+    framed = fr.tan_half > 0  # VALs inside the sphere keep every lit tile
+    keep &= ~framed[:, None] | has_virtual[None] | ~outside
     out = []
     for j in range(light.count):
-        behind = np.all((corners - fr.origin[j]) @ light.normals[j] <= 0, axis=1)
-        keep = has & ~behind
-        if fr.tan_half[j] > 0:
-            z, s, q = (a.reshape(-1, 8) for a in fr.coords(j, corners.reshape(-1, 3)))
-            front = z > 0
-            outside = (np.all(~front, 1) | np.all(front & (s >= 1), 1)
-                       | np.all(front & (s <= -1), 1) | np.all(front & (q >= 1), 1)
-                       | np.all(front & (q <= -1), 1))
-            keep &= has_virtual | ~outside
-        cand = lanes_of_tile[keep].reshape(-1)
+        cand = lanes_of_tile[keep[j]].reshape(-1)
         out.append(cand[cand >= 0].astype(np.uint32))
     return out
 
