@@ -216,23 +216,42 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
 
     ok = np.asarray(valid, bool)
     pos = np.asarray(position, np.float32)
-    lo = tiled(np.where(ok[:, None], pos, np.inf), np.inf).min(axis=1).astype(np.float64)
-    hi = tiled(np.where(ok[:, None], pos, -np.inf), -np.inf).max(axis=1).astype(np.float64)
+
+    def box(fill: float, fold) -> np.ndarray:  # (tiles, 3) per-tile min or max of hit points
+        # channel-first, folded column by column: NumPy reduces short strided axes slowly
+        a = np.full((3, hp, wp * spp), fill, np.float32)
+        a[:, :height, :width * spp] = np.where(ok[None], pos.T, fill).reshape(3, height, -1)
+        a = a.reshape(3, hp, tx, T * spp)
+        rows = a[..., 0].copy()
+        for k in range(1, T * spp):
+            fold(rows, a[..., k], out=rows)
+        rows = rows.reshape(3, ty, T, tx)
+        out = rows[:, :, 0].copy()
+        for k in range(1, T):
+            fold(out, rows[:, :, k], out=out)
+        return out.reshape(3, ty * tx).T
+
+    lo, hi = box(np.inf, np.minimum), box(-np.inf, np.maximum)
     has = np.isfinite(lo[:, 0])
     has_virtual = np.any(tiled((ok & np.asarray(virtual, bool))[:, None], False)[..., 0], 1)
     corners = np.stack([np.where(np.array(b)[None, :] == 1, hi, lo) for b in
                         np.ndindex(2, 2, 2)], axis=1)  # (tiles, 8, 3)
-    corners = np.where(has[:, None, None], corners, 0.0).astype(np.float32)
-    lanes_of_tile = tiled(np.where(ok, np.arange(len(ok)), -1)[:, None], -1)[..., 0]
+    corners = np.where(has[:, None, None], corners, 0.0).astype(np.float64)
+    lanes_of_tile = tiled(np.where(ok, np.arange(len(ok), dtype=np.int32), -1)[:, None],
+                          -1)[..., 0]
     fr = frusta(light, sphere)
-    # all VALs at once: (M, tiles, 8) corner tests
-    d = corners[None] - fr.origin[:, None, None, :].astype(np.float32)
-    behind = np.all(np.einsum("mtci,mi->mtc", d, light.normals.astype(np.float32)) <= 0, 2)
+    # all VALs at once, as one matrix product: (corner − origin) · {normal, axis, u, v}
+    M = light.count
+    frame = np.concatenate([light.normals, fr.axis, fr.u, fr.v])  # (4M, 3), float64
+    off = np.einsum("mi,mi->m", np.tile(fr.origin, (4, 1)), frame)
+    proj = (corners.reshape(-1, 3) @ frame.T - off).reshape(len(corners), 8, 4, M)
+    proj = proj.transpose(2, 3, 0, 1)  # (4, M, tiles, 8)
+    behind = np.all(proj[0] <= 0, 2)
     keep = has[None] & ~behind
-    z = np.einsum("mtci,mi->mtc", d, fr.axis.astype(np.float32))
-    zt = np.maximum(z * fr.tan_half[:, None, None].astype(np.float32), 1e-12)
-    sc = np.einsum("mtci,mi->mtc", d, fr.u.astype(np.float32)) / zt
-    qc = np.einsum("mtci,mi->mtc", d, fr.v.astype(np.float32)) / zt
+    z = proj[1]
+    zt = np.maximum(z * fr.tan_half[:, None, None], 1e-12)
+    sc = proj[2] / zt
+    qc = proj[3] / zt
     front = z > 0
     outside = (np.all(~front, 2) | np.all(front & (sc >= 1), 2) | np.all(front & (sc <= -1), 2)
                | np.all(front & (qc >= 1), 2) | np.all(front & (qc <= -1), 2))
@@ -241,7 +260,7 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
     out = []
     for j in range(light.count):
         cand = lanes_of_tile[keep[j]].reshape(-1)
-        out.append(cand[cand >= 0].astype(np.uint32))
+        out.append(cand[cand >= 0].view(np.uint32))  # non-negative: same bits
     return out
 
 
