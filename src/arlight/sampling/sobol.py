@@ -95,12 +95,9 @@ def sobol_2d(index: mi.UInt32, seed: mi.UInt32) -> mi.Point2f:
     """Shuffled, Owen-scrambled 2D Sobol point ``index`` for the dimension set of ``seed``.
 
     ``seed`` must already identify (pixel, replica, dimension set): distinct sets need
-    distinct seeds. Values lie in ``[0, 1)``.
+    distinct seeds. Values lie in ``[0, 1)``. (The first half of the 4D point.)
     """
-    i = owen_scramble(index, seed)
-    x = owen_scramble(sobol_u32(i, 0), hash_combine(seed, 1))
-    y = owen_scramble(sobol_u32(i, 1), hash_combine(seed, 2))
-    return mi.Point2f(to_unit(x), to_unit(y))
+    return sobol_4d_half(index, seed, 0)
 
 
 def sobol_4d_half(index: mi.UInt32, seed: mi.UInt32, half: int) -> mi.Point2f:
