@@ -26,7 +26,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter, deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import zmq
 
@@ -141,13 +141,8 @@ class LightClient:
     def stats(self) -> ClientStats:
         """A copy of the counters."""
         with self._lock:
-            s = ClientStats(**{k: getattr(self._stats, k) for k in (
-                "received", "applied", "from_snapshot", "heartbeats", "stale", "gaps",
-                "restarts", "reconnects", "snapshot_requests", "bytes_received",
-                "last_version_seen")})
-            s.rejected = Counter(self._stats.rejected)
-            s.latencies = deque(self._stats.latencies, maxlen=HISTORY)
-        return s
+            return replace(self._stats, rejected=Counter(self._stats.rejected),
+                           latencies=deque(self._stats.latencies, maxlen=HISTORY))
 
     def wait_for(self, sequence: int = 1, timeout: float = 5.0,
                  epoch: int | None = None) -> NearFieldLight:
