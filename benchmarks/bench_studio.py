@@ -148,7 +148,7 @@ def run_latency(rounds: int, resolution: tuple[int, int],
                 methods: tuple[str, ...] | None = FAST_METHODS) -> dict:
     from playwright.sync_api import sync_playwright
 
-    from arlight.studio.browser import launch, why_no_browser
+    from arlight.studio.browser import why_no_browser
     from arlight.studio.server import BackgroundServer
 
     if (why := why_no_browser()) is not None:
@@ -161,11 +161,7 @@ def run_latency(rounds: int, resolution: tuple[int, int],
     rng = random.Random(0)
     w, h = engine.width, engine.height
     with BackgroundServer(engine) as srv, sync_playwright() as p:
-        browser = launch(p)
-        page = browser.new_page(viewport={"width": 1100, "height": 640})
-        page.goto(srv.url)
-        page.wait_for_function("window.studio.frames >= 1", timeout=300_000)
-        box = page.locator("#frame").bounding_box()
+        browser, page, box = _open_page(p, srv.url, 1100, 640)
 
         def client(x, y):
             return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
@@ -198,21 +194,28 @@ def run_latency(rounds: int, resolution: tuple[int, int],
     return {"rounds": rounds, "resolution": resolution, "latency": lat, "render": render}
 
 
+def _open_page(p, url: str, width: int, height: int):
+    """A browser showing the studio at ``url`` after its first frame: ``(browser, page,
+    bounding box of the frame image)``."""
+    from arlight.studio.browser import launch
+
+    browser = launch(p)
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.goto(url)
+    page.wait_for_function("window.studio.frames >= 1", timeout=300_000)
+    return browser, page, page.locator("#frame").bounding_box()
+
+
 # ---------------------------------------------------------------------- screenshot
 def screenshot(path: Path, method: str = "dir") -> Path:
     """The page at 640×480 after dragging the bunny toward the camera (docs/images)."""
     from playwright.sync_api import sync_playwright
 
-    from arlight.studio.browser import launch
     from arlight.studio.server import BackgroundServer
 
     engine = _engine((640, 480), method)
     with BackgroundServer(engine) as srv, sync_playwright() as p:
-        browser = launch(p)
-        page = browser.new_page(viewport={"width": 1030, "height": 610})
-        page.goto(srv.url)
-        page.wait_for_function("window.studio.frames >= 1", timeout=300_000)
-        box = page.locator("#frame").bounding_box()
+        browser, page, box = _open_page(p, srv.url, 1030, 610)
         rest = engine.rest_poses["bunny"]
         start = engine.proxy.project(rest.position + [0.0, 0.05, 0.0])
         page.mouse.move(box["x"] + start[0], box["y"] + start[1])
