@@ -264,10 +264,6 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
     return out
 
 
-def _v(a) -> mi.Vector3f:
-    return mi.Vector3f(float(a[0]), float(a[1]), float(a[2]))
-
-
 def _table(a: np.ndarray) -> mi.Vector3f:
     a = np.asarray(a, np.float32).reshape(-1, 3)
     return mi.Vector3f(*[mi.Float(np.ascontiguousarray(a[:, i])) for i in range(3)])
