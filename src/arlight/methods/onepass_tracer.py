@@ -147,10 +147,8 @@ def _rand2(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Point2f:
 
 def _rand_bsdf(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
     """BSDF direction sample at ``depth``: with joint 4D sets (``sobol``) the first half of
-    the set it shares with the next vertex's light sample."""
-    if key.joint_4d:
-        return key.next_2d_of_4d(depth * _DIMS_PER_DEPTH + _DIM_BSDF2, 0)
-    return _rand2(key, depth, _DIM_BSDF2)
+    the set it shares with the next vertex's light sample (otherwise the 2D set itself)."""
+    return key.next_2d_of_4d(depth * _DIMS_PER_DEPTH + _DIM_BSDF2, 0)
 
 
 def _rand_nee(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
