@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from arlight.errors import InputError
+from arlight.nearfield.cameras import default_rig  # re-exported: tests, benchmarks
 from arlight.nearfield.state import NearFieldLight
 from arlight.scene.model import Light, World
 
@@ -133,15 +134,6 @@ class PipelineProducer:
 
     def __call__(self, frame: int) -> NearFieldLight:
         return self.server.update(self.frames(frame))
-
-
-def default_rig(world: World, size: int = 64):
-    """Six 180° fisheyes inside the real geometry's bounding box (``auto_rig``)."""
-    from arlight.nearfield.atlas import proxy_mesh
-    from arlight.nearfield.cameras import auto_rig
-
-    v = proxy_mesh(world).vertices
-    return auto_rig(v.min(0), v.max(0), size=size)
 
 
 def pipeline_producer(world_path: Path | None, frames: Path | None, *, vals: int = 16,

@@ -109,19 +109,15 @@ class NearFieldData:
 
 def _light_from_options(world: World, options: Options
                         ) -> tuple[NearFieldLight, dict, object]:
-    from arlight.nearfield.atlas import proxy_mesh
-    from arlight.nearfield.cameras import auto_rig, load_rig, seeing_cameras
+    from arlight.nearfield.cameras import default_rig, load_rig, seeing_cameras
     from arlight.nearfield.capture import capture_rig
     from arlight.nearfield.lightfile import load_light
     from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
 
     if options.light:
         return load_light(options.light), {}, None
-    if options.cameras:
-        rig = load_rig(options.cameras)
-    else:
-        mesh = proxy_mesh(world)
-        rig = auto_rig(mesh.vertices.min(0), mesh.vertices.max(0), options.capture_size)
+    rig = (load_rig(options.cameras) if options.cameras
+           else default_rig(world, options.capture_size))
     server = NearFieldServer(world, rig, NearFieldSettings(
         atlas_resolution=options.atlas_resolution, tau=options.tau, vals=options.vals))
     if not options.cameras:  # the automatic rig: drop cameras that see nothing (open sides)

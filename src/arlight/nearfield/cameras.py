@@ -167,6 +167,15 @@ def auto_rig(bounds_min: np.ndarray, bounds_max: np.ndarray, size: int = 256,
     return rig
 
 
+def default_rig(world, size: int = 64) -> list[RigCamera]:
+    """:func:`auto_rig` inside the bounding box of ``world``'s real geometry (its proxy
+    mesh)."""
+    from arlight.nearfield.atlas import proxy_mesh
+
+    v = proxy_mesh(world).vertices
+    return auto_rig(v.min(0), v.max(0), size=size)
+
+
 def seeing_cameras(rig: list[RigCamera], geometry, proxy) -> list[RigCamera]:
     """The cameras of ``rig`` that see at least one texel of the atlas ``geometry``
     (``proxy``: the Mitsuba scene of the proxy mesh).
@@ -182,4 +191,5 @@ def seeing_cameras(rig: list[RigCamera], geometry, proxy) -> list[RigCamera]:
     return keep
 
 
-__all__ = ["Model", "RigCamera", "auto_rig", "load_rig", "look_rotation", "seeing_cameras"]
+__all__ = ["Model", "RigCamera", "auto_rig", "default_rig", "load_rig", "look_rotation",
+           "seeing_cameras"]

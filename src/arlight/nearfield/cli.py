@@ -43,8 +43,7 @@ def atlas(
     """Run one server update of the near-field pipeline and write the VALs and SH."""
     from arlight.errors import ArlightError
     from arlight.io.images import read_hdr
-    from arlight.nearfield.atlas import proxy_mesh
-    from arlight.nearfield.cameras import auto_rig, load_rig, seeing_cameras
+    from arlight.nearfield.cameras import default_rig, load_rig, seeing_cameras
     from arlight.nearfield.capture import capture, real_scene
     from arlight.nearfield.lightfile import save_light
     from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
@@ -62,10 +61,7 @@ def atlas(
         if output.is_dir():
             raise ArlightError(f"--output {output}: is a folder, expected a file name")
         proxy = load_scene(scene)
-        rig = load_rig(cameras) if cameras is not None else None
-        if rig is None:
-            mesh = proxy_mesh(proxy.world)
-            rig = auto_rig(mesh.vertices.min(0), mesh.vertices.max(0), size)
+        rig = load_rig(cameras) if cameras is not None else default_rig(proxy.world, size)
         server = NearFieldServer(proxy.world, rig, settings)
         if cameras is None:  # automatic rig: keep the cameras that see the proxy
             server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
