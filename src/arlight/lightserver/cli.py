@@ -117,7 +117,7 @@ def serve_light_command(
     typer.echo(f"serving near-field light ({source}) on {pub}, snapshots on {snap}; "
                f"epoch {server.epoch:08x}", err=True)
     try:
-        stats = server.run()
+        server.run()
     finally:
         s = server.stats()
         ms = sorted(s.produce_seconds)
@@ -125,7 +125,6 @@ def serve_light_command(
         typer.echo(f"published {s.published} updates ({s.bytes_last} B each), "
                    f"{s.heartbeats} heartbeats, {s.snapshots} snapshots; producer median "
                    f"{med}", err=True)
-    del stats
 
 
 def client_command(
