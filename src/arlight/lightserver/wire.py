@@ -143,8 +143,13 @@ def oct_decode(code: np.ndarray) -> np.ndarray:
 
 # -- messages --------------------------------------------------------------------------------
 
+def _crc(header: bytes | memoryview, body: bytes | memoryview) -> int:
+    """CRC-32 of the header (its CRC field as zeros) followed by the body."""
+    return zlib.crc32(body, zlib.crc32(bytes(header[:_CRC_OFFSET]) + b"\0\0\0\0"))
+
+
 def _finish(header: bytes, body: bytes) -> bytes:
-    crc = zlib.crc32(body, zlib.crc32(header[:_CRC_OFFSET] + b"\0\0\0\0"))
+    crc = _crc(header, body)
     return header[:_CRC_OFFSET] + struct.pack("<I", crc) + body
 
 
@@ -218,7 +223,7 @@ def decode_header(message: bytes) -> Header:
     if len(buf) != want:
         raise WireError(f"light message of {len(buf)} bytes; its header (M = {h.count}, "
                         f"n_obj = {h.n_obj}) needs {want}", "length")
-    crc = zlib.crc32(buf[HEADER_BYTES:], zlib.crc32(bytes(buf[:_CRC_OFFSET]) + b"\0\0\0\0"))
+    crc = _crc(buf, buf[HEADER_BYTES:])
     if crc != h.crc32:
         raise WireError(f"light message corrupted: CRC-32 {crc:08x}, header says "
                         f"{h.crc32:08x}", "corrupted")
