@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -182,11 +182,6 @@ class NearFieldServer:
                                      self.objects, self.settings.cube_resolution)
         self._sh = np.zeros((len(self.objects), 9, 3))
 
-    def set_object_transforms(self, transforms: Mapping[str, np.ndarray]) -> None:
-        """Move virtual objects (4×4 world transforms applied to their rest pose, as
-        ``FrameView.object_transforms``)."""
-        self.set_world(self.world.posed(dict(transforms)))
-
     # ------------------------------------------------------------------ update
     def _atlas_image(self, values: np.ndarray) -> np.ndarray:
         R = self.settings.atlas_resolution
@@ -267,26 +262,5 @@ def payload_bytes(light: NearFieldLight) -> int:
     return 32 * light.count + 108 * light.n_objects
 
 
-@dataclass
-class CaptureSpec:
-    """How :func:`capture_and_update` renders the rig's images (synthetic capture)."""
-
-    spp: int = 64
-    seed: int = 0
-    max_depth: int = 8
-    extra: dict = field(default_factory=dict)
-
-
-def capture_and_update(server: NearFieldServer, world: World,
-                       spec: CaptureSpec | None = None) -> NearFieldLight:
-    """Render the rig's images of ``world``'s real part (:mod:`~arlight.nearfield.capture`)
-    and run one update on them."""
-    from arlight.nearfield.capture import capture_rig
-
-    spec = spec or CaptureSpec()
-    images = capture_rig(world, server.cameras, spec.spp, spec.seed, spec.max_depth)
-    return server.update(images)
-
-
-__all__ = ["CaptureSpec", "NearFieldServer", "NearFieldSettings", "ServerState",
-           "capture_and_update", "payload_bytes", "virtual_objects"]
+__all__ = ["NearFieldServer", "NearFieldSettings", "ServerState", "payload_bytes",
+           "virtual_objects"]
