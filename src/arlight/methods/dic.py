@@ -45,7 +45,6 @@ import numpy as np
 from arlight.backend.passes import run_passes
 from arlight.errors import InputError
 from arlight.methods.base import (
-    BaseMethod,
     Layers,
     Prepared,
     RenderSettings,
@@ -53,7 +52,7 @@ from arlight.methods.base import (
     layers_from_passes,
 )
 from arlight.methods.onepass_tracer import lane_keys
-from arlight.methods.reference import PathScenes, frame_gather, prepare_scenes
+from arlight.methods.reference import PathScenes, PathScenesMethod, frame_gather
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.irradiance_cache import (
     Records,
@@ -298,15 +297,11 @@ def _records(pos: np.ndarray, nrm: np.ndarray, keys: np.ndarray, ident: np.ndarr
                    batch=np.broadcast_to(np.asarray(batch, np.int64), (len(pos),)).copy())
 
 
-class DicMethod(BaseMethod):
+class DicMethod(PathScenesMethod):
     """Differential irradiance caching (Kán §4.2): sparse path-traced records, splatting,
     one-pass direct light."""
 
     spec = SPEC
-
-    def prepare_world(self, world: World, options: Options,
-                      settings: RenderSettings) -> PathScenes:
-        return prepare_scenes(world)
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -40,7 +40,6 @@ import numpy as np
 from arlight.backend.passes import run_passes
 from arlight.errors import InputError
 from arlight.methods.base import (
-    BaseMethod,
     Layers,
     RenderSettings,
     differential_samples,
@@ -54,9 +53,9 @@ from arlight.methods.photons import (
     build_photon_maps,
     gather_caustics,
 )
-from arlight.methods.reference import PathScenes, frame_gather, prepare_scenes
+from arlight.methods.reference import PathScenes, PathScenesMethod, frame_gather
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.scene.model import FrameView, World
+from arlight.scene.model import FrameView
 from arlight.timing import StageTimer
 
 OPTIONS: dict[str, Field] = {
@@ -158,15 +157,11 @@ def ray_stats(counts: dict[str, int], samples: int) -> dict[str, float]:
     return out
 
 
-class OnePassMethod(BaseMethod):
+class OnePassMethod(PathScenesMethod):
     """One-pass differential path tracing with Kán's four ray types (fewer rays than
     two-pass)."""
 
     spec = SPEC
-
-    def prepare_world(self, world: World, options: Options,
-                      settings: RenderSettings) -> PathScenes:
-        return prepare_scenes(world)
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -82,7 +82,16 @@ def prepare_scenes(world: World) -> PathScenes:
     return PathScenes(world, build_views(world))
 
 
-class ReferenceMethod(BaseMethod):
+class PathScenesMethod(BaseMethod):
+    """Base of the methods whose prepared state is :class:`PathScenes` (the path tracers and
+    the irradiance cache built on them)."""
+
+    def prepare_world(self, world: World, options: Options,
+                      settings: RenderSettings) -> PathScenes:
+        return prepare_scenes(world)
+
+
+class ReferenceMethod(PathScenesMethod):
     """Two-pass differential path tracing with Mitsuba's path tracer (ground-truth method)."""
 
     spec = MethodSpec(
@@ -91,10 +100,6 @@ class ReferenceMethod(BaseMethod):
                     "(ground-truth method).",
         capabilities=Capabilities(progressive=True),
     )
-
-    def prepare_world(self, world: World, options: Options,
-                      settings: RenderSettings) -> PathScenes:
-        return prepare_scenes(world)
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
