@@ -182,6 +182,11 @@ class NearFieldServer:
                                      self.objects, self.settings.cube_resolution)
         self._sh = np.zeros((len(self.objects), 9, 3))
 
+    def set_object_transforms(self, transforms: Mapping[str, np.ndarray]) -> None:
+        """Move virtual objects (4×4 world transforms applied to their rest pose, as
+        ``FrameView.object_transforms``)."""
+        self.set_world(self.world.posed(dict(transforms)))
+
     # ------------------------------------------------------------------ update
     def _atlas_image(self, values: np.ndarray) -> np.ndarray:
         R = self.settings.atlas_resolution
