@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from arlight.errors import InputError
+from arlight.evaluate.metrics import rmse
 from arlight.methods import Method, RenderSettings, get_method, methods
 from arlight.methods.base import Layers, Prepared
 from arlight.progressive import Accumulator, frame_seed
@@ -590,8 +591,7 @@ class Engine:
                                 self.ground_truth)
         data = imaging.encode(codes, self.config.image_format, self.config.quality)
         if self.ground_truth is not None:
-            header["rmse"] = float(np.sqrt(np.mean(np.square(
-                np.asarray(images["composite"], np.float64) - self.ground_truth))))
+            header["rmse"] = rmse(images["composite"], self.ground_truth)
         header["stats"]["encode_s"] = time.perf_counter() - t0
         header["stats"] = {k: v for k, v in header["stats"].items() if np.isfinite(v)}
         header["bytes"] = len(data)
