@@ -164,6 +164,11 @@ def _box_filter(image: np.ndarray, width: int, height: int) -> np.ndarray:
     return image.reshape(height, k, width, k, -1).mean(axis=(1, 3)).astype(np.float32)
 
 
+def _transforms(poses: dict[str, ObjectPose]) -> dict[str, np.ndarray]:
+    """``FrameView.object_transforms`` of the poses (objects at rest are left out)."""
+    return {k: p.matrix() for k, p in poses.items() if not p.is_rest}
+
+
 class Engine:
     """Loads the scene, owns the render worker and the sessions (see the module doc)."""
 
@@ -539,8 +544,7 @@ class Engine:
         t_place = time.perf_counter() - t0
         fn = get_method(method)
         state = self.prepared(method, s)
-        view = replace(self.view, object_transforms={
-            k: p.matrix() for k, p in poses.items() if not p.is_rest})
+        view = replace(self.view, object_transforms=_transforms(poses))
         progressive = self.catalogue[method].progressive
         seed = frame_seed(self.settings.seed, n) if progressive else self.settings.seed
         t1 = time.perf_counter()
@@ -627,8 +631,7 @@ class Engine:
         render = {k: v for k, v in raw.get("render", {}).items()
                   if k in ("spp", "seed", "max_depth")}
         raw["render"] = {**render, "method": method}
-        view = replace(self.full.view, object_transforms={
-            k: p.matrix() for k, p in poses.items() if not p.is_rest})
+        view = replace(self.full.view, object_transforms=_transforms(poses))
         scene = replace(ARScene.compose(self.full.world, view), raw=raw)
         save_scene(scene, toml)
         write_png(png, imaging.display("composite", images, self.scene.camera.transfer, ev,
