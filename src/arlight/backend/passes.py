@@ -8,8 +8,8 @@ the same kernel. A *kernel* turns the lanes' camera rays into named per-lane val
 (radiance, mask, ...); :func:`run_passes` sums them and their squares per pixel, so every
 layer comes with the standard error of its mean.
 
-**Samplers and replicas.** Given ``sampler`` (``"independent"`` or ``"sobol"``, see
-:mod:`arlight.sampling.stream`) the kernel also receives a :class:`~arlight.sampling.stream.
+**Samplers and replicas.** Given ``sampler`` (``"independent"``, ``"sobol"`` or
+``"sobol2d"``, see :mod:`arlight.sampling.stream`) the kernel also receives a :class:`~arlight.sampling.stream.
 LaneSampler` whose numbers depend only on (seed, pixel, sample index, dimension), and with
 ``sobol`` the camera's pixel and lens samples come from it too. Sample ``k`` of a pixel
 belongs to *replica* ``r = k mod R`` as its ``j = k div R``-th sample; every replica is an
@@ -124,8 +124,8 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
         spp_per_pass: samples per pass (default: as many as fit in ``max_lanes``).
         progress: label for a progress bar (None: silent).
         sampler: None (the kernel draws its own numbers from the pass seed), or
-            ``"independent"`` / ``"sobol"``: the kernel gets a per-lane sampler as a fifth
-            argument (see the module docstring).
+            ``"independent"`` / ``"sobol"`` / ``"sobol2d"``: the kernel gets a per-lane
+            sampler as a fifth argument (see the module docstring).
         replicas: independent randomisations the standard errors come from (the largest
             divisor of ``spp`` not above it is used; 1: per-sample variance).
         scramble_replicas: True: every replica is its own randomisation (unbiased standard
