@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from arlight.errors import ArlightError
-from arlight.nearfield.state import NearFieldLight
+from arlight.nearfield.state import SH_BLOCK_BYTES, VAL_RECORD_BYTES, NearFieldLight
 
 MAGIC = b"ARNF"
 WIRE_VERSION = 1
@@ -51,14 +51,14 @@ _CRC_OFFSET = HEADER_BYTES - 4
 VAL_DTYPE = np.dtype([("position", "<f4", (3,)), ("normal", "<i2", (2,)),
                       ("intensity", "<f4", (3,)), ("area", "<f4")])
 VAL_BYTES = VAL_DTYPE.itemsize  # 32
-SH_BYTES = 9 * 3 * 4  # 108
+SH_BYTES = SH_BLOCK_BYTES  # 108
 MAX_VALS = 65536
 """Largest M a decoder accepts (2 MiB of VALs; Rohmer uses 8 ≤ M ≤ 64)."""
 MAX_OBJECTS = 4096
 """Largest n_obj a decoder accepts."""
 _SNORM = 32767.0
 
-assert HEADER_BYTES == 48 and VAL_BYTES == 32
+assert HEADER_BYTES == 48 and VAL_BYTES == VAL_RECORD_BYTES
 
 
 class WireError(ArlightError):

@@ -43,7 +43,7 @@ from arlight.nearfield.indirect import IndirectProbes, VirtualObject
 from arlight.nearfield.projection import merge, project_camera
 from arlight.nearfield.raytrace import mesh_scene
 from arlight.nearfield.split import SplitAtlas, check_tau, split
-from arlight.nearfield.state import NearFieldLight
+from arlight.nearfield.state import SH_BLOCK_BYTES, VAL_RECORD_BYTES, NearFieldLight
 from arlight.nearfield.vals import VALSet, extract_vals
 from arlight.scene.mesh import vertex_normals
 from arlight.scene.model import World
@@ -264,7 +264,7 @@ class NearFieldServer:
 
 def payload_bytes(light: NearFieldLight) -> int:
     """Bytes of one update on Rohmer's wire format: 32 per VAL + 108 per object."""
-    return 32 * light.count + 108 * light.n_objects
+    return VAL_RECORD_BYTES * light.count + SH_BLOCK_BYTES * light.n_objects
 
 
 __all__ = ["NearFieldServer", "NearFieldSettings", "ServerState", "payload_bytes",

@@ -13,6 +13,11 @@ import numpy as np
 
 from arlight.errors import ArlightError
 
+VAL_RECORD_BYTES = 32
+"""Bytes of one VAL on Rohmer's wire (§4): position 12, octahedral normal 4, RGB 12, area 4."""
+SH_BLOCK_BYTES = 9 * 3 * 4
+"""Bytes of one object's SH block on the wire: 9 RGB float32 coefficients (108)."""
+
 
 @dataclass(frozen=True)
 class NearFieldLight:
