@@ -8,17 +8,17 @@ the same kernel. A *kernel* turns the lanes' camera rays into named per-lane val
 (radiance, mask, ...); :func:`run_passes` sums them and their squares per pixel, so every
 layer comes with the standard error of its mean.
 
-**Samplers and replicas.** Given ``sampler`` (``"independent"``, ``"sobol"`` or
-``"sobol2d"``, see :mod:`arlight.sampling.stream`) the kernel also receives a :class:`~arlight.sampling.stream.
-LaneSampler` whose numbers depend only on (seed, pixel, sample index, dimension), and with
-``sobol`` the camera's pixel and lens samples come from it too. Sample ``k`` of a pixel
-belongs to *replica* ``r = k mod R`` as its ``j = k div R``-th sample; every replica is an
-independent randomisation (its own scrambling seeds), so with ``R ≥ 2`` the standard error
-comes from the spread of the ``R`` replica means (``R − 1`` degrees of freedom, honest for
-correlated quasi-Monte Carlo samples) rather than from the per-sample variance (which assumes
-independent samples: with low-discrepancy samples it overstates the error). Within a pass a
-pixel's lanes are laid out replica-major, so the per-replica sums are block reductions too.
-"""
+**Samplers and replicas.** Given ``sampler`` (``"independent"``, ``"sobol"`` or ``"sobol2d"``,
+see :mod:`arlight.sampling.stream`) the kernel also receives a
+:class:`~arlight.sampling.stream.LaneSampler` whose numbers depend only on (seed, pixel, sample
+index, dimension), and with ``sobol`` the camera's pixel and lens samples come from it too.
+Sample ``k`` of a pixel belongs to *replica* ``r = k mod R`` as its ``j = k div R``-th sample;
+every replica is an independent randomisation (its own scrambling seeds), so with ``R ≥ 2`` the
+standard error comes from the spread of the ``R`` replica means (``R − 1`` degrees of freedom,
+honest for correlated quasi-Monte Carlo samples) rather than from the per-sample variance
+(which assumes independent samples: with low-discrepancy samples it overstates the error).
+Within a pass a pixel's lanes are laid out replica-major, so the per-replica sums are block
+reductions too. """
 
 from __future__ import annotations
 
