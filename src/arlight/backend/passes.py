@@ -18,7 +18,8 @@ standard error comes from the spread of the ``R`` replica means (``R − 1`` deg
 honest for correlated quasi-Monte Carlo samples) rather than from the per-sample variance
 (which assumes independent samples: with low-discrepancy samples it overstates the error).
 Within a pass a pixel's lanes are laid out replica-major, so the per-replica sums are block
-reductions too. """
+reductions too.
+"""
 
 from __future__ import annotations
 
