@@ -52,6 +52,11 @@ def material_table(shapes) -> tuple[list[str], np.ndarray]:
     return names, np.asarray(per_shape, dtype=np.int32)
 
 
+def np3(v) -> np.ndarray:
+    """A Dr.Jit 3-vector array (Point3f, Vector3f, Color3f) as NumPy ``(N, 3)`` float64."""
+    return np.stack([np.asarray(c, np.float64) for c in (v.x, v.y, v.z)], 1)
+
+
 def _vec(a: np.ndarray) -> list[np.ndarray]:
     a = np.ascontiguousarray(a, dtype=np.float32)
     return [a[:, 0], a[:, 1], a[:, 2]]

@@ -37,6 +37,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
+from arlight.backend.rays import np3
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
@@ -52,7 +53,6 @@ from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
     field_from_options,
-    np3,
     shadow_factor,
     virtual_scene,
 )

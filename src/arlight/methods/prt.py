@@ -41,6 +41,7 @@ import numpy as np
 
 from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import SceneViews, build_views
+from arlight.backend.rays import np3
 from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.ibl import render_layers, specular_tables
@@ -256,7 +257,7 @@ def unshadowed(light: np.ndarray, n: mi.Vector3f, order: int) -> mi.Color3f:
         sh9 = np.zeros((9, 3))
         sh9[:min(9, len(light))] = light[:9]
         return ambient_irradiance_dr(LightSet([], sh9), n) * (1.0 / math.pi)
-    e = irradiance(light, np.stack([np.asarray(c, np.float64) for c in (n.x, n.y, n.z)], 1),
+    e = irradiance(light, np3(n),
                    max_order=order) / math.pi
     return mi.Color3f(*[mi.Float(e[:, c].astype(np.float32)) for c in range(3)])
 

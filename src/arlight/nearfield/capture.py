@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import build_views
+from arlight.backend.rays import np3
 from arlight.backend.variant import ensure_variant
 from arlight.nearfield.cameras import RigCamera
 from arlight.scene.model import World
@@ -54,7 +55,7 @@ def capture(scene: mi.Scene, camera: RigCamera, spp: int = 64, seed: int = 0,
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(int(seed) * 7919 + k, len(idx))
         spec, _, _ = integrator.sample(scene, sampler, ray)
-        col = np.stack([np.asarray(c, np.float64) for c in (spec.x, spec.y, spec.z)], 1)
+        col = np3(spec)
         col[~ok] = 0.0
         col[~np.isfinite(col)] = 0.0
         np.add.at(acc, pix, col) if spp > 1 else acc.__setitem__(pix, col)

@@ -28,6 +28,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
+from arlight.backend.rays import np3
 from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions
 from arlight.realtime.shading import SHADOW_EPS
 
@@ -139,8 +140,8 @@ def evaluate_records(tracer: OnePassTracer, views: SceneViews, position: np.ndar
         dr.eval(res.mixed, res.real, t)
         for kname, v in res.rays.items():
             counts[kname] += v
-        lm = _to_np(res.mixed).reshape(b - a, n_rays, 3) * np.pi
-        lr = _to_np(res.real).reshape(b - a, n_rays, 3) * np.pi
+        lm = np3(res.mixed).reshape(b - a, n_rays, 3) * np.pi
+        lr = np3(res.real).reshape(b - a, n_rays, 3) * np.pi
         e_m[a:b] = lm.mean(axis=1)
         e_r[a:b] = lr.mean(axis=1)
         if n_rays > 1:
@@ -155,12 +156,6 @@ def evaluate_records(tracer: OnePassTracer, views: SceneViews, position: np.ndar
 def _frac(x: mi.Float) -> mi.Float:
     """``x mod 1`` in [0, 1)."""
     return dr.minimum(x - dr.floor(x), dr.one_minus_epsilon(mi.Float))
-
-
-def _to_np(c: mi.Color3f) -> np.ndarray:
-    """``(lanes, 3)`` float64 of a Color3f."""
-    return np.stack([np.asarray(c.x, np.float64), np.asarray(c.y, np.float64),
-                     np.asarray(c.z, np.float64)], axis=1)
 
 
 __all__ = ["RecordValues", "evaluate_records", "record_radius", "record_tracer"]

@@ -36,6 +36,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
+from arlight.backend.rays import np3
 from arlight.methods.onepass_tracer import mis_weight
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.realtime.irradiance_cache import SplatGeometry
@@ -300,11 +301,11 @@ def splat_geometry(view: SceneView, camera: Camera) -> SplatGeometry:
     alb = surface_albedo(si, valid)
     role = view.hit_role(si)
     dr.eval(si.p, n, alb, role, valid)
-    pos = np.stack([np.asarray(c, np.float64) for c in (si.p.x, si.p.y, si.p.z)], axis=1)
-    nrm = np.stack([np.asarray(c, np.float64) for c in (n.x, n.y, n.z)], axis=1)
+    pos = np3(si.p)
+    nrm = np3(n)
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
     ok = np.asarray(valid, bool)
-    albedo = np.stack([np.asarray(c, np.float64) for c in (alb.x, alb.y, alb.z)], axis=1)
+    albedo = np3(alb)
     pos[~ok] = 0.0
     nrm[~ok] = 0.0
     return SplatGeometry(pos, nrm, ok & (albedo.max(axis=1) > 0), ok,

@@ -18,6 +18,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.backend.rays import np3
 from arlight.backend.variant import ensure_variant
 from arlight.realtime.irradiance_cache import (
     NORMAL_SCALE,
@@ -116,10 +117,10 @@ def splat_dr(records: Records, geom: SplatGeometry, camera: Camera, kappa: float
                mi.Color3f(zc)), cond=cond, body=body, label="dic_splat")
     dr.eval(ws, wm, wd, vm, vd)
     out.weight[pix] = np.asarray(ws, np.float64)
-    out.w_mixed[pix] = np.stack([np.asarray(c, np.float64) for c in (wm.x, wm.y, wm.z)], 1)
-    out.w_delta[pix] = np.stack([np.asarray(c, np.float64) for c in (wd.x, wd.y, wd.z)], 1)
-    out.w2_var_mixed[pix] = np.stack([np.asarray(c, np.float64) for c in (vm.x, vm.y, vm.z)], 1)
-    out.w2_var_delta[pix] = np.stack([np.asarray(c, np.float64) for c in (vd.x, vd.y, vd.z)], 1)
+    out.w_mixed[pix] = np3(wm)
+    out.w_delta[pix] = np3(wd)
+    out.w2_var_mixed[pix] = np3(vm)
+    out.w2_var_delta[pix] = np3(vd)
     return out
 
 

@@ -43,6 +43,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView, describe_shape, load_scene
+from arlight.backend.rays import np3
 from arlight.realtime.light_reduction import LightSet
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, on_active
 from arlight.scene.model import World
@@ -255,11 +256,6 @@ def octahedral_index(n: mi.Vector3f, grid: int) -> mi.UInt32:
     return b * grid + a
 
 
-def np3(v) -> np.ndarray:
-    """A Dr.Jit 3-vector array as NumPy ``(N, 3)`` float64."""
-    return np.stack([np.asarray(c, np.float64) for c in (v.x, v.y, v.z)], 1)
-
-
 _TENSORS: dict[int, np.ndarray] = {}
 
 
@@ -397,6 +393,6 @@ def shadow_factor(mixed: SceneView, real: SceneView, occluder: mi.Scene | None,
 
 
 __all__ = ["OOF_OPTIONS", "OcclusionField", "RAY_CHUNK", "build_field", "cosine_transfer",
-           "field_for_world", "field_from_options", "np3", "occlusion_rays", "octahedral_index",
+           "field_for_world", "field_from_options", "occlusion_rays", "octahedral_index",
            "octahedral_normals", "shadow_factor",
            "shell_samples", "virtual_scene"]
