@@ -4,7 +4,7 @@ Importing the command line (typer, rich, NumPy, Mitsuba) takes a while on a load
 a Ctrl-C in that time would otherwise end in a ``KeyboardInterrupt`` traceback from some
 import. Until :func:`arlight.cli.main` installs its own handlers, an interrupt prints one
 line and exits 130, like an interrupt later on (see ``docs/cli.md``). Once the command has
-returned, SIGINT and SIGTERM are held until the process exits: the run is complete.
+returned, SIGINT is ignored until the process exits: the run is complete.
 """
 
 from __future__ import annotations
@@ -26,10 +26,11 @@ def main(argv: list[str] | None = None) -> int:
 
     status = cli_main(argv)
     # The command has finished (its outputs are committed or it failed cleanly). Python's
-    # shutdown (Dr.Jit's thread pools, imported libraries) can take a while and resets the
-    # signal handlers to their defaults, so a Ctrl-C now would kill the process by the
-    # signal (exit -2) after a complete run; hold SIGINT/SIGTERM until the exit instead.
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    # shutdown (Dr.Jit's thread pools, imported libraries) can take a while and resets Python
+    # signal handlers to the default, so a Ctrl-C now would kill the finished process by the
+    # signal (exit -2). SIG_IGN survives the shutdown (and, unlike a mask, covers every
+    # thread): a Ctrl-C after a complete run is ignored.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     return status
 
 
