@@ -145,6 +145,19 @@ def test_dampening_keeps_uniform_regions_and_scales_linearly():
     assert not np.allclose(one, sv.propagate(sv.SHVolume.from_numpy(g8, x), 4).numpy())
 
 
+def test_damped_kernel_matches_numpy_peer():
+    """The Dr.Jit damped step (factors computed inside the step kernel) equals the NumPy peer's
+    damped propagation; rejects a factor taken from the wrong cell (source/destination swapped),
+    the wrong axis direction, or a factor from the previous step's wavefront."""
+    x = _random_volume(8, 11)
+    g = sv.Grid(np.zeros(3), 0.1, 8)
+    got = sv.propagate(sv.SHVolume.from_numpy(g, x), 5, dampening=True).numpy()
+    ref = sv.propagate_numpy(x, 5, dampening=True)
+    scale = np.abs(ref).max()
+    assert np.allclose(got, ref, rtol=1e-4, atol=1e-5 * scale)
+    assert not np.allclose(ref, sv.propagate_numpy(x, 5), rtol=1e-3, atol=1e-4 * scale)
+
+
 def test_dampening_reduces_backflow():
     """A lobe pointing +x next to a brighter cell on its −x side: with dampening the light
     that flows back towards the brighter cell is reduced; rejects a no-op dampening."""

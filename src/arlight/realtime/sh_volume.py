@@ -229,24 +229,27 @@ def _luminance(c: mi.Color3f) -> mi.Float:
     return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 
 
+def _toward(c: list, a: int) -> mi.Float:
+    """``|luminance(Y(d_a) · c)|``: the magnitude of the intensity towards axis ``a`` of the
+    SH coefficients ``c`` (4 ``Color3f``), the quantity the dampening compares."""
+    t = _TOWARD[a]
+    return dr.abs(_luminance(sum((c[k] * float(t[k]) for k in range(4)), mi.Color3f(0.0))))
+
+
 def _step(cur: list, idxs: list, oks: list, dampening: bool) -> list:
     """One [KD10] gather step (see :func:`propagate`): the coefficients every cell receives
-    from its 6 neighbours, as Dr.Jit expressions."""
+    from its 6 neighbours, as Dr.Jit expressions (one kernel: the dampening factors are
+    computed from the gathered neighbour coefficients, not from a separate pass)."""
     mats = _MATS
     n_cells = dr.width(cur[0])
     new = [dr.zeros(mi.Color3f, n_cells) for _ in range(4)]
-    if dampening:
-        own = [_luminance(sum((cur[k] * float(_TOWARD[a][k]) for k in range(4)),
-                              mi.Color3f(0.0))) for a in range(6)]
-        dr.eval(own)
     for a in range(6):
         idx, ok = idxs[a], oks[a]
         src = [dr.gather(mi.Color3f, cur[k], idx, ok) for k in range(4)]
         m = mats[a]
         w = None
         if dampening:
-            i_src = dr.abs(dr.gather(mi.Float, own[a], idx, ok))
-            i_dst = dr.abs(own[a])
+            i_src, i_dst = _toward(src, a), _toward(cur, a)
             den = i_src + i_dst
             g = dr.select(den > 0, (i_dst - i_src) / dr.select(den > 0, den, 1.0), 0.0)
             w = 1.0 - dr.maximum(g, 0.0)
@@ -278,10 +281,10 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     regions pass unchanged. The factor depends on ratios only, so the result still scales
     linearly with the light; without dampening every step is exactly linear.
 
-    One Dr.Jit kernel per step (72 gathers and ~300 multiply-adds per cell). Without
-    ``stats`` the steps run as a frozen function (``dr.freeze``, one recording per volume
-    size, step count and dampening): replaying the 32 kernels skips Python tracing, which
-    otherwise costs as much as the kernels themselves on 2 CPU cores.
+    One Dr.Jit kernel per step (72 gathers and ~300 multiply-adds per cell, ~100 more
+    with dampening). Without ``stats`` the steps run as a frozen function (``dr.freeze``,
+    one recording per volume size, step count and dampening): replaying the 32 kernels skips
+    Python tracing, which otherwise costs as much as the kernels themselves on 2 CPU cores.
     ``stats`` (optional dict) receives ``flux_per_step``, the total flux of each wavefront.
     """
     grid = vol.grid
@@ -318,10 +321,12 @@ def _propagate_frozen(cur: list, idxs: list, oks: list, steps: int, dampening: b
     return acc
 
 
-def propagate_numpy(arr: np.ndarray, steps: int) -> np.ndarray:
-    """Plain NumPy peer of :func:`propagate` without dampening: ``arr`` is ``(n, n, n, 4, C)``
-    indexed ``[z, y, x, k, c]``; returns the accumulated volume (same maths, float64)."""
+def propagate_numpy(arr: np.ndarray, steps: int, dampening: bool = False) -> np.ndarray:
+    """Plain NumPy peer of :func:`propagate`: ``arr`` is ``(n, n, n, 4, 3)`` indexed
+    ``[z, y, x, k, c]``; returns the accumulated volume (same maths, float64), with the same
+    dampening factor when ``dampening``."""
     mats = propagation_matrices()
+    lum = np.array([0.2126, 0.7152, 0.0722])
     cur = np.asarray(arr, np.float64)
     acc = cur.copy()
     for _ in range(int(steps)):
@@ -337,7 +342,14 @@ def propagate_numpy(arr: np.ndarray, steps: int) -> np.ndarray:
                     sl_dst[ax_arr], sl_src[ax_arr] = slice(s, None), slice(None, -s)
                 elif s < 0:
                     sl_dst[ax_arr], sl_src[ax_arr] = slice(None, s), slice(-s, None)
-            new[tuple(sl_dst)] += moved[tuple(sl_src)]
+            part = moved[tuple(sl_src)]
+            if dampening:
+                toward = np.abs(np.einsum("k,...kc,c->...", _TOWARD[a], cur, lum))
+                i_src, i_dst = toward[tuple(sl_src)], toward[tuple(sl_dst)]
+                den = i_src + i_dst
+                g = np.where(den > 0, (i_dst - i_src) / np.where(den > 0, den, 1.0), 0.0)
+                part = part * (1.0 - np.maximum(g, 0.0))[..., None, None]
+            new[tuple(sl_dst)] += part
         cur = new
         acc += cur
     return acc
