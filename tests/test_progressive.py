@@ -7,7 +7,15 @@ import pytest
 
 from arlight.errors import InputError
 from arlight.methods import Capabilities, RenderSettings, get_method, register, unregister
-from arlight.progressive import Accumulator, frame_seed, preview, refine, rmse, run_cli
+from arlight.progressive import (
+    Accumulator,
+    frame_seed,
+    frame_settings,
+    preview,
+    refine,
+    rmse,
+    run_cli,
+)
 from arlight.scene.load import parse_scene
 
 
@@ -55,9 +63,9 @@ def test_refinement_is_running_mean_of_fresh_frames():
 
 
 def test_refinement_prepares_once_and_matches_one_shot_frames(monkeypatch):
-    """The scene is prepared once, and frame n is bitwise the one-shot render with seed
-    frame_seed(seed, n). Bugs caught: rebuilding the Mitsuba scenes every frame (the loop's
-    old cost), or a prepared state that drifts from frame to frame."""
+    """The scene is prepared once, and frame n is bitwise the one-shot render with
+    frame_settings(method, settings, n). Bugs caught: rebuilding the Mitsuba scenes every
+    frame (the loop's old cost), or a prepared state that drifts from frame to frame."""
     scene = small_scene(12, 9)
     method = get_method("onepass")
     calls = []
@@ -73,9 +81,77 @@ def test_refinement_prepares_once_and_matches_one_shot_frames(monkeypatch):
     assert len(calls) == 1
     monkeypatch.undo()
     for step in steps:
-        alone = method(scene, RenderSettings(spp=1, seed=frame_seed(2, step.frame)))
+        alone = method(scene, frame_settings(method, s, step.frame))
         np.testing.assert_array_equal(step.layers.composite, alone.composite)
     assert "time_trace" in steps[-1].layers.stats
+
+
+@pytest.mark.parametrize(("spp", "replicas"), [(1, 16), (2, 16), (4, 2)])
+def test_refinement_continues_one_sequence(spp, replicas):
+    """onepass (it has a `sample_offset` option): N frames of `spp` samples with one seed are
+    exactly the first N·spp samples of every pixel's sequences, i.e. their mean layers equal
+    one render of N·spp samples with the same seed (and the frame's replica count, the
+    largest divisor of spp not above `replicas`: 1, 2, 2 here). The accumulated composite
+    (Eq. 4.12 averages composites) equals that render's composite wherever its mask is 0 or 1
+    (where compositing is linear). Bugs caught: fresh seeds per frame, an offset that is not
+    advanced (every frame the same samples), or advanced wrongly (by n·spp: the first
+    frame's samples skipped; by spp/R: replicas overlapping)."""
+    from arlight.backend.passes import effective_replicas
+
+    scene = small_scene(16, 12)
+    frames = 8
+    opts = {"replicas": replicas}
+    steps = list(refine(scene, "onepass", RenderSettings(spp=spp, seed=11, options=opts),
+                        frames=frames))
+    r = effective_replicas(spp, replicas)
+    alone = get_method("onepass")(scene, RenderSettings(spp=frames * spp, seed=11,
+                                                        options={"replicas": r}))
+    for name in ("mixed", "real", "delta", "mask"):
+        mean = np.mean([getattr(st.layers, name) for st in steps], axis=0, dtype=np.float64)
+        np.testing.assert_allclose(mean, getattr(alone, name), rtol=2e-5, atol=2e-6,
+                                   err_msg=name)
+    crisp = (alone.mask == 0) | (alone.mask == 1)
+    assert crisp.mean() > 0.8 and (alone.mask == 1).any()
+    np.testing.assert_allclose(steps[-1].image[crisp], alone.composite[crisp], rtol=2e-5,
+                               atol=2e-6)
+    assert not np.array_equal(steps[0].layers.mixed, steps[1].layers.mixed)
+    assert steps[1].layers.stats["spp"] == spp
+
+
+def test_refinement_offsets_start_at_the_given_sample_offset():
+    """A `sample_offset` in the options is where frame 1 starts: frames (o, o + spp, ...)."""
+    method = get_method("onepass")
+    s = RenderSettings(spp=4, seed=9, options={"sample_offset": 32, "replicas": 4})
+    got = [frame_settings(method, s, n) for n in (1, 2, 3)]
+    assert [g.options["sample_offset"] for g in got] == [32, 36, 40]
+    assert {g.seed for g in got} == {9} and got[0].options["replicas"] == 4
+    assert s.options["sample_offset"] == 32  # the caller's settings are not modified
+
+
+def test_methods_without_sample_offset_get_fresh_seeds():
+    """A progressive method without a `sample_offset` option gets seed frame_seed(seed, n)
+    in frame n and its options unchanged (it cannot continue a sequence). Bug caught: one
+    seed for every frame of such a method (the mean of N identical frames would never
+    converge), or an unknown option forced on it."""
+    seen = []
+
+    @register("test-progressive-seeds", capabilities=Capabilities(progressive=True))
+    def noisy(scene, settings):
+        seen.append((settings.seed, dict(settings.options)))
+        layers = get_method("onepass")(scene, RenderSettings(spp=1, seed=settings.seed))
+        return layers
+
+    try:
+        scene = small_scene(8, 6)
+        steps = list(refine(scene, "test-progressive-seeds",
+                            RenderSettings(spp=1, seed=4), frames=3))
+    finally:
+        unregister("test-progressive-seeds")
+    assert [sd for sd, _ in seen] == [frame_seed(4, n) for n in (1, 2, 3)]
+    assert all(o == {} for _, o in seen)
+    comps = np.stack([st.layers.composite for st in steps]).astype(np.float64)
+    np.testing.assert_allclose(steps[-1].image, comps.mean(axis=0), rtol=1e-12)
+    assert not np.array_equal(comps[0], comps[1])
 
 
 def test_refinement_refuses_methods_that_are_not_progressive():

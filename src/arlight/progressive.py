@@ -5,16 +5,30 @@ Two modes over any registered method (``onepass`` by default):
 * **preview** (:func:`preview`): one frame with the *same* random sequence every time
   (the seed of the settings), so a static input renders bitwise identically — no flicker
   (Kán: "the same random parameters are used every frame").
-* **refinement** (:func:`refine`): frames with fresh seeds, each composited (Eq. 2.20) and
-  accumulated *after* compositing with Kán Eq. 4.12,
+* **refinement** (:func:`refine`): frames with new random samples, each composited
+  (Eq. 2.20) and accumulated *after* compositing with Kán Eq. 4.12,
 
       L_acc ← ((n − 1) · L_acc + L_o) / n,
 
   until a time or frame budget is spent. :class:`Accumulator` keeps the running mean in
   float64. The method prepares the scene once (``method.prepare``: Mitsuba scenes, BVHs)
-  and renders every frame from that state (``method.render``); frame ``n`` is bitwise the
-  one-shot render with seed :func:`frame_seed` ``(seed, n)``. Only methods whose
+  and renders every frame from that state (``method.render``). Only methods whose
   capabilities say ``progressive`` are accepted.
+
+**Which samples a frame draws** (:func:`frame_settings`). A method whose options declare
+``sample_offset`` (its samples are indices into per-pixel low-discrepancy sequences, e.g.
+``onepass``'s Sobol sampler, :mod:`arlight.backend.passes`) keeps the seed of the settings for
+every frame and draws samples ``[o + (n − 1)·spp, o + n·spp)`` in frame ``n`` (``o``: the
+``sample_offset`` given in the options, default 0): the first ``N`` frames together are
+exactly the first ``N·spp`` samples of every pixel's sequences, so their mean layers equal
+one render of ``N·spp`` samples (one low-discrepancy set converging faster than 1/√N), not
+``N`` independent randomisations. The offset must be a multiple of the frame's replica count
+(the standard errors' randomisations, the largest divisor of ``spp`` not above the
+``replicas`` option): ``(n − 1)·spp`` always is, for any ``spp`` — with the default ``spp = 1``
+a frame has a single replica (its own standard error is then undefined, which refinement
+never reads). Every other method gets a fresh seed :func:`frame_seed` ``(seed, n)`` per frame
+(independent estimates). Either way frame ``n`` is bitwise the one-shot render with
+:func:`frame_settings` ``(method, settings, n)``.
 
 :func:`run_cli` is what ``arlight render --progressive`` calls: a rich progress bar,
 snapshots (EXR + PNG) at frames 1, 2, 4, 8, … and at the end, and, given a ground truth, the
@@ -34,7 +48,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.methods import Method, RenderSettings, get_method
-from arlight.methods.base import Layers
+from arlight.methods.base import Layers, Prepared
 from arlight.scene.model import ARScene
 from arlight.timing import format_stages
 
@@ -77,8 +91,44 @@ class RefineStep:
 
 
 def frame_seed(base: int, n: int) -> int:
-    """Seed of refinement frame ``n`` (fresh for every frame, reproducible)."""
+    """Seed of refinement frame ``n`` (fresh for every frame, reproducible) of a method
+    without a ``sample_offset`` option."""
     return (base + n * SEED_STRIDE) & 0xFFFFFFFF
+
+
+def continues_sequence(method: Method) -> bool:
+    """Whether ``method``'s frames continue one sample sequence (its options declare
+    ``sample_offset``) rather than taking fresh seeds."""
+    return "sample_offset" in method.spec.options
+
+
+def frame_settings(method: Method, settings: RenderSettings, n: int) -> RenderSettings:
+    """The settings of refinement frame ``n`` (1-based) of ``method``.
+
+    With a ``sample_offset`` option: the same seed and ``sample_offset = o + (n − 1)·spp``
+    (``o``: the offset given in ``settings.options``, default 0), so frames 1…N draw the
+    first ``N·spp`` samples of one sequence. Otherwise: seed :func:`frame_seed` ``(seed, n)``.
+    Progress bars are off either way.
+    """
+    if continues_sequence(method):
+        base = int(settings.options.get("sample_offset", 0))
+        options = {**settings.options, "sample_offset": base + (n - 1) * settings.spp}
+        return replace(settings, options=options, progress=False)
+    return replace(settings, seed=frame_seed(settings.seed, n), progress=False)
+
+
+def frame_state(method: Method, state, settings: RenderSettings):
+    """The prepared ``state`` for rendering a frame with ``settings`` (from
+    :func:`frame_settings`).
+
+    A frame that continues a sequence differs from the prepared settings only in
+    ``sample_offset``, which selects samples and never enters preparation; a
+    :class:`~arlight.methods.base.Prepared` state is relabelled with the frame's options so
+    the render's check (prepared options == render options) holds. Other states pass through.
+    """
+    if isinstance(state, Prepared) and continues_sequence(method):
+        return replace(state, options=method.spec.parse_options(settings.options))
+    return state
 
 
 def progressive_method(name: str) -> Method:
@@ -97,7 +147,9 @@ def refine(scene: ARScene, method: str = "onepass", settings: RenderSettings | N
     The scene is prepared once and each frame rendered from that state. Stops after
     ``frames`` frames or once ``time_budget`` seconds have passed (checked after each frame;
     at least one frame is rendered). With neither given it runs until the caller stops
-    iterating.
+    iterating. Frame ``n`` renders with :func:`frame_settings` ``(method, settings, n)``:
+    consecutive samples of one sequence where the method has a ``sample_offset`` option,
+    fresh seeds otherwise.
     """
     if time_budget is not None and not (time_budget >= 0 and math.isfinite(time_budget)):
         raise InputError(f"must be a finite number of seconds >= 0, got {time_budget}",
@@ -113,8 +165,8 @@ def refine(scene: ARScene, method: str = "onepass", settings: RenderSettings | N
     n = 0
     while True:
         n += 1
-        layers = fn.render(state, view, replace(settings, seed=frame_seed(settings.seed, n),
-                                                progress=False))
+        frame = frame_settings(fn, settings, n)
+        layers = fn.render(frame_state(fn, state, frame), view, frame)
         image = acc.add(layers.composite)
         elapsed = time.perf_counter() - start
         yield RefineStep(n, elapsed, image, layers)
