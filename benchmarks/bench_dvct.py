@@ -52,7 +52,7 @@ def cone_error_report(scene) -> str:
     opts = SPEC.parse_options({"cone_scale": 1})
     data = prepare(scene.world, opts)
     vols = build_volumes(data, opts)
-    pairs = rsm_pair(data, data.grid, opts.rsm_size)
+    pairs = rsm_pair(data)
     gb = render_gbuffer(data.views.mixed, scene.camera)
     g = data.grid
     p = np.array(gb.position).T

@@ -86,7 +86,7 @@ def test_delta_volume_equals_difference_of_two_lpvs(direct):
     part of Franke §4.3 tested exactly. Rejects a sign error on R_µ, a wrong offset on one
     side, or eliminating texels that are not identical."""
     data = prepare(parse_scene(box_scene()).world, _opts())
-    pairs = rsm_pair(data, data.grid, 64)
+    pairs = rsm_pair(data)
     v_delta = SHVolume.zeros(data.grid)
     inject_delta(v_delta, pairs, direct=direct)
     v_rho, v_mu = SHVolume.zeros(data.grid), SHVolume.zeros(data.grid)

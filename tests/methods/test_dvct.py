@@ -94,7 +94,7 @@ def test_rho_equals_mu_plus_delta_at_the_finest_level():
     texel of R_ρ and R_µ. Rejects a sign error on R_µ, injecting R_µ at the virtual
     surface instead of the real one it hides, or a VPL offset on one side only."""
     data = prepare(parse_scene(box_scene()).world, _opts())
-    pairs = rsm_pair(data, data.grid, 64)
+    pairs = rsm_pair(data)
     delta, rho, count = inject_split(data.grid, pairs)
     assert count > 0
     rho_all = inject_regular(data.grid, pairs, 0)

@@ -16,7 +16,14 @@ from arlight.backend.variant import ensure_variant
 from arlight.errors import InputError
 from arlight.realtime.gbuffer import render_gbuffer, resolve
 from arlight.realtime.light_reduction import ReducedLight, reduce_lights
-from arlight.realtime.rsm import light_rays, render_rsm, render_rsm_pair, shared_texels
+from arlight.realtime.rsm import (
+    light_rays,
+    render_rsm,
+    render_rsm_pair,
+    render_rsm_pair_reusing,
+    shared_texels,
+)
+from arlight.realtime.shading import virtual_bounds
 from arlight.scene.load import parse_scene
 from tests.conftest import LOOK, area_light_scene
 
@@ -107,17 +114,25 @@ def test_rsms_equal_without_virtual_object():
             assert np.all(np.array(a.role)[~shared] == 1)
 
 
-def test_rsm_pair_equals_two_casts():
-    """``render_rsm_pair`` (R_µ cast on the virtual texels only) equals casting every ray
-    into both views, field by field, with and without a virtual object, and its changed
-    texels are exactly those that differ. Rejects copying the virtual hits into R_µ, casting
-    them into the mixed view, or putting them back at the wrong texels."""
+@pytest.mark.parametrize("reusing", [False, True])
+def test_rsm_pair_equals_two_casts(reusing):
+    """``render_rsm_pair`` (R_µ cast on the virtual texels only) and
+    ``render_rsm_pair_reusing`` (R_µ cast before, only rays crossing the virtual objects'
+    box cast into the mixed view) equal casting every ray into both views, field by field,
+    with and without a virtual object, and their changed texels are exactly those that
+    differ. Rejects copying the virtual hits into R_µ, casting them into the mixed view,
+    putting them back at the wrong texels, or a box test that drops rays that reach the
+    object."""
     for virtual in (False, True):
         world = parse_scene(area_light_scene(virtual=virtual)).world
         views = build_views(world)
         rays = light_rays(reduce_lights(world).lights[0], 64, (np.zeros(3), 2.0))
-        pair = render_rsm_pair(views, rays)
         full = (render_rsm(views.mixed, rays), render_rsm(views.real, rays))
+        if reusing:
+            box = virtual_bounds(world, views.mixed) or (np.full(3, 9.0), np.full(3, 9.5))
+            pair = render_rsm_pair_reusing(views, rays, full[1], box)
+        else:
+            pair = render_rsm_pair(views, rays)
         for got, want in zip((pair.rho, pair.mu()), full, strict=True):
             for name in ("position", "normal", "albedo", "role", "shape", "t", "direction",
                          "flux_in", "flux_out"):

@@ -3,7 +3,9 @@
 Per frame and per reduced light (:mod:`arlight.realtime.light_reduction`):
 
 1. two reflective shadow maps from the same light rays, ``R_ρ`` (mixed scene) and ``R_µ``
-   (real proxy only) (§4.3);
+   (real proxy only) (§4.3); ``R_µ`` is cast once when the world is prepared (the proxy and
+   the lights stay put) and a frame casts only the rays that cross the virtual objects'
+   bounding box;
 2. **indirect split injection** into the delta volume ``V_Δ`` (Eq. 13): every ``R_ρ`` texel's
    VPL ``Φ_p/π <n_p, ω>+`` (Eq. 12) added, every ``R_µ`` texel's subtracted, texels that see
    the same surface in both maps eliminated; each VPL moved half a cell along its normal
@@ -45,7 +47,15 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
-from arlight.realtime.rsm import RSMPair, check_memory, light_rays, render_rsm_pair
+from arlight.realtime.rsm import (
+    RSM,
+    LightRays,
+    RSMPair,
+    check_memory,
+    light_rays,
+    render_rsm,
+    render_rsm_pair_reusing,
+)
 from arlight.realtime.sh_volume import (
     Grid,
     SHVolume,
@@ -94,15 +104,30 @@ SPEC = MethodSpec(
 
 
 @dataclass
+class RealMaps:
+    """Per reduced light, the rays of its RSM and ``R_µ`` (the real proxy's map), cast once
+    when the world is prepared: the proxy and the lights do not change between frames, so a
+    frame casts only the rays that can reach a virtual object
+    (:func:`~arlight.realtime.rsm.render_rsm_pair_reusing`)."""
+
+    lights: LightSet  # the lights they were cast for (a replaced LightSet: cast again)
+    res: int
+    rays: list[LightRays]
+    mu: list[RSM]
+    box: tuple[np.ndarray, np.ndarray]  # the virtual objects' world bounding box (m)
+
+
+@dataclass
 class DLPVData:
-    """What ``prepare_world`` keeps: the world, its Mitsuba views, the reduced lights and the
-    volume grid (None without virtual objects)."""
+    """What ``prepare_world`` keeps: the world, its Mitsuba views, the reduced lights, the
+    volume grid and the real proxy's RSMs (both None without virtual objects)."""
 
     world: World
     views: SceneViews
     lights: LightSet
     grid: Grid | None
     read_scale: float = 1.0
+    real_maps: RealMaps | None = None
 
 
 @dataclass
@@ -130,14 +155,31 @@ def prepare(world: World, options: Options) -> DLPVData:
     scale = 1.0
     if options.calibrate and grid is not None:
         scale = 1.0 / plane_response(options.volume_size, options.steps, options.dampening)
-    return DLPVData(world, views, lights, grid, scale)
+    maps = None if grid is None else real_maps(views, lights, grid, options.rsm_size, bounds)
+    return DLPVData(world, views, lights, grid, scale, maps)
 
 
-def rsm_pair(data: DLPVData, grid: Grid, res: int) -> list[RSMPair]:
-    """``(R_ρ, R_µ)`` per reduced light (directional maps cover the volume)."""
+def real_maps(views: SceneViews, lights: LightSet, grid: Grid, res: int,
+              box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
+    """Every reduced light's RSM rays (directional maps cover the volume's bounding sphere)
+    and ``R_µ`` cast into the real-only view."""
     bounds = (grid.centre, grid.size * np.sqrt(3.0) / 2.0)
-    return [render_rsm_pair(data.views, light_rays(lt, res, bounds))
-            for lt in data.lights.lights]
+    rays = [light_rays(lt, res, bounds) for lt in lights.lights]
+    return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box)
+
+
+def rsm_pair(data: DLPVData) -> list[RSMPair]:
+    """``(R_ρ, R_µ)`` per reduced light of ``data`` (a :class:`DLPVData` or any prepared
+    state with ``views``, ``lights``, ``grid`` and ``real_maps``), from the prepared ``R_µ``
+    — cast again, for this call only, when ``data.lights`` is not the set they were cast
+    for."""
+    maps = data.real_maps
+    if maps is None:
+        return []
+    if maps.lights is not data.lights:
+        maps = real_maps(data.views, data.lights, data.grid, maps.res, maps.box)
+    return [render_rsm_pair_reusing(data.views, r, mu, maps.box)
+            for r, mu in zip(maps.rays, maps.mu, strict=True)]
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
@@ -187,7 +229,7 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
     if grid is None or not data.lights.lights:
         return Volumes(None, None, [])
     with timer.stage("rsm"):
-        pairs = rsm_pair(data, grid, options.rsm_size)
+        pairs = rsm_pair(data)
     with timer.stage("inject_rho"):
         v_rho = SHVolume.zeros(grid)
         inject_regular(v_rho, pairs, 0)
@@ -258,5 +300,6 @@ class DLPVMethod(BaseMethod):
         return layers
 
 
-__all__ = ["DLPVData", "DLPVMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
-           "inject_delta", "inject_regular", "injected_count", "prepare", "rsm_pair"]
+__all__ = ["DLPVData", "DLPVMethod", "OPTIONS", "RealMaps", "SPEC", "Volumes", "build_volumes",
+           "inject_delta", "inject_regular", "injected_count", "prepare", "real_maps",
+           "rsm_pair"]

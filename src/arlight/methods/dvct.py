@@ -65,7 +65,7 @@ import numpy as np
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
-from arlight.methods.dlpv import rsm_pair
+from arlight.methods.dlpv import RealMaps, real_maps, rsm_pair
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
@@ -196,8 +196,8 @@ class Materials:
 class DVCTData:
     """What ``prepare_world`` keeps: world, Mitsuba views, reduced lights, the volume grid
     (None without virtual objects), the real proxy's voxels, the virtual objects' triangles
-    (re-voxelised every frame), per-shape materials and the light radii (m) of the shadow
-    cones (directional lights: ``tan(γ/2)``)."""
+    (re-voxelised every frame), per-shape materials, the light radii (m) of the shadow
+    cones (directional lights: ``tan(γ/2)``) and the real proxy's RSMs (cast once)."""
 
     world: World
     views: SceneViews
@@ -207,6 +207,7 @@ class DVCTData:
     virtual_triangles: np.ndarray | None
     materials: Materials
     light_size: list[float]
+    real_maps: RealMaps | None = None
 
 
 def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float]:
@@ -245,7 +246,7 @@ def prepare(world: World, options: Options, previous: DVCTData | None = None) ->
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
-    grid = real = tris = None
+    grid = real = tris = maps = None
     if bounds is not None:
         grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
         if previous is not None and _same_grid(previous.grid, grid):
@@ -253,8 +254,9 @@ def prepare(world: World, options: Options, previous: DVCTData | None = None) ->
         else:
             real = voxelize_shapes(world.real_shapes, grid)
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
+        maps = real_maps(views, lights, grid, options.rsm_size, bounds)
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
-                    _light_sizes(world, lights, options))
+                    _light_sizes(world, lights, options), maps)
 
 
 # --------------------------------------------------------------------------------------------
@@ -325,7 +327,7 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
     if grid is None:
         return None
     with timer.stage("rsm"):
-        pairs = rsm_pair(data, grid, options.rsm_size) if data.lights.lights else []
+        pairs = rsm_pair(data)
     with timer.stage("voxelize"):
         virt = voxelize(data.virtual_triangles, grid)
         alpha0, normal0 = eta_level0(data.real_voxels, virt)

@@ -17,7 +17,11 @@ The same rays are cast into the mixed view (``R_ρ``) and the real-only view (``
 (Franke §4.3: "the same process is repeated for a second RSM R^µ"). A ray whose first hit in
 the mixed scene is real (or a miss) sees the same in the real-only scene, so
 :func:`render_rsm_pair` casts only the texels that hit a virtual object again and copies the
-rest: those texels carry bit-identical values in both maps.
+rest: those texels carry bit-identical values in both maps. When the real proxy and the
+lights stay put between frames (the prepared world: only virtual objects move),
+:func:`render_rsm_pair_reusing` goes further: ``R_µ`` is cast once (:func:`render_rsm`) and
+each frame casts into the mixed view only the rays that cross the virtual objects' bounding
+box — the same pair, for a fraction of the rays.
 """
 
 from __future__ import annotations
@@ -199,19 +203,31 @@ class RSMPair:
 
     def mu(self) -> RSM:
         """``R_µ`` on every texel (``R_ρ`` with the changed texels replaced)."""
-        if dr.width(self.changed) == 0:
-            return self.rho
-        n = dr.width(self.rho.role)
-        slot = dr.zeros(mi.UInt32, n)
-        dr.scatter(slot, dr.arange(mi.UInt32, dr.width(self.changed)), self.changed)
-        hit = dr.zeros(mi.Bool, n)
-        dr.scatter(hit, True, self.changed)
-        fields = {name: dr.select(hit, dr.gather(type(getattr(self.rho, name)),
-                                                 getattr(self.mu_changed, name), slot, hit),
-                                  getattr(self.rho, name))
-                  for name in _RSM_ARRAYS}
-        dr.eval(*fields.values())
-        return RSM(**fields, res=self.rho.res)
+        return replace_texels(self.rho, self.changed, self.mu_changed)
+
+
+def replace_texels(base: RSM, idx: mi.UInt32, sub: RSM) -> RSM:
+    """``base`` with the texels ``idx`` replaced by ``sub`` (``width(idx)`` lanes, in that
+    order); ``base`` itself when ``idx`` is empty."""
+    if dr.width(idx) == 0:
+        return base
+    n = dr.width(base.role)
+    slot = dr.zeros(mi.UInt32, n)
+    dr.scatter(slot, dr.arange(mi.UInt32, dr.width(idx)), idx)
+    hit = dr.zeros(mi.Bool, n)
+    dr.scatter(hit, True, idx)
+    fields = {name: dr.select(hit, dr.gather(type(getattr(base, name)), getattr(sub, name),
+                                             slot, hit), getattr(base, name))
+              for name in _RSM_ARRAYS}
+    dr.eval(*fields.values())
+    return RSM(**fields, res=base.res)
+
+
+def subset_rays(rays: LightRays, idx: mi.UInt32) -> LightRays:
+    """The rays ``idx`` of ``rays`` (``res`` 0: not a square map)."""
+    return LightRays(dr.gather(mi.Point3f, rays.origin, idx),
+                     dr.gather(mi.Vector3f, rays.direction, idx),
+                     dr.gather(mi.Color3f, rays.flux, idx), 0)
 
 
 def render_rsm_pair(views: SceneViews, rays: LightRays) -> RSMPair:
@@ -220,12 +236,32 @@ def render_rsm_pair(views: SceneViews, rays: LightRays) -> RSMPair:
     :meth:`RSMPair.mu`) for the cost of one plus the virtual object's texels."""
     rho = render_rsm(views.mixed, rays)
     changed = dr.compress(rho.role == ROLE_VIRTUAL)
-    sub = LightRays(dr.gather(mi.Point3f, rays.origin, changed),
-                    dr.gather(mi.Vector3f, rays.direction, changed),
-                    dr.gather(mi.Color3f, rays.flux, changed), 0)
     if dr.width(changed) == 0:  # no virtual object in the light's view: R_µ = R_ρ
         return RSMPair(rho, changed, rsm_subset(rho, changed))
-    return RSMPair(rho, changed, render_rsm(views.real, sub))
+    return RSMPair(rho, changed, render_rsm(views.real, subset_rays(rays, changed)))
+
+
+def render_rsm_pair_reusing(views: SceneViews, rays: LightRays, mu: RSM,
+                            box: tuple[np.ndarray, np.ndarray]) -> RSMPair:
+    """The pair of :func:`render_rsm_pair` from ``mu = render_rsm(views.real, rays)`` cast
+    earlier: only the rays that cross ``box`` (lo, hi: the virtual objects' world bounding
+    box, m) are cast into the mixed view — no other ray can reach a virtual object, so
+    everywhere else ``R_ρ`` is ``R_µ`` (the same first hit) — and those texels replace
+    ``R_µ``'s in ``R_ρ``. Bit for bit the same maps as :func:`render_rsm_pair`."""
+    lo, hi = (np.asarray(b, np.float64) for b in box)
+    pad = 1e-4 * max(float(np.max(hi - lo)), 1e-3)  # rays grazing the box stay candidates
+    bbox = mi.BoundingBox3f(mi.Point3f(*[float(x) for x in lo - pad]),
+                            mi.Point3f(*[float(x) for x in hi + pad]))
+    crosses, _, _ = bbox.ray_intersect(mi.Ray3f(rays.origin, rays.direction))
+    cand = dr.compress(crosses)
+    if dr.width(cand) == 0:
+        return RSMPair(mu, cand, rsm_subset(mu, cand))
+    sub = render_rsm(views.mixed, subset_rays(rays, cand))
+    virt = dr.compress(sub.role == ROLE_VIRTUAL)
+    changed = dr.gather(mi.UInt32, cand, virt)
+    dr.eval(changed)
+    rho = replace_texels(mu, changed, rsm_subset(sub, virt))
+    return RSMPair(rho, changed, rsm_subset(mu, changed))
 
 
 def shared_texels(a: RSM, b: RSM) -> mi.Bool:
@@ -235,4 +271,5 @@ def shared_texels(a: RSM, b: RSM) -> mi.Bool:
 
 
 __all__ = ["RSM", "LightRays", "check_memory", "concat_rays", "light_rays", "render_rsm",
-           "RSMPair", "render_rsm_pair", "rsm_subset", "shared_texels"]
+           "RSMPair", "render_rsm_pair", "render_rsm_pair_reusing", "replace_texels",
+           "rsm_subset", "shared_texels", "subset_rays"]
