@@ -11,7 +11,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from arlight.backend.passes import effective_replicas, run_passes
+from arlight.backend.passes import effective_replicas, pass_plan, run_passes
 from arlight.scene.camera import Camera, look_at
 
 CAM = Camera.from_fov(64, 48, 50.0, world_from_camera=look_at([0, 1, 3], [0, 0, 0]))
@@ -29,11 +29,25 @@ def test_effective_replicas_divide_spp():
 
 @pytest.mark.parametrize("sampler", ["sobol", "independent"])
 def test_results_do_not_depend_on_the_passes(sampler):
+    """Passes of all replicas (8 or 32 samples) and passes smaller than the replica count
+    (3 replicas a pass: a wide image under the lane budget) give the same sums."""
     a = run_passes(CAM, 32, kernel, seed=4, sampler=sampler, replicas=8)
-    b = run_passes(CAM, 32, kernel, seed=4, sampler=sampler, replicas=8, spp_per_pass=8)
-    for x, y in ((a.moments["v"].total, b.moments["v"].total),
-                 (a.moments["v"].replica_total, b.moments["v"].replica_total)):
-        np.testing.assert_array_equal(x, y)
+    for per_pass in (8, 3):
+        b = run_passes(CAM, 32, kernel, seed=4, sampler=sampler, replicas=8,
+                       spp_per_pass=per_pass)
+        assert b.moments["v"].count == 32
+        np.testing.assert_allclose(a.moments["v"].total, b.moments["v"].total, rtol=1e-12)
+        np.testing.assert_allclose(a.moments["v"].replica_total,
+                                   b.moments["v"].replica_total, rtol=1e-12)
+
+
+def test_pass_plan_covers_every_sample_once_within_the_cap():
+    for spp, n_rep, cap in ((32, 8, 8), (32, 8, 3), (48, 16, 5), (7, 7, 100), (64, 16, 1)):
+        seen = []
+        for r0, g, j0, m in pass_plan(spp, n_rep, cap):
+            assert g * m <= max(cap, 1) or (g == n_rep and m == 1 and cap < 1)
+            seen += [(r, j) for r in range(r0, r0 + g) for j in range(j0, j0 + m)]
+        assert sorted(seen) == [(r, j) for r in range(n_rep) for j in range(spp // n_rep)]
 
 
 def test_replica_errors_are_honest_and_per_sample_ones_are_not():

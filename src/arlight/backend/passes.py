@@ -81,9 +81,12 @@ class PixelMoments:
         if r < 2:
             return np.sqrt(self.variance / max(self.count, 1))
         assert self.replica_total is not None
-        means = self.replica_total / max(self.count // r, 1)
-        dev = means - self.mean[:, :, None, :]
-        return np.sqrt(np.sum(dev * dev, axis=2) / (r * (r - 1)))
+        # Σ (m_r − m)² = Σ d_r² − (Σ d_r)² / R with d_r = m_r − m_0 (shifted: no cancellation
+        # for a large mean, exactly 0 for equal replicas), one temporary of (H, W, R, C)
+        d = self.replica_total - self.replica_total[:, :, :1]
+        ss = np.einsum("hwrc,hwrc->hwc", d, d) - np.square(d.sum(axis=2)) / r
+        n_r = max(self.count // r, 1)
+        return np.sqrt(np.maximum(ss, 0.0) / (r * (r - 1))) / n_r
 
 
 @dataclass
@@ -108,6 +111,26 @@ def effective_replicas(spp: int, replicas: int) -> int:
     while spp % r:
         r -= 1
     return r
+
+
+def pass_plan(spp: int, n_rep: int, cap: int) -> list[tuple[int, int, int, int]]:
+    """The passes of a render: ``(r0, g, j0, m)`` = replicas ``[r0, r0 + g)``, samples
+    ``[j0, j0 + m)`` of each, at most ``max(cap, 1)`` samples per pixel a pass. With
+    ``cap ≥ n_rep`` every pass holds all replicas (``m = cap // n_rep`` samples each);
+    below, a pass holds ``cap`` replicas one sample each, so a wide image with many replicas
+    still keeps a pass within the lane budget. Every (replica, sample) appears once."""
+    per_rep = spp // n_rep
+    out = []
+    if cap >= n_rep:
+        step = cap // n_rep
+        for j0 in range(0, per_rep, step):
+            out.append((0, n_rep, j0, min(step, per_rep - j0)))
+    else:
+        g = max(1, cap)
+        for j0 in range(per_rep):
+            for r0 in range(0, n_rep, g):
+                out.append((r0, min(g, n_rep - r0), j0, 1))
+    return out
 
 
 def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
@@ -147,8 +170,7 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
     w, h = camera.width, camera.height
     n_pix = w * h
     n_rep = effective_replicas(spp, replicas)
-    per_pass = spp_per_pass or max(1, min(spp, max_lanes // n_pix))
-    per_pass = max(n_rep, per_pass // n_rep * n_rep)
+    cap = spp_per_pass or max(1, min(spp, max_lanes // n_pix))  # samples per pixel a pass
     if sample_offset < 0 or sample_offset % n_rep:
         raise InputError(f"must be >= 0 and a multiple of the {n_rep} replicas, got "
                          f"{sample_offset}", field="sample_offset")
@@ -160,16 +182,15 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
     start = time.perf_counter()
     bar = _progress(progress, spp)
     try:
-        k0 = 0
-        while k0 < spp:
-            n = min(per_pass, spp - k0)  # a multiple of n_rep, as are spp and per_pass
-            m = n // n_rep  # samples per replica in this pass
+        k0 = 0  # samples per pixel done so far
+        for r0, g, j0, m in pass_plan(spp, n_rep, cap):
+            n = g * m  # this pass: replicas [r0, r0 + g), samples [j0, j0 + m) of each
             lanes = n * n_pix
             idx = dr.arange(mi.UInt32, lanes)
             pixel = idx // n
-            t = idx % n  # replica-major within the pixel: replica r = t // m
-            replica = t // m
-            j = t % m + dr.opaque(mi.UInt32, k0 // n_rep)  # sample index within the replica
+            t = idx % n  # replica-major within the pixel
+            replica = t // m + dr.opaque(mi.UInt32, r0)
+            j = t % m + dr.opaque(mi.UInt32, j0)  # sample index within the replica
             k = j * n_rep + replica  # sample index within the pixel
             seed_u = dr.opaque(mi.UInt32, seed)
             cmj_u = dr.opaque(mi.UInt32, cmj_seed)
@@ -208,8 +229,8 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                 mom.total_sq += _to_image(total_sq, h, w)
                 if rep is not None:
                     assert mom.replica_total is not None
-                    shape_r = mom.replica_total.shape
-                    mom.replica_total += _to_image(rep, h, w * n_rep).reshape(shape_r)
+                    mom.replica_total[:, :, r0:r0 + g] += _to_image(rep, h, w * g).reshape(
+                        h, w, g, -1)
                 mom.count += n
             result.lanes += lanes
             k0 += n
