@@ -165,6 +165,9 @@ def synth(
     batches: Annotated[int, typer.Option(help="independent batches the per-pixel standard "
                                          "errors are estimated from (>= 2, at most --spp)",
                                          min=2, max=MAX_SPP)] = 64,
+    sampler: Annotated[str, typer.Option(help="Mitsuba sampler of every batch: multijitter "
+                                         "(stratified, lowest error), ldsampler, orthogonal "
+                                         "or independent")] = "multijitter",
     force: Force = False,
 ) -> None:
     """Synthesise a camera frame (world without virtual objects) and its ground truth with
@@ -174,13 +177,13 @@ def synth(
     from arlight.scene.load import load_scene
     from arlight.synthetic import batch_plan, synthesize
 
-    batch_plan(spp, batches)  # spp/batches errors before the scene loads
+    batch_plan(spp, batches, sampler)  # spp/batches/sampler errors before the scene loads
     w = load_scene(world)
     cam = w.camera
     _check_before_work(cam, spp, f"synthesising {cam.width}×{cam.height} at {spp} spp", force,
                        out, SYNTH_FILES, (world,), layers=7)
     photo = synthesize(w, spp=spp, seed=seed, max_depth=max_depth, use_cache=not no_cache,
-                       progress=True, batches=batches)
+                       progress=True, batches=batches, sampler=sampler)
     t = w.camera.transfer
     with StagedOutput(out, "synth", SYNTH_FILES) as tmp:
         write_exr(tmp / "frame.exr", photo.frame)
