@@ -43,12 +43,17 @@ with a ``sampler``, kernel(rays, pixel_index, sampler_seed, n_lanes, lane_sample
 
 @dataclass
 class PixelMoments:
-    """Running per-pixel sums of a sampled quantity ``(H, W, C)`` (float64)."""
+    """Running per-pixel sums of a sampled quantity ``(H, W, C)`` (float64).
+
+    With ``R ≥ 2`` replicas the per-replica sums stay in Dr.Jit (``replica_sums``: float64,
+    laid out pixel, channel, replica) until a result needs them: copying them out after
+    every pass cost as much as a fifth of a 640×480 render."""
 
     total: np.ndarray
     total_sq: np.ndarray
     count: int = 0
-    replica_total: np.ndarray | None = None  # (H, W, R, C) sums per replica (R >= 2)
+    n_replicas: int = 1
+    replica_sums: mi.Float64 | None = None
 
     @property
     def mean(self) -> np.ndarray:
@@ -65,7 +70,16 @@ class PixelMoments:
     @property
     def replicas(self) -> int:
         """Independent replicas behind :attr:`stderr` (1: per-sample variance)."""
-        return 1 if self.replica_total is None else self.replica_total.shape[2]
+        return 1 if self.replica_sums is None else self.n_replicas
+
+    @property
+    def replica_total(self) -> np.ndarray | None:
+        """``(H, W, R, C)`` sums per replica (None without replicas)."""
+        if self.replica_sums is None:
+            return None
+        h, w, c = self.total.shape
+        a = np.array(self.replica_sums, dtype=np.float64).reshape(h, w, c, self.n_replicas)
+        return a.transpose(0, 1, 3, 2)
 
     @property
     def dof(self) -> int:
@@ -80,13 +94,16 @@ class PixelMoments:
         r = self.replicas
         if r < 2:
             return np.sqrt(self.variance / max(self.count, 1))
-        assert self.replica_total is not None
-        # Σ (m_r − m)² = Σ d_r² − (Σ d_r)² / R with d_r = m_r − m_0 (shifted: no cancellation
-        # for a large mean, exactly 0 for equal replicas), one temporary of (H, W, R, C)
-        d = self.replica_total - self.replica_total[:, :, :1]
-        ss = np.einsum("hwrc,hwrc->hwc", d, d) - np.square(d.sum(axis=2)) / r
+        assert self.replica_sums is not None
+        # Σ (T_r − T̄)² = Σ d_r² − (Σ d_r)² / R with d_r = T_r − T_0 (shifted: no cancellation
+        # for a large mean, exactly 0 for equal replicas), in Dr.Jit over the R-blocks
+        x = self.replica_sums
+        j = dr.arange(mi.UInt32, dr.width(x))
+        d = x - dr.gather(mi.Float64, x, j - j % r)
+        ss = dr.block_sum(d * d, r) - dr.square(dr.block_sum(d, r)) / r
         n_r = max(self.count // r, 1)
-        return np.sqrt(np.maximum(ss, 0.0) / (r * (r - 1))) / n_r
+        ss = np.maximum(np.array(ss, dtype=np.float64), 0.0).reshape(self.total.shape)
+        return np.sqrt(ss / (r * (r - 1))) / n_r
 
 
 @dataclass
@@ -103,6 +120,18 @@ def _to_image(x, height: int, width: int) -> np.ndarray:
     a = np.array(x, dtype=np.float64)
     a = a[:, None] if a.ndim == 1 else a.T  # Dr.Jit 3-vectors convert channel-major (3, N)
     return a.reshape(height, width, a.shape[-1])
+
+
+def _add_replica_sums(mom: PixelMoments, v, n_pix: int, r0: int, g: int, m: int) -> None:
+    """Add a pass's per-replica sums of ``v`` (lanes: pixel, then ``g`` replicas from ``r0``
+    with ``m`` samples each) into ``mom.replica_sums`` (pixel, channel, replica)."""
+    comps = [v] if isinstance(v, mi.Float) else [v.x, v.y, v.z]
+    r = mom.n_replicas
+    b = dr.arange(mi.UInt32, n_pix * g)
+    slot = (b // g) * (len(comps) * r) + (b % g + r0)
+    for ci, comp in enumerate(comps):
+        dr.scatter_reduce(dr.ReduceOp.Add, mom.replica_sums,
+                          dr.block_sum(mi.Float64(comp), m), slot + ci * r)
 
 
 def effective_replicas(spp: int, replicas: int) -> int:
@@ -214,23 +243,23 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                     rays = generate_rays(camera, pixel, k, spp, cmj_u)
                 outputs = kernel(rays, pixel, pass_seed, lanes, stream)
             dr.eval(outputs)  # one render kernel; the reductions below read its results
-            sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n),
-                           dr.block_sum(v, m) if n_rep > 1 else None)
+            sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n))
                     for name, v in outputs.items()}
-            dr.eval(sums)
-            for name, (total, total_sq, rep) in sums.items():
+            for name, (total, _) in sums.items():
                 mom = result.moments.get(name)
                 if mom is None:
                     shape = (h, w, 1 if isinstance(total, mi.Float) else 3)
-                    mom = result.moments[name] = PixelMoments(np.zeros(shape), np.zeros(shape))
+                    mom = result.moments[name] = PixelMoments(np.zeros(shape), np.zeros(shape),
+                                                              n_replicas=n_rep)
                     if n_rep > 1:
-                        mom.replica_total = np.zeros((h, w, n_rep, shape[2]))
+                        mom.replica_sums = dr.zeros(mi.Float64, n_pix * shape[2] * n_rep)
+                if n_rep > 1:
+                    _add_replica_sums(mom, outputs[name], n_pix, r0, g, m)
+            dr.eval(sums, [mom.replica_sums for mom in result.moments.values()])
+            for name, (total, total_sq) in sums.items():
+                mom = result.moments[name]
                 mom.total += _to_image(total, h, w)
                 mom.total_sq += _to_image(total_sq, h, w)
-                if rep is not None:
-                    assert mom.replica_total is not None
-                    mom.replica_total[:, :, r0:r0 + g] += _to_image(rep, h, w * g).reshape(
-                        h, w, g, -1)
                 mom.count += n
             result.lanes += lanes
             k0 += n
