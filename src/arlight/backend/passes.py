@@ -130,8 +130,10 @@ def _add_replica_sums(mom: PixelMoments, v, n_pix: int, r0: int, g: int, m: int)
     b = dr.arange(mi.UInt32, n_pix * g)
     slot = (b // g) * (len(comps) * r) + (b % g + r0)
     for ci, comp in enumerate(comps):
+        # every slot once per pass: plain atomic adds, no SIMD pre-reduction (~2x faster)
         dr.scatter_reduce(dr.ReduceOp.Add, mom.replica_sums,
-                          dr.block_sum(mi.Float64(comp), m), slot + ci * r)
+                          dr.block_sum(mi.Float64(comp), m), slot + ci * r,
+                          mode=dr.ReduceMode.Direct)
 
 
 def effective_replicas(spp: int, replicas: int) -> int:
