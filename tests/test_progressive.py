@@ -86,8 +86,9 @@ def test_refinement_prepares_once_and_matches_one_shot_frames(monkeypatch):
     assert "time_trace" in steps[-1].layers.stats
 
 
-@pytest.mark.parametrize(("spp", "replicas"), [(1, 16), (2, 16), (4, 2)])
-def test_refinement_continues_one_sequence(spp, replicas):
+@pytest.mark.parametrize(("spp", "replicas", "mode"), [(1, 16, "scrambles"), (2, 16, "scrambles"),
+                                                    (4, 2, "scrambles"), (4, 2, "blocks")])
+def test_refinement_continues_one_sequence(spp, replicas, mode):
     """onepass (it has a `sample_offset` option): N frames of `spp` samples with one seed are
     exactly the first N·spp samples of every pixel's sequences, i.e. their mean layers equal
     one render of N·spp samples with the same seed (and the frame's replica count, the
@@ -95,17 +96,19 @@ def test_refinement_continues_one_sequence(spp, replicas):
     (Eq. 4.12 averages composites) equals that render's composite wherever its mask is 0 or 1
     (where compositing is linear). Bugs caught: fresh seeds per frame, an offset that is not
     advanced (every frame the same samples), or advanced wrongly (by n·spp: the first
-    frame's samples skipped; by spp/R: replicas overlapping)."""
+    frame's samples skipped; by spp/R: replicas overlapping). With `replica_mode = blocks`
+    the frames are consecutive blocks of one sequence, the same samples as the one render."""
     from arlight.backend.passes import effective_replicas
 
     scene = small_scene(16, 12)
     frames = 8
-    opts = {"replicas": replicas}
+    opts = {"replicas": replicas, "replica_mode": mode}
     steps = list(refine(scene, "onepass", RenderSettings(spp=spp, seed=11, options=opts),
                         frames=frames))
     r = effective_replicas(spp, replicas)
     alone = get_method("onepass")(scene, RenderSettings(spp=frames * spp, seed=11,
-                                                        options={"replicas": r}))
+                                                        options={"replicas": r,
+                                                                 "replica_mode": mode}))
     for name in ("mixed", "real", "delta", "mask"):
         mean = np.mean([getattr(st.layers, name) for st in steps], axis=0, dtype=np.float64)
         np.testing.assert_allclose(mean, getattr(alone, name), rtol=2e-5, atol=2e-6,
