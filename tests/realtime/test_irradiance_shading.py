@@ -87,7 +87,7 @@ def test_mirror_paths_read_indirect_light_through_the_reprojection():
         return (hi.mixed - lo.mixed)[mirror].mean(axis=0)
 
     dic = indirect("dic", 16, 1, opts)
-    one = indirect("onepass", 256, 2, {})
+    one = indirect("onepass", 1024, 2, {})  # 256 spp left ±6 % noise in the red mean
     assert np.all(one > 0.01), one
     np.testing.assert_allclose(dic, one, rtol=0.1)
 
