@@ -13,8 +13,9 @@
   after a newer change it is still shown, flagged ``superseded``, and the newest state is
   rendered next. The outgoing side is latest-wins too (:mod:`arlight.studio.server`).
 * **Progressive methods** (capability ``progressive``, e.g. ``onepass``) refine while the
-  session is idle: frame ``n`` is rendered with seed :func:`arlight.progressive.frame_seed`
-  ``(seed, n)`` and folded into running means by Kán Eq. 4.12
+  session is idle: frame ``n`` is rendered with :func:`arlight.progressive.frame_settings`
+  (onepass: the next samples of one sequence; others: seed ``frame_seed(seed, n)``) and
+  folded into running means by Kán Eq. 4.12
   (:class:`arlight.progressive.Accumulator`), exactly as ``arlight render --progressive``
   does; any change restarts at ``n = 1``.
 * Errors stay in their session: a failing render or a bad message is reported to that
@@ -39,7 +40,7 @@ from arlight.errors import InputError
 from arlight.evaluate.metrics import rmse
 from arlight.methods import Method, RenderSettings, get_method, methods
 from arlight.methods.base import Layers, Prepared
-from arlight.progressive import Accumulator, frame_seed
+from arlight.progressive import Accumulator, frame_settings, frame_state
 from arlight.scene.load import PATH_KEYS
 from arlight.scene.model import ARScene
 from arlight.studio import imaging
@@ -546,9 +547,12 @@ class Engine:
         state = self.prepared(method, s)
         view = replace(self.view, object_transforms=_transforms(poses))
         progressive = self.catalogue[method].progressive
-        seed = frame_seed(self.settings.seed, n) if progressive else self.settings.seed
+        settings = self.settings
+        if progressive:  # frame n of the refinement (onepass: samples continue one sequence)
+            settings = frame_settings(fn, self.settings, n)
+            state = frame_state(fn, state, settings)
         t1 = time.perf_counter()
-        layers = fn.render(state, view, replace(self.settings, seed=seed))
+        layers = fn.render(state, view, settings)
         t_render = time.perf_counter() - t1
         with s.lock:
             if s.closed:
