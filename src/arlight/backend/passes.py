@@ -36,6 +36,9 @@ from arlight.errors import InputError
 from arlight.sampling.stream import CAMERA_LENS, CAMERA_PIXEL, SAMPLERS, LaneSampler
 from arlight.scene.camera import Camera
 
+MAX_LANES = 2_000_000
+"""Default most lanes (camera samples) per pass of :func:`run_passes`."""
+
 Kernel = Callable[..., dict[str, mi.Float | mi.Color3f]]
 """kernel(rays, pixel_index, sampler_seed, n_lanes) -> {name: per-lane Float or Color3f};
 with a ``sampler``, kernel(rays, pixel_index, sampler_seed, n_lanes, lane_sampler)."""
@@ -166,7 +169,7 @@ def pass_plan(spp: int, n_rep: int, cap: int) -> list[tuple[int, int, int, int]]
 
 def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                spp_per_pass: int | None = None, progress: str | None = None,
-               max_lanes: int = 2_000_000, sampler: str | None = None,
+               max_lanes: int = MAX_LANES, sampler: str | None = None,
                replicas: int = 1, scramble_replicas: bool = True,
                sample_offset: int = 0) -> PassResult:
     """Evaluate ``kernel`` on ``spp`` camera samples per pixel and accumulate moments.
