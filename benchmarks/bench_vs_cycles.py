@@ -10,12 +10,16 @@ over it; arlight's is Debevec's differential composite (Eq. 2.20). Both composit
 synthetic camera frame (Mitsuba's render of the world).
 
 Measured, in one process with interleaved repeats (the machine is shared): for each
-renderer and ``spp`` in ``--spp``, the wall time (arlight: the whole method call, scene
-preparation included; Cycles: its synchronisation + render time from the EXR metadata) and
-the relative RMSE ``‖x − c‖ / ‖c‖`` against the renderer's *own* converged composite ``c``
-(``--gt-spp``); a least-squares line through log error against log time gives the time to
-reach 5 %, 2.5 % and 1 %. Correctness: each converged composite's relative RMSE against the
-ground-truth photograph (Mitsuba, the world with the virtual objects).
+renderer and ``spp`` in ``--spp``, ``--repeats`` independent renders (different seeds) and
+their wall times (arlight: the whole method call, scene preparation included; Cycles: its
+synchronisation + render time from the EXR metadata). The *noise* of one render is its
+relative RMSE about its own expectation, estimated from the repeats without any converged
+image: ``sqrt(mean_pixels s²) / rms(c)``, with ``s²`` the per-pixel unbiased variance over the
+repeats and ``c`` the mean of the renderer's highest-spp renders (a converged image of finite
+spp would add its own noise to every error and flatten the curves near 1 %). A least-squares
+line through log noise against log time gives the time to reach 5 %, 2.5 % and 1 %.
+Correctness: the mean of each renderer's highest-spp renders against the ground-truth
+photograph (Mitsuba, the world with the virtual objects), next to that mean's own noise.
 
 bpy runs in its own virtual environment (bpy 5.0 requires numpy < 2; arlight needs numpy 2):
 
@@ -41,7 +45,7 @@ HERE = Path(__file__).resolve().parent
 TARGETS = (0.05, 0.025, 0.01)
 ARLIGHT = {  # label -> (method, options)
     "onepass": ("onepass", {"reproject": False}),
-    "onepass blocks": ("onepass", {"reproject": False, "replica_mode": "blocks"}),
+    "onepass scrambles": ("onepass", {"reproject": False, "replica_mode": "scrambles"}),
     "onepass before #22": ("onepass", {"reproject": False, "sampler": "independent",
                                        "replicas": 1, "light_sampling": "mitsuba"}),
     "reference": ("reference", {}),
@@ -144,6 +148,12 @@ def rel_rmse(x: np.ndarray, ref: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x - ref)) / np.mean(np.square(ref))))
 
 
+def rel_noise(images: list[np.ndarray], norm: float) -> float:
+    """Relative RMSE of one render about its expectation from independent renders (≥ 2)."""
+    var = np.var(np.stack(images), axis=0, ddof=1)
+    return float(np.sqrt(np.mean(var)) / norm)
+
+
 def time_to(errs: list[tuple[float, float]], target: float) -> float:
     """Time at which the log–log line through (seconds, error) reaches ``target``."""
     t, e = np.log([p[0] for p in errs]), np.log([p[1] for p in errs])
@@ -158,12 +168,17 @@ def main() -> None:
     ap.add_argument("--scene", default="bunny-box")
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--spp", nargs="+", type=int, default=[4, 16, 64, 256])
-    ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--gt-spp", type=int, default=4096)
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="independent renders per spp and renderer (>= 2: the noise estimate)")
     ap.add_argument("--frame-spp", type=int, default=1024)
     ap.add_argument("--max-depth", type=int, default=8)
+    ap.add_argument("--only", nargs="+", default=list(ARLIGHT), choices=list(ARLIGHT),
+                    help="arlight renderers to run (Cycles always runs)")
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args()
+    if args.repeats < 2:
+        sys.exit("--repeats must be >= 2 (the noise comes from the spread of the repeats)")
+    labels = list(args.only)
     if not Path(args.bpy_python).exists():
         sys.exit(f"no Python with bpy at {args.bpy_python} (see the module docstring)")
 
@@ -192,40 +207,53 @@ def main() -> None:
         cyc = Cycles(args.bpy_python, tmp / "scene.npz", photo.frame, tmp)
         try:
             renderers = {label: (lambda s, seed, lb=label: arlight(lb, s, seed))
-                         for label in ARLIGHT}
+                         for label in labels}
             renderers["cycles"] = cyc.render
             for r in renderers.values():  # warm-up: kernels compiled, Blender scene synced
                 r(4, 7)
-            conv = {label: r(args.gt_spp, 99)[0] for label, r in renderers.items()}
-            pts: dict[str, list[tuple[float, float]]] = {k: [] for k in renderers}
+            runs: dict[str, dict[int, list]] = {k: {s: [] for s in args.spp} for k in renderers}
             for rep in range(args.repeats):
                 for spp in args.spp:
                     for label, r in renderers.items():
                         img, sec = r(spp, 1000 + rep)
-                        pts[label].append((sec, rel_rmse(img, conv[label])))
-                        print(label, spp, pts[label][-1], flush=True)
+                        runs[label][spp].append((img, sec))
+                        print(label, spp, rep, f"{sec:.2f} s", flush=True)
         finally:
             cyc.close()
     pressure.append(cpu_pressure())
     gt = photo.ground_truth.astype(np.float64)
+    top = max(args.spp)
+    pts: dict[str, list[tuple[float, float]]] = {}
+    best: dict[str, np.ndarray] = {}
+    for k, per_spp in runs.items():
+        best[k] = np.mean([img for img, _ in per_spp[top]], axis=0)
+        norm = float(np.sqrt(np.mean(np.square(best[k]))))
+        pts[k] = [(float(np.mean([sec for _, sec in v])), rel_noise([img for img, _ in v], norm))
+                  for v in per_spp.values()]
     t_to = {k: {t: time_to(v, t) for t in TARGETS} for k, v in pts.items()}
+    slope = {k: float(np.polyfit(np.log(args.spp), np.log([e for _, e in v]), 1)[0])
+             for k, v in pts.items()}
     lines = [HEADING, "",
-             f"`python benchmarks/bench_vs_cycles.py` — `{args.scene}` proxy at {size[0]}×"
-             f"{size[1]}, max_depth {args.max_depth} (Cycles: {args.max_depth - 2} bounces), "
-             f"spp {args.spp} × {args.repeats} interleaved repeats, converged images at "
-             f"{args.gt_spp} spp, frame and ground truth {args.frame_spp} spp (Mitsuba). "
-             f"CPU pressure (avg60) before/after: {pressure[0] or 'n/a'} / "
-             f"{pressure[1] or 'n/a'} %.", "",
+             f"`python benchmarks/bench_vs_cycles.py --width {size[0]} --spp "
+             f"{' '.join(map(str, args.spp))} --repeats {args.repeats}` — `{args.scene}` proxy "
+             f"at {size[0]}×{size[1]}, max_depth {args.max_depth} (Cycles: "
+             f"{args.max_depth - 2} bounces), {args.repeats} interleaved repeats per spp, "
+             f"frame and ground truth {args.frame_spp} spp (Mitsuba). Noise: relative RMSE of "
+             "one render about its own expectation, from the repeats' per-pixel variance. CPU "
+             f"pressure (avg60) before/after: {pressure[0] or 'n/a'} / {pressure[1] or 'n/a'} %.",
+             "",
              "| renderer | time to 5 % (s) | to 2.5 % | to 1 % | Cycles time / its time at "
-             "2.5 % | at 1 % | converged vs ground truth (rel. RMSE) |",
-             "|---|---|---|---|---|---|---|"]
+             "2.5 % | at 1 % | noise slope vs spp | mean of top-spp renders vs ground truth "
+             "(rel. RMSE / its noise) |",
+             "|---|---|---|---|---|---|---|---|"]
     for k in renderers:
         tt = t_to[k]
+        own = pts[k][-1][1] / np.sqrt(args.repeats)
         lines.append(f"| {k} | {tt[0.05]:.3g} | {tt[0.025]:.3g} | {tt[0.01]:.3g} | "
                      f"{t_to['cycles'][0.025] / tt[0.025]:.2f} | "
-                     f"{t_to['cycles'][0.01] / tt[0.01]:.2f} | {rel_rmse(conv[k], gt):.4f} |")
-    lines += ["", "Raw points (seconds, relative RMSE vs own converged image), spp ascending "
-              "per repeat:", ""]
+                     f"{t_to['cycles'][0.01] / tt[0.01]:.2f} | {slope[k]:.3f} | "
+                     f"{rel_rmse(best[k], gt):.4f} / {own:.4f} |")
+    lines += ["", "Points (mean seconds, noise) per spp " + str(args.spp) + ":", ""]
     for k, v in pts.items():
         lines.append(f"* {k}: " + ", ".join(f"({s:.2f}, {e:.4f})" for s, e in v))
     publish("\n".join(lines), args.write)
