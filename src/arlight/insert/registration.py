@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from arlight.errors import InputError
+from arlight.errors import InputError, read_text
 
 WORLD_FROM_BOARD = np.array([[1.0, 0.0, 0.0, 0.0],
                              [0.0, 0.0, -1.0, 0.0],
@@ -142,10 +142,8 @@ def _checked(m: MarkerSpec, field: str) -> MarkerSpec:
 
 def _marker_from_toml(path: Path) -> MarkerSpec:
     try:
-        d = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise InputError("marker file not found", file=str(path)) from exc
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        d = tomllib.loads(read_text(path, "marker file"))
+    except tomllib.TOMLDecodeError as exc:
         raise InputError(f"cannot read the marker file ({exc})", file=str(path)) from exc
     known = {"type", "squares", "square_length", "marker_length", "dictionary", "id"}
     if extra := sorted(set(d) - known):

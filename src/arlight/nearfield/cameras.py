@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arlight.errors import InputError
+from arlight.errors import InputError, read_text
 from arlight.sphere.fisheye import FisheyeCamera, OcamCamera, load_camera
 
 Model = FisheyeCamera | OcamCamera
@@ -100,11 +100,9 @@ def load_rig(path: str | Path) -> list[RigCamera]:
     path = Path(path)
     file = str(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise InputError("camera rig file not found", file=file) from exc
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(f"cannot read the camera rig ({exc})", file=file) from exc
+        data = tomllib.loads(read_text(path, "camera rig file"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"cannot read the camera rig file ({exc})", file=file) from exc
     entries = data.get("cameras")
     if not isinstance(entries, list) or not entries:
         raise InputError("expected at least one [[cameras]] table", file=file,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arlight.errors import InputError
+from arlight.errors import InputError, read_text
 from arlight.io.images import atomic_write
 from arlight.nearfield.state import NearFieldLight
 
@@ -49,10 +49,8 @@ def load_light(path: str | Path) -> NearFieldLight:
     """Read a light file. Raises InputError naming the file and field."""
     path = Path(path)
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise InputError("light file not found", file=str(path)) from exc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        d = json.loads(read_text(path, "light file"))
+    except json.JSONDecodeError as exc:
         raise InputError(f"cannot read the light file ({exc})", file=str(path)) from exc
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise InputError(f"not a near-field light file (format must be {FORMAT!r})",

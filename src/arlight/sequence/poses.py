@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arlight.errors import InputError
+from arlight.errors import InputError, read_text
 
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 """Camera-axes flip between OpenCV (y down, z forward) and OpenGL/ARKit (y up, z backward)."""
@@ -192,12 +192,7 @@ def read_pose_lines(path: str | Path, named: bool = False
     Raises :class:`InputError` naming the file and line.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("poses file not found", file=str(path))
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read the poses file ({exc})", file=str(path)) from exc
+    text = read_text(path, "poses file")
     tracks: dict[str, list[Keyframe]] = {}
     for no, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
@@ -256,12 +251,10 @@ def read_keyframes_toml(path: str | Path) -> tuple[list[Keyframe], dict[str, lis
     from arlight.scene.schema import Validator
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError("keyframes file not found", file=str(path))
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(f"cannot read the keyframes ({exc})", file=str(path)) from exc
+        data = tomllib.loads(read_text(path, "keyframes file"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"cannot read the keyframes file ({exc})", file=str(path)) from exc
     v = Validator(str(path), path.parent.resolve())
     v.check_keys(data, {"camera", "objects"}, "")
 
