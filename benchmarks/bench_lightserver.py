@@ -166,14 +166,23 @@ def record_frames(folder: Path, frames: int = 4) -> float:
     return (time.perf_counter() - t0) / frames
 
 
-def run_load(n, rate, seconds, vals, n_obj, live=None):
+def start_receivers(n, **kwargs):
+    """Start ``n`` receivers (``receiver_proc`` with ``kwargs``) in a few spawned processes
+    on fresh endpoints: ``(ctx, pub, snap, stop, out, sout, procs)`` — the spawn context, the
+    endpoints, the stop event, the receivers' queue, a second queue (for the server or the
+    hostile publisher) and the processes."""
     ctx = mp.get_context("spawn")
     pub, snap = endpoints()
     stop, out, sout = ctx.Event(), ctx.Queue(), ctx.Queue()
-    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out))
+    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out), kwargs=kwargs)
           for k in _split(n)]
     for p in ps:
         p.start()
+    return ctx, pub, snap, stop, out, sout, ps
+
+
+def run_load(n, rate, seconds, vals, n_obj, live=None):
+    ctx, pub, snap, stop, out, sout, ps = start_receivers(n)
     time.sleep(1.5)  # receivers up (they would also catch up by snapshot)
     count = None if live else int(rate * seconds)
     server = ctx.Process(target=server_proc, args=(pub, snap, rate, count, vals, n_obj, 1, sout),
@@ -210,13 +219,7 @@ def summarise(n, s, rows):
 
 def fault_restart(rate, vals, n_obj, n=16):
     """Kill the server process mid-stream (SIGKILL), restart it on the same ports."""
-    ctx = mp.get_context("spawn")
-    pub, snap = endpoints()
-    stop, out, sout = ctx.Event(), ctx.Queue(), ctx.Queue()
-    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out),
-                      kwargs={"sample_epochs": True}) for k in _split(n)]
-    for p in ps:
-        p.start()
+    ctx, pub, snap, stop, out, sout, ps = start_receivers(n, sample_epochs=True)
     time.sleep(1.5)
     a = ctx.Process(target=server_proc, args=(pub, snap, rate, None, vals, n_obj, 1, sout))
     a.start()
@@ -306,13 +309,7 @@ def hostile_proc(pub, snap, seconds, vals, out):
 
 
 def fault_malformed(vals, n=16, seconds=4.0):
-    ctx = mp.get_context("spawn")
-    pub, snap = endpoints()
-    stop, out, hout = ctx.Event(), ctx.Queue(), ctx.Queue()
-    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out),
-                      kwargs={"timeout": 5.0}) for k in _split(n)]
-    for p in ps:
-        p.start()
+    ctx, pub, snap, stop, out, hout, ps = start_receivers(n, timeout=5.0)
     time.sleep(1.5)
     h = ctx.Process(target=hostile_proc, args=(pub, snap, seconds, vals, hout))
     h.start()
@@ -333,13 +330,7 @@ def fault_malformed(vals, n=16, seconds=4.0):
 def fault_slow(rate, seconds, vals, n_obj, n=16, freeze=3.0):
     import zmq
 
-    ctx = mp.get_context("spawn")
-    pub, snap = endpoints()
-    stop, out, sout = ctx.Event(), ctx.Queue(), ctx.Queue()
-    ps = [ctx.Process(target=receiver_proc, args=(pub, snap, k, stop, out))
-          for k in _split(n)]
-    for p in ps:
-        p.start()
+    ctx, pub, snap, stop, out, sout, ps = start_receivers(n)
     zctx = zmq.Context()
     never = zctx.socket(zmq.SUB)  # a subscriber that never reads
     never.setsockopt(zmq.SUBSCRIBE, b"")
