@@ -28,7 +28,8 @@ at equal spp was 0.17 / 0.16 / 0.17 for ``multijitter`` at 4 / 16 / 64 spp, 0.19
 (``multijitter``: 0.24 at 9, 0.19 at 25): ``multijitter`` is the default, being as good or
 better and accepting most counts. A low-discrepancy sampler renders only certain counts per
 pixel (``multijitter`` rounds ``n`` up to ``⌊√n⌋·⌈n/⌊√n⌋⌉``, e.g. 5 → 6), so the plan
-(:func:`batch_plan`) only asks for counts it renders exactly (:func:`rendered_count`).
+(:func:`batch_plan`) only asks for counts it renders exactly (Mitsuba is asked:
+:func:`~arlight.backend.mitsuba_scene.sampler_count`).
 
 **Standard errors.** Each image is rendered as ``B`` independent batches with different
 seeds — each batch its own randomisation of the sampler — with ``n_b`` samples per pixel
@@ -100,6 +101,7 @@ from arlight.backend.mitsuba_scene import (
     load_sensor,
     phong_plugin_name,
     plugin_dict,
+    sampler_count,
     virtual_names,
 )
 from arlight.backend.variant import ensure_variant
@@ -151,18 +153,6 @@ def default_cache_dir() -> Path:
 # What determines the images
 # --------------------------------------------------------------------------------------------
 
-def rendered_count(sampler: str, n: int) -> int:
-    """Samples per pixel Mitsuba's ``sampler`` renders when asked for ``n`` (its own rounding,
-    asked of the plugin; its warning about rounding is silenced)."""
-    ensure_variant()
-    level = mi.log_level()
-    mi.set_log_level(mi.LogLevel.Error)
-    try:
-        return int(mi.load_dict({"type": sampler, "sample_count": int(n)}).sample_count())
-    finally:
-        mi.set_log_level(level)
-
-
 def check_sampler(sampler: str) -> None:
     """Raise :class:`InputError` (field ``sampler``) unless ``sampler`` is in :data:`SAMPLERS`."""
     if sampler not in SAMPLERS:
@@ -175,7 +165,8 @@ def batch_plan(spp: int, batches: int, sampler: str = "independent") -> list[int
 
     ``independent``: ``min(batches, spp)`` batches, sizes differing by at most one (larger
     ones first). A low-discrepancy ``sampler``: ``spp / n`` equal batches of the largest
-    ``n`` that ``sampler`` renders exactly (:func:`rendered_count`), divides ``spp`` and
+    ``n`` that ``sampler`` renders exactly
+    (:func:`~arlight.backend.mitsuba_scene.sampler_count`), divides ``spp`` and
     leaves at least ``min(batches, spp)`` batches (see the module docstring).
 
     Raises:
@@ -192,8 +183,8 @@ def batch_plan(spp: int, batches: int, sampler: str = "independent") -> list[int
     b = min(batches, spp)
     if sampler != "independent":
         n = max(v for v in range(1, spp // b + 1)
-                if spp % v == 0 and (v == 1 or rendered_count(sampler, v) == v))
-        if rendered_count(sampler, n) != n:  # a sampler that cannot render 1 sample
+                if spp % v == 0 and (v == 1 or sampler_count(sampler, v) == v))
+        if sampler_count(sampler, n) != n:  # a sampler that cannot render 1 sample
             raise InputError(f"the {sampler} sampler cannot split {spp} spp into at least "
                              f"{b} equal batches it renders exactly", field="spp")
         return [n] * (spp // n)
@@ -204,7 +195,7 @@ def batch_plan(spp: int, batches: int, sampler: str = "independent") -> list[int
 def mask_count(spp: int, sampler: str) -> int:
     """Samples per pixel of the mask: ``max(spp, MIN_MASK_SPP)``, rounded up to a count
     ``sampler`` renders exactly."""
-    return rendered_count(sampler, max(spp, MIN_MASK_SPP))
+    return sampler_count(sampler, max(spp, MIN_MASK_SPP))
 
 
 def _passes(n: int, pixels: int) -> int:
@@ -474,4 +465,4 @@ class _Progress:
 
 __all__ = ["DEFAULT_SAMPLER", "FORMAT_VERSION", "SAMPLERS", "SyntheticPhoto", "batch_plan",
            "check_sampler", "content_key", "default_cache_dir", "mask_count", "render_spec",
-           "rendered_count", "spec_key", "synthesize"]
+           "spec_key", "synthesize"]

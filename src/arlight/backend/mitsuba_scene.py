@@ -73,6 +73,18 @@ Node = dict[str, Any]
 # Describe: materials
 # --------------------------------------------------------------------------------------------
 
+def sampler_count(kind: str, n: int) -> int:
+    """Samples per pixel Mitsuba's sampler ``kind`` renders when asked for ``n`` (its own
+    rounding, e.g. ``multijitter`` 5 → 6; its warning about rounding is silenced)."""
+    ensure_variant()
+    level = mi.log_level()
+    mi.set_log_level(mi.LogLevel.Error)
+    try:
+        return int(mi.load_dict({"type": kind, "sample_count": int(n)}).sample_count())
+    finally:
+        mi.set_log_level(level)
+
+
 def _rgb(c) -> Node:
     return {"type": "rgb", "value": [float(x) for x in c]}
 

@@ -65,7 +65,13 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.camera_rays import rays_from_samples
-from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews, build_views
+from arlight.backend.mitsuba_scene import (
+    ROLE_VIRTUAL,
+    SceneView,
+    SceneViews,
+    build_views,
+    sampler_count,
+)
 from arlight.backend.passes import MAX_LANES, effective_replicas, run_passes
 from arlight.methods.base import (
     BaseMethod,
@@ -122,16 +128,6 @@ class LDPlan:
         return self.per_pass * self.replicas
 
 
-def _sampler_count(kind: str, n: int) -> int:
-    """Samples per pixel Mitsuba's sampler ``kind`` renders when asked for ``n``."""
-    level = mi.log_level()
-    mi.set_log_level(mi.LogLevel.Error)  # its warning about rounding
-    try:
-        return int(mi.load_dict({"type": kind, "sample_count": int(n)}).sample_count())
-    finally:
-        mi.set_log_level(level)
-
-
 def ld_plan(kind: str, spp: int, replicas: int, pixels: int,
             spp_per_pass: int | None = None, max_lanes: int = MAX_LANES) -> LDPlan:
     """Replicas, set size and pass size of a low-discrepancy render.
@@ -143,7 +139,7 @@ def ld_plan(kind: str, spp: int, replicas: int, pixels: int,
     """
     r = effective_replicas(spp, replicas)
     s = spp // r
-    count = _sampler_count(kind, s)
+    count = sampler_count(kind, s)
     cap = spp_per_pass or max(1, max_lanes // max(pixels, 1))
     g = math.gcd(s, count)
     m = max(d for d in range(1, g + 1) if g % d == 0 and (d == 1 or d * r <= cap))
