@@ -15,20 +15,21 @@ Two modes over any registered method (``onepass`` by default):
   and renders every frame from that state (``method.render``). Only methods whose
   capabilities say ``progressive`` are accepted.
 
-**Which samples a frame draws** (:func:`frame_settings`). A method whose options declare
-``sample_offset`` (its samples are indices into per-pixel low-discrepancy sequences, e.g.
-``onepass``'s Sobol sampler, :mod:`arlight.backend.passes`) keeps the seed of the settings for
-every frame and draws samples ``[o + (n − 1)·spp, o + n·spp)`` in frame ``n`` (``o``: the
-``sample_offset`` given in the options, default 0): the first ``N`` frames together are
-exactly the first ``N·spp`` samples of every pixel's sequences, so their mean layers equal
-one render of ``N·spp`` samples (one low-discrepancy set converging faster than 1/√N), not
-``N`` independent randomisations. The offset must be a multiple of the frame's replica count
-(the standard errors' randomisations, the largest divisor of ``spp`` not above the
-``replicas`` option): ``(n − 1)·spp`` always is, for any ``spp`` — with the default ``spp = 1``
-a frame has a single replica (its own standard error is then undefined, which refinement
-never reads). Every other method gets a fresh seed :func:`frame_seed` ``(seed, n)`` per frame
-(independent estimates). Either way frame ``n`` is bitwise the one-shot render with
-:func:`frame_settings` ``(method, settings, n)``.
+**Which samples a frame draws** (:func:`frame_settings`). A method with the frame option
+``sample_offset`` (:attr:`~arlight.methods.spec.MethodSpec.frame_options`: a render may change
+it without preparing again; its samples are indices into per-pixel low-discrepancy sequences,
+e.g. ``onepass``'s Sobol sampler, :mod:`arlight.backend.passes`) keeps the seed of the settings
+for every frame and draws samples ``[o + (n − 1)·spp, o + n·spp)`` in frame ``n`` (``o``: the
+``sample_offset`` given in the options, default 0): the first ``N`` frames together are exactly
+the first ``N·spp`` samples of every pixel's sequences, so their mean layers equal one render
+of ``N·spp`` samples (one low-discrepancy set converging faster than 1/√N), not ``N``
+independent randomisations. The offset must be a multiple of the frame's replica count (the
+standard errors' randomisations, the largest divisor of ``spp`` not above the ``replicas``
+option): ``(n − 1)·spp`` always is, for any ``spp`` — with the default ``spp = 1`` a frame has
+a single replica (its own standard error is then undefined, which refinement never reads).
+Every other method gets a fresh seed :func:`frame_seed` ``(seed, n)`` per frame (independent
+estimates). Either way frame ``n`` is bitwise the one-shot render with :func:`frame_settings`
+``(method, settings, n)``.
 
 :func:`run_cli` is what ``arlight render --progressive`` calls: a rich progress bar,
 snapshots (EXR + PNG) at frames 1, 2, 4, 8, … and at the end, and, given a ground truth, the
@@ -48,7 +49,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.methods import Method, RenderSettings, get_method
-from arlight.methods.base import Layers, Prepared
+from arlight.methods.base import Layers
 from arlight.scene.model import ARScene
 from arlight.timing import format_stages
 
@@ -97,9 +98,10 @@ def frame_seed(base: int, n: int) -> int:
 
 
 def continues_sequence(method: Method) -> bool:
-    """Whether ``method``'s frames continue one sample sequence (its options declare
-    ``sample_offset``) rather than taking fresh seeds."""
-    return "sample_offset" in method.spec.options
+    """Whether ``method``'s frames continue one sample sequence (``sample_offset`` is one of
+    its frame options, :attr:`~arlight.methods.spec.MethodSpec.frame_options`) rather than
+    taking fresh seeds."""
+    return "sample_offset" in method.spec.frame_options
 
 
 def frame_settings(method: Method, settings: RenderSettings, n: int) -> RenderSettings:
@@ -115,20 +117,6 @@ def frame_settings(method: Method, settings: RenderSettings, n: int) -> RenderSe
         options = {**settings.options, "sample_offset": base + (n - 1) * settings.spp}
         return replace(settings, options=options, progress=False)
     return replace(settings, seed=frame_seed(settings.seed, n), progress=False)
-
-
-def frame_state(method: Method, state, settings: RenderSettings):
-    """The prepared ``state`` for rendering a frame with ``settings`` (from
-    :func:`frame_settings`).
-
-    A frame that continues a sequence differs from the prepared settings only in
-    ``sample_offset``, which selects samples and never enters preparation; a
-    :class:`~arlight.methods.base.Prepared` state is relabelled with the frame's options so
-    the render's check (prepared options == render options) holds. Other states pass through.
-    """
-    if isinstance(state, Prepared) and continues_sequence(method):
-        return replace(state, options=method.spec.parse_options(settings.options))
-    return state
 
 
 def progressive_method(name: str) -> Method:
@@ -166,7 +154,7 @@ def refine(scene: ARScene, method: str = "onepass", settings: RenderSettings | N
     while True:
         n += 1
         frame = frame_settings(fn, settings, n)
-        layers = fn.render(frame_state(fn, state, frame), view, frame)
+        layers = fn.render(state, view, frame)
         image = acc.add(layers.composite)
         elapsed = time.perf_counter() - start
         yield RefineStep(n, elapsed, image, layers)

@@ -94,6 +94,19 @@ def test_state_of_another_method_or_other_options_is_refused():
     state = one.prepare(scene.world, RenderSettings(options={"mode": "twopass"}))
     with pytest.raises(InputError, match="prepare again"):
         one.render(state, scene.view, RenderSettings())
+    # a frame option (onepass: sample_offset) may differ; any other option still may not
+    state = one.prepare(scene.world, RenderSettings(spp=2))
+    frame = RenderSettings(spp=2, options={"sample_offset": 2})
+    np.testing.assert_array_equal(one.render(state, scene.view, frame).composite,
+                                  one(scene, frame).composite)
+    with pytest.raises(InputError, match="prepare again"):
+        one.render(state, scene.view, RenderSettings(spp=2, options={"sample_offset": 2,
+                                                                     "mode": "twopass"}))
+
+
+def test_frame_options_must_be_options():
+    with pytest.raises(ValueError, match="frame option 'seed' is not an option"):
+        MethodSpec(name="x", description="x", frame_options=frozenset({"seed"}))
 
 
 # -------------------------------------------------------------------------- options

@@ -321,7 +321,8 @@ class BaseMethod(ABC):
             raise TypeError(f"{self.spec.name}.render needs the state of "
                             f"{self.spec.name}.prepare, got {type(state).__name__}")
         opts = self.options(settings)
-        if opts != state.options:
+        if (self.spec.preparation_options(opts)
+                != self.spec.preparation_options(state.options)):
             raise InputError(f"{self.spec.name} was prepared with options "
                              f"{dict(state.options)} but renders with {dict(opts)}; "
                              "prepare again", field="options")

@@ -126,6 +126,7 @@ SPEC = MethodSpec(
     options=OPTIONS,
     capabilities=Capabilities(interactive=True, progressive=True),
     check=_check,
+    frame_options=frozenset({"sample_offset"}),
 )
 
 

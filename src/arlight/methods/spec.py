@@ -151,6 +151,9 @@ class MethodSpec:
         capabilities: what the method supports and needs.
         check: optional cross-option check, called with the validated options; raises
             :class:`InputError` naming ``options.<key>``.
+        frame_options: options that only choose what a frame draws (e.g. ``sample_offset``)
+            and never enter preparation: a render may set them differently from the options
+            the world was prepared with.
     """
 
     name: str
@@ -158,12 +161,19 @@ class MethodSpec:
     options: Mapping[str, Field] = field(default_factory=dict)
     capabilities: Capabilities = field(default_factory=Capabilities)
     check: Callable[[Options], None] | None = None
+    frame_options: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
         if not self.name or any(c.isspace() or c in ".=," for c in self.name):
             raise ValueError(f"method name {self.name!r}: no spaces, dots, commas or '='")
         if "\n" in self.description.strip():
             raise ValueError(f"method {self.name!r}: the description must be one line")
+        if extra := sorted(set(self.frame_options) - set(self.options)):
+            raise ValueError(f"method {self.name!r}: frame option {extra[0]!r} is not an option")
+
+    def preparation_options(self, opts: Options) -> dict[str, Any]:
+        """``opts`` without the :attr:`frame_options` (what preparation may depend on)."""
+        return {k: v for k, v in opts.items() if k not in self.frame_options}
 
     def parse_options(self, raw: Mapping[str, Any] | None) -> Options:
         """Validate ``raw`` (e.g. ``RenderSettings.options``) and fill in the defaults.

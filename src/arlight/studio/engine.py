@@ -40,7 +40,7 @@ from arlight.errors import InputError
 from arlight.evaluate.metrics import rmse
 from arlight.methods import Method, RenderSettings, get_method, methods
 from arlight.methods.base import Layers, Prepared
-from arlight.progressive import Accumulator, frame_settings, frame_state
+from arlight.progressive import Accumulator, frame_settings
 from arlight.scene.load import PATH_KEYS
 from arlight.scene.model import ARScene
 from arlight.studio import imaging
@@ -550,7 +550,6 @@ class Engine:
         settings = self.settings
         if progressive:  # frame n of the refinement (onepass: samples continue one sequence)
             settings = frame_settings(fn, self.settings, n)
-            state = frame_state(fn, state, settings)
         t1 = time.perf_counter()
         layers = fn.render(state, view, settings)
         t_render = time.perf_counter() - t1
