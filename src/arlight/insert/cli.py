@@ -11,17 +11,6 @@ from arlight.bounds import MAX_SEED, MAX_SPP
 from arlight.errors import InputError
 
 
-def _floats(text: str, n: int, field: str) -> tuple[float, ...]:
-    try:
-        v = tuple(float(x) for x in text.split(","))
-    except ValueError as exc:
-        raise InputError(f"cannot parse {text!r} ({exc})", field=field) from exc
-    if len(v) != n:
-        raise InputError(f"expected {n} numbers separated by commas, got {text!r}",
-                         field=field)
-    return v
-
-
 def insert_command(
     photo: Annotated[Path, typer.Argument(help="photograph with the marker in view (PNG/JPEG "
                                           "or EXR/.hdr)")],
@@ -73,33 +62,53 @@ def insert_command(
     composite.png), as one set.
     """
     from arlight.bounds import check_estimate, estimate
-    from arlight.insert.pipeline import INSERT_FILES, InsertRequest, prepare_inputs, run_insert
+    from arlight.insert.imagesize import image_size
+    from arlight.insert.numbers import floats, number, rotation
+    from arlight.insert.pipeline import (
+        InsertRequest,
+        check_insert_output,
+        insert_inputs,
+        prepare_inputs,
+        run_insert,
+    )
     from arlight.insert.proxy import parse_box
-    from arlight.io.images import is_hdr_path, read_hdr, read_ldr
     from arlight.methods import RenderSettings, get_method
     from arlight.methods.spec import parse_option_pairs
-    from arlight.outputs_atomic import check_output_dir
 
     if albedo not in ("texture", "median"):
         raise InputError(f"expected texture or median, got {albedo!r}", field="--albedo")
-    rot = [_floats(r, 4, "--rotate") for r in rotate or []]
     req = InsertRequest(photo=photo, calib=calib, marker=marker, light=light, object=obj,
-                        at=_floats(at, 3, "--at"), scale=scale, rotate=rot,  # type: ignore[arg-type]
-                        color=_floats(color, 3, "--color"),  # type: ignore[arg-type]
-                        light_rotation_deg=light_rotation, light_scale=light_scale,
-                        plane_size=_floats(plane_size, 2, "--plane-size"),  # type: ignore[arg-type]
+                        at=floats(at, 3, "--at"),  # type: ignore[arg-type]
+                        scale=number(scale, "--scale", 1e-6, 1e6),
+                        rotate=[rotation(r) for r in rotate or []],
+                        color=floats(color, 3, "--color", 0.0, 1.0),  # type: ignore[arg-type]
+                        light_rotation_deg=number(light_rotation, "--light-rotation",
+                                                  -3600.0, 3600.0),
+                        light_scale=number(light_scale, "--light-scale", 0.0, 1e9,
+                                           lo_open=True),
+                        plane_size=floats(plane_size, 2, "--plane-size"),  # type: ignore[arg-type]
                         boxes=[parse_box(b) for b in box or []], albedo_mode=albedo)
     fn = get_method(method)
     settings = RenderSettings(spp=spp, seed=seed, progress=True,
                               options=parse_option_pairs(option or []))
     fn.spec.parse_options(settings.options)  # a bad option fails before any work
-    prepare_inputs(req)
-    image = read_hdr(photo) if is_hdr_path(photo) else read_ldr(photo)
-    h, w = image.shape[:2]
+    _, calibration, lights = prepare_inputs(req)
+    if not photo.is_file():
+        raise InputError("photo not found", file=str(photo), field="PHOTO")
+    # the cost from the photo's header (or the calibration's size), before decoding it
+    from arlight.io.images import is_hdr_path, read_hdr, read_ldr
+
+    size = image_size(photo)
+    if size is None and is_hdr_path(photo):
+        size = calibration.size
+    if size is None:  # a header we cannot parse: decoding reports what is wrong
+        image = read_hdr(photo) if is_hdr_path(photo) else read_ldr(photo)
+        size = image.shape[1], image.shape[0]
+        del image
+    w, h = size
     est = estimate(w, h, spp, paths=2, layers=14)
-    check_estimate(est, f"rendering {w}×{h} at {spp} spp", force)
-    inputs = [photo, calib, obj] + ([Path(light)] if Path(light).is_file() else [])
-    check_output_dir(out, INSERT_FILES, int(est.output_bytes), inputs)
+    check_estimate(est, f"rendering the {w}×{h} photo at {spp} spp", force)
+    check_insert_output(out, insert_inputs(req, lights), int(est.output_bytes))
     result, layers = run_insert(req, out, method, settings)
     r = result.registration
     typer.echo(f"pose: {r.corners} corners, reprojection error {r.reprojection_px:.3f} px "

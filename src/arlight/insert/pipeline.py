@@ -155,8 +155,11 @@ def _object_shape(req: InsertRequest) -> tuple[dict[str, Any], np.ndarray]:
 
 
 def _check_request(req: InsertRequest) -> None:
+    """Every number of the request finite and in range (InputError naming the option)."""
+    from arlight.insert.numbers import MAX_ANGLE_DEG, MAX_LENGTH_M, number
+
     at = np.asarray(req.at, np.float64)
-    if at.shape != (3,) or not np.all(np.isfinite(at)) or np.any(np.abs(at) > 1e3):
+    if at.shape != (3,) or not np.all(np.isfinite(at)) or np.any(np.abs(at) > MAX_LENGTH_M):
         raise InputError(f"expected three finite coordinates (m), got {req.at!r}", field="--at")
     if at[1] < -1e-6:
         raise InputError(f"the object's bottom would be {-at[1] * 1000:.1f} mm below the "
@@ -164,13 +167,54 @@ def _check_request(req: InsertRequest) -> None:
                          field="--at")
     if not (np.isfinite(req.scale) and 1e-6 <= req.scale <= 1e6):
         raise InputError(f"must be in [1e-6, 1e6], got {req.scale}", field="--scale")
+    for r in req.rotate:
+        a = np.asarray(r, np.float64)
+        if a.shape != (4,) or not np.all(np.isfinite(a)) or not np.any(a[:3]) \
+                or abs(a[3]) > MAX_ANGLE_DEG or np.any(np.abs(a[:3]) > 1e6):
+            raise InputError(f"expected a non-zero finite axis and an angle within "
+                             f"±{MAX_ANGLE_DEG:g}°, got {tuple(r)!r}", field="--rotate")
     ps = np.asarray(req.plane_size, np.float64)
-    if ps.shape != (2,) or not np.all(np.isfinite(ps)) or np.any(ps <= 0) or np.any(ps > 1e3):
+    if ps.shape != (2,) or not np.all(np.isfinite(ps)) or np.any(ps <= 0) \
+            or np.any(ps > MAX_LENGTH_M):
         raise InputError(f"expected two positive lengths (m), got {req.plane_size!r}",
                          field="--plane-size")
     c = np.asarray(req.color, np.float64)
     if c.shape != (3,) or not np.all((c >= 0) & (c <= 1)):
         raise InputError(f"expected three values in [0, 1], got {req.color!r}", field="--color")
+    number(req.light_rotation_deg, "--light-rotation", -MAX_ANGLE_DEG, MAX_ANGLE_DEG)
+    number(req.light_scale, "--light-scale", 0.0, 1e9, lo_open=True)
+
+
+def insert_inputs(req: InsertRequest, lights: Sequence[dict] = ()) -> list[Path]:
+    """Every file the request reads: the photo, calibration, mesh, a light or marker file,
+    and the files those reference (``lights``: the light tables, whose ``file`` entries are
+    an environment map a light estimate points to)."""
+    files = [Path(req.photo), Path(req.object)]
+    if not isinstance(req.calib, Calibration):
+        files.append(Path(req.calib))
+    if isinstance(req.marker, str) and req.marker.lower().endswith(".toml"):
+        files.append(Path(req.marker))
+    if not req.light.lower().startswith("sun:"):
+        files.append(Path(req.light))
+    files += [Path(t["file"]) for t in lights if isinstance(t.get("file"), str)]
+    return files
+
+
+def check_insert_output(out: str | Path, inputs: Sequence[Path],
+                        expected_bytes: int = 0) -> Path:
+    """Refuse, before any work, an output folder that is an input, holds one, or cannot be
+    written as a new set (:func:`arlight.outputs_atomic.check_output_dir`); the message names
+    the output and the input."""
+    import os
+
+    from arlight.outputs_atomic import check_output_dir
+
+    real = Path(os.path.realpath(out))
+    for p in inputs:
+        if Path(os.path.realpath(p)) == real:
+            raise InputError(f"is the input {p}; the output folder would replace it (choose "
+                             "another output folder)", file=str(out), field="--out")
+    return check_output_dir(out, INSERT_FILES, expected_bytes, inputs)
 
 
 def prepare_inputs(req: InsertRequest) -> tuple[MarkerSpec, Calibration, list[dict]]:
@@ -271,7 +315,8 @@ def run_insert(req: InsertRequest, out: str | Path, method: str = "reference",
     settings = settings or RenderSettings()
     fn = get_method(method)
     fn.spec.parse_options(settings.options)
-    prepare_inputs(req)  # bad inputs fail before the output folder is touched
+    _, _, lights = prepare_inputs(req)  # bad inputs fail before the output folder is touched
+    check_insert_output(out, insert_inputs(req, lights))
     with StagedOutput(out, "insert", INSERT_FILES) as tmp:
         result = build_scene(req, tmp)
         # the scene file re-renders the way it was rendered (`arlight render` reads this)

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from arlight.errors import InputError
+from arlight.insert.numbers import floats
 from arlight.insert.registration import WORLD_FROM_BOARD
 
 
@@ -46,27 +47,14 @@ class ProxyBox:
                 "material": {"type": "diffuse", "albedo": np.asarray(alb, float).tolist()}}
 
 
-def _floats(text: str, n: int, field: str) -> tuple[float, ...]:
-    try:
-        v = tuple(float(x) for x in text.split(","))
-    except ValueError as exc:
-        raise InputError(f"cannot parse {text!r} ({exc})", field=field) from exc
-    if len(v) != n or not all(np.isfinite(v)):
-        raise InputError(f"expected {n} finite numbers separated by commas, got {text!r}",
-                         field=field)
-    return v
-
-
 def parse_box(spec: str, field: str = "--box") -> ProxyBox:
     """``X,Y,Z:SX,SY,SZ[:R,G,B]`` → :class:`ProxyBox` (InputError naming ``field``)."""
     parts = spec.split(":")
     if len(parts) not in (2, 3):
         raise InputError(f"cannot parse {spec!r}; expected X,Y,Z:SX,SY,SZ[:R,G,B]", field=field)
-    centre = _floats(parts[0], 3, field)
-    size = _floats(parts[1], 3, field)
+    centre = floats(parts[0], 3, field)
+    size = floats(parts[1], 3, field)
     if min(size) <= 0:
         raise InputError(f"box sizes must be positive, got {parts[1]!r}", field=field)
-    alb = _floats(parts[2], 3, field) if len(parts) == 3 else None
-    if alb is not None and not all(0 <= a <= 1 for a in alb):
-        raise InputError(f"albedo must be in [0, 1], got {parts[2]!r}", field=field)
+    alb = floats(parts[2], 3, field, 0.0, 1.0) if len(parts) == 3 else None
     return ProxyBox(centre, size, alb)  # type: ignore[arg-type]

@@ -127,16 +127,37 @@ def parse_marker(spec: str, field: str = "--marker") -> MarkerSpec:
                      "DICT, aruco:SIDE_M:DICT[:ID] or a .toml file", field=field)
 
 
+def dictionary_size(name: str) -> int:
+    """Number of markers in OpenCV's predefined dictionary ``name``."""
+    return int(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList.shape[0])
+
+
+def charuco_markers(squares: tuple[int, int]) -> int:
+    """Markers on a ChArUco board of ``squares`` (one in every other square)."""
+    return squares[0] * squares[1] // 2
+
+
 def _checked(m: MarkerSpec, field: str) -> MarkerSpec:
+    """Refuse a target that cannot exist before OpenCV builds it: a ChArUco board needs one
+    distinct marker of its dictionary per white square, so its size is bounded by the
+    dictionary (at most 1024 markers), which also bounds the memory of the board's model and
+    its detection (``charuco:100000x100000:...`` would ask for 10¹⁰ corners)."""
     if min(m.squares) < 1 or (m.kind == "charuco" and min(m.squares) < 2):
         raise InputError(f"a ChArUco board needs at least 2×2 squares, got {m.squares}",
                          field=field)
     if not (np.isfinite(m.square_length) and np.isfinite(m.marker_length)
-            and 0 < m.marker_length <= m.square_length <= 100):
-        raise InputError("lengths must be finite, positive, in metres, the marker no larger "
-                         "than the square", field=field)
-    if m.marker_id is not None and m.marker_id < 0:
-        raise InputError(f"marker id must be >= 0, got {m.marker_id}", field=field)
+            and 1e-4 <= m.marker_length <= m.square_length <= 100):
+        raise InputError("lengths must be finite, in metres (0.0001 … 100), the marker no "
+                         "larger than the square", field=field)
+    size = dictionary_size(m.dictionary)
+    if m.kind == "charuco" and charuco_markers(m.squares) > size:
+        raise InputError(f"a {m.squares[0]}×{m.squares[1]} ChArUco board has "
+                         f"{charuco_markers(m.squares)} markers but {m.dictionary} has only "
+                         f"{size}; such a board cannot be printed (check the board size)",
+                         field=field)
+    if m.marker_id is not None and not 0 <= m.marker_id < size:
+        raise InputError(f"marker id must be in 0 … {size - 1} ({m.dictionary}), got "
+                         f"{m.marker_id}", field=field)
     return m
 
 
@@ -163,7 +184,10 @@ def _marker_from_toml(path: Path) -> MarkerSpec:
         raise InputError(exc.message, file=str(path), field=exc.field) from exc
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise InputError(f"missing or malformed value ({exc})", file=str(path)) from exc
-    return _checked(m, str(path))
+    try:
+        return _checked(m, "--marker")
+    except InputError as exc:
+        raise InputError(exc.message, file=str(path), field="--marker") from exc
 
 
 @dataclass(frozen=True)
