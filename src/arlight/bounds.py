@@ -106,8 +106,12 @@ def available_memory() -> float:
         return float("inf")
 
 
-def check_estimate(est: Estimate, what: str, force: bool) -> None:
-    """Refuse ``est`` beyond the limits (InputError with the estimate) unless ``force``."""
+def check_estimate(est: Estimate, what: str, force: bool,
+                   lower: str = "--spp or the resolution", field: str = "bounds") -> None:
+    """Refuse ``est`` beyond the limits (InputError with the estimate) unless ``force``.
+
+    ``lower``: what the user can lower (named in the message); ``field``: the field of the
+    error (``bounds``, or the option whose value makes the request too big)."""
     if force:
         return
     avail = available_memory()
@@ -119,9 +123,68 @@ def check_estimate(est: Estimate, what: str, force: bool) -> None:
         reasons.append(f"longer than {_duration(MAX_SECONDS)}")
     if reasons:
         raise InputError(f"{what} would need {est.text()}: {' and '.join(reasons)}; lower "
-                         "--spp or the resolution, or pass --force to run it anyway",
-                         field="bounds")
+                         f"{lower}, or pass --force to run it anyway", field=field)
+
+
+def work_estimate(memory_bytes: float, operations: float = 0.0, output_bytes: float = 0.0,
+                  ops_per_second_per_core: float = 50e6) -> Estimate:
+    """An :class:`Estimate` of work that is not a render: ``memory_bytes`` at the peak and
+    ``operations`` elementary steps (a voxel update, a texel of a pass, ...) at
+    ``ops_per_second_per_core`` per CPU core (a low rate: numpy/Open3D run mostly on one)."""
+    seconds = float(operations) / (ops_per_second_per_core * (os.cpu_count() or 1))
+    return Estimate(float(memory_bytes), seconds, float(output_bytes))
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """``(width, height)`` of an image file from its header alone (nothing is decoded), so
+    that a command can bound what reading it will allocate; None when the format is not
+    recognised or the header is unreadable (the reader then reports the file).
+
+    OpenEXR (``dataWindow``), Radiance ``.hdr``, PFM, NumPy ``.npy`` and what Pillow opens
+    lazily (PNG, JPEG, TIFF, BMP, PPM/PGM, ...)."""
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except OSError:
+        return None
+    try:
+        if head[:4] == b"\x76\x2f\x31\x01":  # OpenEXR: attributes after the version
+            i = 8
+            while i < len(head) and head[i] != 0:
+                name_end = head.index(b"\0", i)
+                type_end = head.index(b"\0", name_end + 1)
+                (size,) = struct.unpack_from("<i", head, type_end + 1)
+                if head[i:name_end] == b"dataWindow":
+                    x0, y0, x1, y1 = struct.unpack_from("<4i", head, type_end + 5)
+                    return x1 - x0 + 1, y1 - y0 + 1
+                i = type_end + 5 + size
+            return None
+        if head[:2] in (b"#?",):  # Radiance: header lines, a blank line, "-Y H +X W"
+            lines = head.split(b"\n")
+            blank = lines.index(b"")
+            parts = lines[blank + 1].split()
+            return int(parts[3]), int(parts[1])
+        if head[:2] in (b"PF", b"Pf"):
+            w, h = head.split(b"\n")[1].split()[:2]
+            return int(w), int(h)
+        if head[:6] == b"\x93NUMPY":
+            import numpy as np
+
+            shape = np.load(path, mmap_mode="r").shape
+            return (int(shape[1]), int(shape[0])) if len(shape) >= 2 else None
+        from PIL import Image
+
+        limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # header only here
+        try:
+            with Image.open(path) as im:
+                return int(im.size[0]), int(im.size[1])
+        finally:
+            Image.MAX_IMAGE_PIXELS = limit
+    except Exception:  # noqa: BLE001 - any unreadable header: let the reader report it
+        return None
 
 
 __all__ = ["Estimate", "MAX_FRAMES", "MAX_SEED", "MAX_SH_HEIGHT", "MAX_SPP", "check_estimate",
-           "check_range", "check_seed", "estimate"]
+           "check_range", "check_seed", "estimate", "image_size", "work_estimate"]

@@ -144,6 +144,9 @@ def check_outputs(outputs: Mapping[str, PathLike | Sequence[PathLike]],
             p = Path(p)
             check_writable_file(p, field)
             real = _real(p)
+            if real.name in (LEDGER, ".arlight-output.json"):
+                raise InputError("is arlight's own record of the files it wrote; choose "
+                                 "another name", file=str(p), field=field)
             if real in reads:
                 raise InputError(f"is the input {reads[real]}; the output would replace it "
                                  "(choose another output path)", file=str(p), field=field)
@@ -157,5 +160,48 @@ def check_outputs(outputs: Mapping[str, PathLike | Sequence[PathLike]],
                                  f"{overwrite_flag}", file=str(p), field=field)
 
 
-__all__ = ["LEDGER", "check_outputs", "check_writable_file", "file_digest", "record_written",
-           "written_by_arlight"]
+def referenced_files(path: PathLike) -> list[Path]:
+    """``path`` and every existing file a TOML/JSON file at ``path`` names (string values,
+    relative to its folder or absolute) — the files a scene or rig file makes a command read.
+
+    Over-inclusive on purpose (any string that happens to name a file counts): the list only
+    protects files from being written over. An unreadable or malformed file yields just
+    ``[path]`` (the command's own reader reports it).
+    """
+    import tomllib
+
+    p = Path(path)
+    found = [p]
+    try:
+        text = p.read_text(encoding="utf-8")
+        data = json.loads(text) if p.suffix.lower() == ".json" else tomllib.loads(text)
+    except (OSError, ValueError, UnicodeDecodeError):
+        return found
+    stack: list = [data]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, dict):
+            stack.extend(node.values())
+        elif isinstance(node, list):
+            stack.extend(node)
+        elif isinstance(node, str) and node and len(node) < 4096 and "\0" not in node:
+            q = Path(node)
+            q = q if q.is_absolute() else p.parent / q
+            try:
+                if q.is_file():
+                    found.append(q)
+            except OSError:
+                continue
+    return found
+
+
+def folder_files(folder: PathLike) -> list[Path]:
+    """Every file under ``folder`` (inputs read from a folder, e.g. an RGB-D sequence)."""
+    f = Path(folder)
+    if not f.is_dir():
+        return []
+    return [p for p in f.rglob("*") if p.is_file()]
+
+
+__all__ = ["LEDGER", "check_outputs", "check_writable_file", "file_digest", "folder_files",
+           "record_written", "referenced_files", "written_by_arlight"]

@@ -158,12 +158,24 @@ def _foreign_entries(folder: Path, known: Sequence[str]) -> list[str]:
 
 
 def _existing_ancestor(path: Path) -> Path:
+    """The nearest entry at or above ``path`` that exists (a dangling symlink counts: it is
+    where creating the folders would fail)."""
     p = path
-    while not p.exists():
+    while not os.path.lexists(p):
         if p.parent == p:
             break
         p = p.parent
     return p
+
+
+def _mkdir_error(exc: OSError, out: Path, field: str) -> InputError:
+    """An OSError of creating the output's folders as the InputError naming the path."""
+    why = {errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
+           errno.EPERM: "permission denied", errno.ENOSPC: "no space left",
+           errno.ENOTDIR: "a path above it is not a folder",
+           errno.EEXIST: "a path above it is a dangling symlink or not a folder"}.get(
+        exc.errno, exc.strerror or str(exc))
+    return InputError(f"cannot create the output folder: {why}", file=str(out), field=field)
 
 
 def check_output_dir(out: str | Path, known: Sequence[str] = (), expected_bytes: int = 0,
@@ -198,11 +210,19 @@ def check_output_dir(out: str | Path, known: Sequence[str] = (), expected_bytes:
             raise InputError(f"contains the input {inp}; the output set would replace it",
                              file=where, field=field)
     anc = _existing_ancestor(out.parent)
+    if os.path.islink(anc) and not os.path.exists(anc):
+        raise InputError(f"cannot create the output folder: {anc} above it is a dangling "
+                         f"symlink (to {os.readlink(anc)})", file=where, field=field)
     if not anc.is_dir():
         raise InputError(f"cannot create the output folder: {anc} is not a folder",
                          file=where, field=field)
     if not os.access(anc, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write: folder {anc} is not writable", file=where, field=field)
+        raise InputError(f"cannot write: folder {anc} is not writable (or is on a read-only "
+                         "mount)", file=where, field=field)
+    if out.is_dir() and os.path.ismount(out):
+        raise InputError("is a mount point: an output set is swapped in by renaming the "
+                         "folder, which a mount point cannot be; choose a folder inside it",
+                         file=where, field=field)
     if out.is_dir():
         if not os.access(out.parent, os.W_OK | os.X_OK):
             raise InputError(f"cannot replace it: folder {out.parent} is not writable",
@@ -272,9 +292,13 @@ class StagedOutput:
     def __enter__(self) -> Path:
         clean_stale(self.out)
         check_output_dir(self.out, self.known)
-        self.out.parent.mkdir(parents=True, exist_ok=True)
-        self.staging = self.out.parent / _side_name(self.out, "tmp")
-        self.staging.mkdir()
+        try:
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+            staging = self.out.parent / _side_name(self.out, "tmp")
+            staging.mkdir()
+        except OSError as exc:  # e.g. a read-only mount that access() did not reveal
+            raise _mkdir_error(exc, self.out, "--out") from exc
+        self.staging = staging
         return self.staging
 
     def __exit__(self, exc_type, exc, tb) -> None:
