@@ -246,7 +246,11 @@ class _Importer:
             raise self.fail(element, "only perspective and thinlens sensors are supported")
         p = self.params(sensor)
         w, h = (int(x) for x in sensor.film().size())
-        fx = 0.5 * w / math.tan(math.radians(self.scalar(p["x_fov"])) / 2)
+        fov = self.scalar(p["x_fov"])
+        if not (math.isfinite(fov) and 0 < fov < 180):
+            raise self.fail(f"{element}.fov", f"expected a horizontal field of view in "
+                            f"(0, 180) degrees, got {fov}")
+        fx = 0.5 * w / math.tan(math.radians(fov) / 2)
         pose = self.matrix(p["to_world"]) @ np.diag([-1.0, -1.0, 1.0, 1.0])
         r = pose[:3, :3]
         if not np.allclose(r.T @ r, np.eye(3), atol=1e-5) or np.linalg.det(r) < 0:
@@ -281,7 +285,88 @@ def _write_ply(path: Path, v: np.ndarray, f: np.ndarray, n: np.ndarray | None) -
         tmp.write_bytes(data)
 
 
-def import_mitsuba(xml: str | Path, out: str | Path, virtual: Sequence[str] = ()) -> Path:
+def xml_references(xml: Path) -> list[Path]:
+    """The files a Mitsuba XML scene makes the loader read: ``xml``, its ``<include>`` s
+    (recursively) and every ``filename`` string (meshes, textures, environment maps),
+    resolved relative to the file naming them (``$name`` parameters from ``<default>``).
+    Only the ones that exist are returned; best effort (an unparsable XML: just ``xml``)."""
+    import xml.etree.ElementTree as ET
+
+    seen: list[Path] = []
+    todo = [Path(xml)]
+    while todo:
+        f = todo.pop()
+        if f in seen or len(seen) > 10000:
+            continue
+        seen.append(f)
+        try:
+            root = ET.parse(f).getroot()
+        except (OSError, ET.ParseError, ValueError):
+            continue
+        defaults = {e.get("name", ""): e.get("value", "") for e in root.iter("default")}
+
+        def subst(v: str, defaults=defaults) -> str:
+            return re.sub(r"\$(\w+)", lambda m: defaults.get(m.group(1), m.group(0)), v)
+
+        for e in root.iter():
+            name = None
+            if e.tag == "include" and e.get("filename"):
+                name = e.get("filename")
+            elif e.tag == "string" and e.get("name") == "filename" and e.get("value"):
+                name = e.get("value")
+            if not name:
+                continue
+            q = Path(subst(name))
+            q = q if q.is_absolute() else f.parent / q
+            if q.is_file():
+                (todo if e.tag == "include" else seen).append(q)
+    return list(dict.fromkeys(seen))
+
+
+# Memory of loading and translating a scene, per byte of a referenced mesh file (Mitsuba's
+# arrays, our float64 copies, the PLY bytes being written) and per pixel of an image
+# (float32 RGBA in Mitsuba, float32 RGB copy, the EXR being written).
+BYTES_PER_MESH_FILE_BYTE = 8.0
+BYTES_PER_IMAGE_PIXEL = 48.0
+
+
+def import_estimate(files: Sequence[Path]):
+    """The memory/time :class:`~arlight.bounds.Estimate` of importing a scene that reads
+    ``files`` (sizes from the file system and the image headers; nothing is decoded)."""
+    from arlight.bounds import image_size, work_estimate
+
+    mem = 0.0
+    for f in files:
+        size = image_size(f) if f.suffix.lower() in _IMAGE_SUFFIXES else None
+        try:
+            nbytes = float(f.stat().st_size)
+        except OSError:
+            nbytes = 0.0
+        mem += (BYTES_PER_IMAGE_PIXEL * size[0] * size[1] if size
+                else BYTES_PER_MESH_FILE_BYTE * nbytes)
+    return work_estimate(mem, operations=mem / 8, output_bytes=mem / 4)
+
+
+_IMAGE_SUFFIXES = {".exr", ".hdr", ".pfm", ".png", ".jpg", ".jpeg", ".tga", ".bmp", ".ppm",
+                   ".tif", ".tiff", ".rgbe"}
+
+
+def _check_finite(node: Any, where: str, xml: Path) -> None:
+    """Every number of the translated world is finite (a NaN ``fov`` would otherwise reach
+    the world file)."""
+    if isinstance(node, dict):
+        for k, v in node.items():
+            _check_finite(v, f"{where}.{k}" if where else str(k), xml)
+    elif isinstance(node, list | tuple):
+        for i, v in enumerate(node):
+            _check_finite(v, f"{where}[{i}]", xml)
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise InputError(f"is {node} after translation: every number of the scene must be "
+                         "finite", file=str(xml), field=where)
+
+
+def import_mitsuba(xml: str | Path, out: str | Path, virtual: Sequence[str] = (),
+                   overwrite: bool = False, force: bool = False) -> Path:
     """Translate the Mitsuba 3 XML scene ``xml`` into the arlight world file ``out``.
 
     Args:
@@ -290,19 +375,40 @@ def import_mitsuba(xml: str | Path, out: str | Path, virtual: Sequence[str] = ()
             maps (``<stem>.envmap<i>.exr``) are written next to it, the TOML last.
         virtual: shape ids (or shell globs on them) that become virtual shapes; all others
             are real. A pattern matching no shape raises :class:`InputError`.
+        overwrite: replace existing files arlight did not write (never an input: the XML
+            or a file it references).
+        force: run even when the memory/time estimate is beyond the bounds.
+
+    Every output (the TOML and each side file) is checked before any work
+    (:func:`arlight.output_guard.check_outputs`): none may be the XML or a file it
+    references, and an existing one must be a file arlight wrote (unless ``overwrite``).
+    The files are written into a staging folder next to ``out``, the world loaded back from
+    there (validated), and only then moved into place (side files first, the TOML last).
 
     Returns:
-        The path of the world file. The written file is loaded back (validated) before
-        returning.
+        The path of the world file.
     """
+    import os
+    import shutil
+    import tempfile
+
     from arlight.backend.variant import ensure_variant
-    from arlight.io.images import atomic_write, write_exr
+    from arlight.bounds import check_estimate
+    from arlight.io.images import write_exr
+    from arlight.output_guard import check_outputs, record_written
     from arlight.scene.load import load_scene
     from arlight.scene.save import to_toml
 
     xml, out = Path(xml), Path(out)
+    if xml.is_dir():
+        raise InputError("is a folder, expected a Mitsuba XML file", file=str(xml),
+                         field="XML")
     if not xml.is_file():
         raise InputError("file not found", file=str(xml))
+    inputs = xml_references(xml)
+    check_outputs({"-o": out}, inputs, overwrite=overwrite)
+    check_estimate(import_estimate(inputs), f"importing {xml.name}", force,
+                   lower="the referenced meshes and images", field="XML")
     ensure_variant()
     import mitsuba as mi
 
@@ -356,14 +462,33 @@ def import_mitsuba(xml: str | Path, out: str | Path, virtual: Sequence[str] = ()
     data["lights"] = lights
     if render:
         data["render"] = render
-    folder = out.parent
-    folder.mkdir(parents=True, exist_ok=True)
+    _check_finite(data, "", xml)
     for file, (kind, payload) in imp.files.items():
-        if kind == "ply":
-            _write_ply(folder / file, *payload)
-        else:
-            write_exr(folder / file, payload)
-    with atomic_write(out, ".toml") as tmp:
-        tmp.write_text(to_toml(data), encoding="utf-8")
-    load_scene(out)  # what we wrote must load
+        arrays = payload[:1] if kind == "ply" else (payload,)
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            raise InputError("holds non-finite numbers (NaN/Inf)", file=str(xml),
+                             field=f"{'mesh' if kind == 'ply' else 'envmap'} {file}")
+    folder = out.parent
+    side = [folder / file for file in imp.files]
+    check_outputs({"-o": out, "side file": side}, inputs, overwrite=overwrite)
+    folder.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-{os.getpid()}-", dir=folder))
+    try:
+        for file, (kind, payload) in imp.files.items():
+            if kind == "ply":
+                _write_ply(staging / file, *payload)
+            else:
+                write_exr(staging / file, payload)
+        (staging / out.name).write_text(to_toml(data), encoding="utf-8")
+        try:
+            load_scene(staging / out.name)  # what we wrote must load
+        except InputError as exc:  # name the XML, not the staging copy
+            raise InputError(f"the translated world is not valid: {exc.message}",
+                             file=str(xml), field=exc.field) from exc
+        for file in imp.files:
+            os.replace(staging / file, folder / file)
+        os.replace(staging / out.name, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    record_written([*side, out])
     return out
