@@ -56,24 +56,40 @@ def _check_number(value: float | None, option: str, lo: float, hi: float,
                        f"{lo:g}, {hi:g}], got {value}")
 
 
-def _check_output(output: Path, inputs: list[Path], option: str = "--output") -> None:
-    """The output file: not an input, not a folder or dangling symlink, parent writable."""
-    import os
+def _check_output(output: Path, inputs: list[Path], option: str = "--output",
+                  overwrite: bool = True) -> None:
+    """The output file (:func:`arlight.output_guard.check_outputs`): not an input, not a
+    folder or dangling symlink, its folder writable, and — unless ``overwrite`` — not an
+    existing file arlight did not write. Called with ``overwrite=True`` before the inputs
+    are read (their errors come first), then with the user's choice before any work."""
+    from arlight.output_guard import check_outputs
 
-    for inp in inputs:
-        if inp is not None and (output.resolve() == inp.resolve()
-                                or (output.exists() and inp.exists()
-                                    and output.samefile(inp))):
-            raise CliError(f"{option} {output}: would overwrite the input {inp}")
-    if output.is_symlink() and not output.exists():
-        raise CliError(f"{option} {output}: is a dangling symlink")
-    if output.is_dir():
-        raise CliError(f"{option} {output}: is a folder, expected a file name")
-    parent = output.parent if str(output.parent) else Path(".")
-    while not parent.exists() and parent.parent != parent:
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise CliError(f"{option} {output}: folder {parent} is not writable")
+    check_outputs({option: output}, [p for p in inputs if p is not None], overwrite=overwrite)
+
+
+# Memory of estimating from (or picturing) an image, per pixel: the float32 RGB image as
+# read, its equirect resampling, luminance and clipped SH planes, the map kept for writing.
+BYTES_PER_MAP_PIXEL = 96.0
+
+
+def check_image_bounds(images: list[Path], force: bool, height: int | None = None) -> None:
+    """Refuse, before reading them, images whose processing would exceed the memory/time
+    bounds (:func:`arlight.bounds.check_estimate`; sizes from the headers) unless
+    ``force``."""
+    from arlight.bounds import check_estimate, image_size, work_estimate
+
+    pixels = 0.0
+    for img in images:
+        size = image_size(img)
+        if size is not None:
+            pixels += float(size[0]) * float(size[1])
+    if height is not None:
+        pixels += 2.0 * height * height
+    est = work_estimate(BYTES_PER_MAP_PIXEL * pixels, operations=200.0 * pixels,
+                        output_bytes=12.0 * pixels)
+    names = ", ".join(p.name for p in images)
+    check_estimate(est, f"reading {names}", force, lower="the image size (or --height)",
+                   field="--force")
 
 
 def _parse_vec(text: str | None, option: str, n: int) -> tuple[float, ...] | None:
@@ -280,6 +296,12 @@ def estimate(
     sh_convention: Annotated[str, typer.Option(
         help="webxr layout: SH signs for three.js (threejs) or as Chrome passes ARCore's "
              "through (arcore)")] = "threejs",
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="replace an existing output arlight did not write (never an "
+        "input)")] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="run even when the memory/time estimate is beyond the bounds")
+    ] = False,
 ) -> None:
     """Estimate a LightEstimate (main light, extra lights, SH remainder) from an image."""
     try:
@@ -299,8 +321,11 @@ def estimate(
         _check_number(threshold, "--threshold", 0.0, 1e30)
         inputs = [image] + ([fisheye_calib] if fisheye_calib is not None else [])
         _check_output(output, inputs)
+        if image.is_file():
+            check_image_bounds([image], force, height)
         env = load_environment(image, kind, height, ball_center, ball_radius, fisheye_calib,
                                fov, mirror_lower, ball_look, ball_up)
+        _check_output(output, inputs, overwrite=overwrite)
         for w in env.warnings:
             typer.echo(f"warning: {w}", err=True)
         est = LightEstimate.from_envmap(env.map, n_lights=lights, sh_order=sh_order,
@@ -430,24 +455,51 @@ def show(
     fisheye_calib: Annotated[Path | None, typer.Option(help="fisheye calibration")] = None,
     fov: Annotated[float | None, typer.Option(
         help="fisheye field of view (deg); default: the calibration's, else 180")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="replace an existing picture arlight did not write (never an "
+        "input)")] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="run even when the memory/time estimate is beyond the bounds")
+    ] = False,
 ) -> None:
     """Picture a light estimate: map with the lights, SH reconstruction, irradiance."""
+    from arlight.errors import InputError
+    from arlight.output_guard import record_written, referenced_files
+
     try:
         if not 0 <= lights <= MAX_LIGHTS:
             raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
         if source.is_dir():
             raise CliError(f"{source}: is a folder, expected a light JSON or an image")
-        _check_output(output, [source] + ([fisheye_calib] if fisheye_calib else []))
-        if source.suffix.lower() == ".json":
+        is_json = source.suffix.lower() == ".json"
+        # the light JSON's HDR map is an input too
+        inputs = (referenced_files(source) if is_json else [source]) + (
+            [fisheye_calib] if fisheye_calib else [])
+        _check_output(output, inputs)
+        if is_json:
+            from arlight.light.estimate import hdr_map_path, read_json
+
+            d = read_json(source)
+            if isinstance(d.get("hdr_map"), dict) and "file" in d["hdr_map"]:
+                try:
+                    check_image_bounds([hdr_map_path(d, source.parent)], force)
+                except InputError as exc:
+                    raise InputError(exc.message, file=str(source),
+                                     field=exc.field) from exc
             est = LightEstimate.load(source)
         else:
+            if source.is_file():
+                check_image_bounds([source], force)
             env = load_environment(source, kind, None, ball_center, ball_radius,
                                    fisheye_calib, fov, ball_look=ball_look, ball_up=ball_up)
             for w in env.warnings:
                 typer.echo(f"warning: {w}", err=True)
+            _check_output(output, inputs, overwrite=overwrite)
             est = LightEstimate.from_envmap(env.map, n_lights=lights,
                                             confidence=env.confidence, sh_map=env.sh_map)
+        _check_output(output, inputs, overwrite=overwrite)
         render_picture(est, output, title=source.name)
+        record_written([output])
     except (CliError, ValueError) as exc:
         _fail(str(exc))
     typer.echo(f"wrote {output}")

@@ -64,6 +64,8 @@ from pathlib import Path
 
 import numpy as np
 
+from arlight.bounds import MAX_LIGHTS, MAX_SH_ORDER
+from arlight.errors import InputError
 from arlight.io.images import atomic_write
 from arlight.light.extract import (
     ExtractedLight,
@@ -72,6 +74,7 @@ from arlight.light.extract import (
     mean_luminance,
     median_cut,
 )
+from arlight.output_guard import record_written, written_by_arlight
 from arlight.sphere import sh as SH
 
 LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
@@ -80,6 +83,9 @@ SH_CONVENTIONS = ("threejs", "arcore")  # webxr: whose SH signs (see the module 
 ARKIT_NEUTRAL_LUMENS = 1000.0  # SceneKit/ARKit: 1000 lm = "neutral" (light factor 1)
 AUTO_THRESHOLD_FACTOR = 4.0  # default highlight threshold, x the mean luminance
 FORMAT_TAG = "arlight.light_estimate"
+MAX_VALUE = 1e20
+"""Largest magnitude of a radiance/irradiance value or SH coefficient a light may hold (W/m^2,
+W/(sr m^2)): beyond it a render overflows float32 to Inf."""
 
 # ----------------------------------------------------------------------------- foreign SH
 
@@ -203,12 +209,22 @@ class LightEstimate:
             d, n = np.array([0.0, 1.0, 0.0]), 1.0
         self.main_direction = d if abs(n - 1.0) < 1e-12 else d / n
         self.main_irradiance = _vec3(self.main_irradiance, "main_irradiance")
+        if np.any(np.abs(self.main_irradiance) > MAX_VALUE):
+            raise InputError(f"magnitude beyond {MAX_VALUE:g}", field="main_irradiance")
         c = np.asarray(self.sh, dtype=np.float64)
         if c.ndim != 2 or c.shape[1] != 3:
             raise ValueError(f"sh: expected (n, 3) coefficients, got shape {c.shape}")
         SH.order_of(c.shape[0])
+        if not np.all(np.isfinite(c)):
+            raise InputError(f"{int(np.count_nonzero(~np.isfinite(c)))} coefficients are "
+                             "not finite (NaN/Inf)", field="sh.coefficients")
+        if np.any(np.abs(c) > MAX_VALUE):
+            raise InputError(f"a coefficient's magnitude is beyond {MAX_VALUE:g}",
+                             field="sh.coefficients")
         self.sh = c
         self.timestamp = float(self.timestamp)
+        if not np.isfinite(self.timestamp):
+            raise InputError(f"must be a finite number, got {self.timestamp}", field="timestamp")
         self.confidence = float(self.confidence)
         if not 0.0 <= self.confidence <= 1.0:
             raise ValueError(f"confidence must be in [0, 1], got {self.confidence}")
@@ -464,11 +480,12 @@ class LightEstimate:
         try:
             if layout == "arlight":
                 ml = d["main_light"]
+                _check_arlight_values(d)
                 hdr = None
                 if "hdr_map" in d and base_dir is not None:
                     from arlight.io.images import read_linear
 
-                    hdr = read_linear(Path(base_dir) / str(d["hdr_map"]["file"]))
+                    hdr = read_linear(hdr_map_path(d, base_dir))
                 return cls(main_direction=ml["direction_to_light"],
                            main_irradiance=ml["irradiance"],
                            main_solid_angle=ml.get("solid_angle", 0.0),
@@ -517,7 +534,9 @@ class LightEstimate:
         file, the JSON (which names it) replaces the old one in one rename, and only then is
         the map of the previous JSON removed — a reader sees the old pair or the new one,
         never a mix. Maps left by an interrupted save (named like ours, referenced by no
-        JSON) are removed by the next save. ``protect``: files that must not be overwritten
+        JSON) are removed by the next save. Both files are recorded in the folder's ledger
+        (:func:`arlight.output_guard.record_written`); only recorded, unchanged maps are ever
+        removed, never a file a person made. ``protect``: files that must not be overwritten
         or removed (the inputs); a clash raises ValueError before anything is written.
         """
         path = Path(path)
@@ -530,33 +549,49 @@ class LightEstimate:
             hdr_file = f"{path.stem}.{digest.hexdigest()[:8]}.hdr.exr"
             _refuse_clash(path.parent / hdr_file, guarded)
             self.write_hdr_map(path.parent / hdr_file)
+            record_written([path.parent / hdr_file])  # a leftover of a killed save is ours
         text = json.dumps(self.to_json(layout, hdr_file=hdr_file,
                                        sh_convention=sh_convention), indent=1)
         with atomic_write(path, ".json") as tmp:
             tmp.write_text(text)
+        record_written([path])
         for old in _side_maps(path):  # the previous pair's map and leftovers of killed saves
             if old.name != hdr_file and not any(_same(old, g) for g in guarded) and (
-                    old.name == previous or _SIDE_MAP.fullmatch(old.name[len(path.stem):])):
+                    old.name == previous or _SIDE_MAP.fullmatch(old.name[len(path.stem):])
+            ) and written_by_arlight(old):  # never a file a person made
                 old.unlink(missing_ok=True)
         return Path(path)
 
     @classmethod
     def load(cls, path: str | Path, layout: str | None = None) -> LightEstimate:
+        """Read a light JSON. Raises :class:`InputError` naming the file and the field."""
         path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError as exc:
-            raise ValueError(f"{path}: file not found") from exc
-        except OSError as exc:
-            raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-        if not isinstance(d, dict):
-            raise ValueError(f"{path}: expected a JSON object")
+        d = read_json(path)
         try:
             return cls.from_json(d, layout, base_dir=path.parent)
-        except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+        except InputError as exc:
+            if exc.file is not None:  # a file it references (the HDR map) names itself
+                raise
+            raise InputError(exc.message, file=str(path), field=exc.field) from exc
+        except ValueError as exc:  # "<key>: <message>" of the checks above
+            m = re.fullmatch(r"([\w.\[\]]+): (.*)", str(exc), re.S)
+            fld, msg = (m.group(1), m.group(2)) if m else (None, str(exc))
+            raise InputError(msg, file=str(path), field=fld) from exc
+
+
+def read_json(path: Path) -> dict:
+    """The JSON object in ``path`` (a light file), or an :class:`InputError` naming it."""
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise InputError("file not found", file=str(path)) from exc
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", file=str(path)) from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"not valid JSON ({exc})", file=str(path)) from exc
+    if not isinstance(d, dict):
+        raise InputError("expected a JSON object", file=str(path))
+    return d
 
 
 _KEYS = {
@@ -593,16 +628,48 @@ def _check_keys(d: dict, layout: str) -> None:
                 if k not in sub:
                     raise ValueError(f"{key}.{k}: unknown key (expected one of "
                                      f"{', '.join(sorted(sub))})")
-    for i, lt in enumerate(d.get("lights", []) if layout == "arlight" else []):
+    lights = d.get("lights", []) if layout == "arlight" else []
+    if not isinstance(lights, list):
+        raise InputError(f"expected a list of light tables, got {type(lights).__name__}",
+                         field="lights")
+    if len(lights) > MAX_LIGHTS:
+        raise InputError(f"{len(lights)} lights; at most {MAX_LIGHTS}", field="lights")
+    for i, lt in enumerate(lights):
         if not isinstance(lt, dict):
-            raise ValueError(f"lights[{i}]: expected a table")
+            raise InputError("expected a table", field=f"lights[{i}]")
         for k in lt:
             if k not in ("direction", "irradiance", "solid_angle", "spread"):
-                raise ValueError(f"lights[{i}].{k}: unknown key")
-    if "confidence" in d and not isinstance(d["confidence"], int | float):
-        raise ValueError("confidence: expected a number")
-    if "timestamp" in d and not isinstance(d["timestamp"], int | float):
-        raise ValueError("timestamp: expected a number")
+                raise InputError("unknown key", field=f"lights[{i}].{k}")
+    for key in ("confidence", "timestamp"):
+        if key in d and (isinstance(d[key], bool) or not isinstance(d[key], int | float)):
+            raise InputError("expected a number", field=key)
+
+
+def _check_arlight_values(d: dict) -> None:
+    """The numbers of an ``arlight`` layout light: irradiances finite, >= 0 and below
+    :data:`MAX_VALUE`, at most :data:`~arlight.bounds.MAX_SH_ORDER` SH bands."""
+    coeffs = d["sh"]["coefficients"] if isinstance(d.get("sh"), dict) else None
+    if isinstance(coeffs, list) and len(coeffs) > (MAX_SH_ORDER + 1) ** 2:
+        raise InputError(f"{len(coeffs)} coefficients: more than SH order {MAX_SH_ORDER} "
+                         f"({(MAX_SH_ORDER + 1) ** 2})", field="sh.coefficients")
+    ml = d["main_light"]
+    named = [("main_light.irradiance", ml.get("irradiance"))]
+    named += [(f"lights[{i}].irradiance", lt.get("irradiance"))
+              for i, lt in enumerate(d.get("lights", []))]
+    for fld, v in named:
+        a = _vec3(v, fld)
+        if np.any(a < 0) or np.any(a > MAX_VALUE):
+            raise InputError(f"expected 3 numbers in [0, {MAX_VALUE:g}], got {v!r}", field=fld)
+    for i, lt in enumerate(d.get("lights", [])):
+        _vec3(lt.get("direction"), f"lights[{i}].direction")
+
+
+def hdr_map_path(d: dict, base_dir: str | Path) -> Path:
+    """The HDR map file an ``arlight`` layout light names (relative to its folder)."""
+    name = d["hdr_map"]["file"]
+    if not isinstance(name, str) or not name:
+        raise InputError(f"expected a file name, got {name!r}", field="hdr_map.file")
+    return Path(base_dir) / name
 
 
 def _own_bitmap(image: np.ndarray):
