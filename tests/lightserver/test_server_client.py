@@ -174,7 +174,9 @@ def test_only_wrong_version_messages_is_a_clear_error():
 
 
 def test_a_stalled_subscriber_does_not_stall_the_server_or_others():
-    src = SyntheticMovingLight(vals=4096)  # 128 KiB per update: 40 MB beyond kernel buffers
+    # 256 VALs (the wire's cap) and 1200 SH blocks: 135 KiB per update, 40 MB beyond kernel
+    # buffers
+    src = SyntheticMovingLight(vals=256, objects=[[0.0, 0.1, 0.0]] * 1200)
     n = 300
     ctx = zmq.Context()
     try:
@@ -220,7 +222,7 @@ def test_the_renderer_only_ever_sees_whole_states():
 ])
 def test_bad_bind_address(address, match):
     with pytest.raises(InputError, match=match) as err:
-        LightServer(SyntheticMovingLight(), bind=address)
+        LightServer(SyntheticMovingLight(), bind=address, insecure=True)
     assert err.value.field == "--bind"
 
 

@@ -32,7 +32,7 @@ def test_payload_is_32_per_val_and_108_per_object(m, n_obj):
 
 
 def test_round_trip_to_packing_precision():
-    light = random_light(500, 4, seed=3)
+    light = random_light(wire.MAX_VALS, 4, seed=3)  # the largest M a client renders
     header, back = wire.decode(wire.encode(light, epoch=77, sent=123.5))
     assert (header.epoch, header.sequence, header.sent) == (77, light.sequence, 123.5)
     assert back.sequence == light.sequence and back.timestamp == light.timestamp

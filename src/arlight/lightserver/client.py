@@ -19,6 +19,20 @@ Ordering, gaps and restarts:
 - No message for ``heartbeat_timeout`` seconds: the server is taken as lost; the client
   closes and reopens both sockets and asks for a snapshot, again every ``heartbeat_timeout``
   until the server answers (``reconnects`` counts the attempts). It never raises on this.
+
+A sequence number a peer cannot poison (without CURVE anyone on the path can forge one):
+
+- an update of the current epoch more than ``max_jump`` (2^20) beyond the current sequence
+  is rejected (``rejected["jump"]``) and a snapshot is asked for; a snapshot reply may jump
+  any distance (a client that was away for long);
+- updates (or heartbeats) that stay stale for ``stale_limit`` messages or
+  ``heartbeat_timeout`` seconds mean the client's sequence is ahead of the server's — a
+  forged one: it asks for a snapshot and adopts it, epoch and sequence, even when it is
+  "older" (``recoveries``).
+
+With the server's public key (``server_public_key``) both sockets use CURVE: the client
+talks to that server only, and everything it receives is authenticated and encrypted.
+Both sockets refuse frames larger than :data:`~arlight.lightserver.wire.MAX_MESSAGE_BYTES`.
 """
 
 from __future__ import annotations
@@ -31,11 +45,16 @@ from dataclasses import dataclass, field, replace
 import zmq
 
 from arlight.errors import ArlightError, InputError
-from arlight.lightserver import transport, wire
+from arlight.lightserver import security, transport, wire
 from arlight.nearfield.state import NearFieldLight
 
 HISTORY = 100_000
 """Latencies kept (the latest ones)."""
+MAX_SEQUENCE_JUMP = 1 << 20
+"""Largest forward jump of the sequence an update may make (within an epoch) without a
+snapshot confirming it: 16 hours of updates at 18 Hz."""
+STALE_LIMIT = 8
+"""Stale messages in a row after which the client re-synchronises by snapshot."""
 
 
 @dataclass
@@ -56,6 +75,8 @@ class ClientStats:
     restarts: int = 0
     reconnects: int = 0
     snapshot_requests: int = 0
+    recoveries: int = 0
+    """Snapshots adopted over a sequence that had run ahead of the server's (forged)."""
     rejected: Counter = field(default_factory=Counter)
     bytes_received: int = 0
     latencies: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
@@ -79,16 +100,43 @@ class LightClient:
             client that reads slower than the server publishes).
         rcvhwm: receive queue length in messages (without ``conflate``).
         context: a ZeroMQ context to share (many clients in one process); default: own.
+        server_public_key: the server's CURVE public key (Z85, 40 bytes): pins the server
+            and turns CURVE on for both sockets.
+        client_key: this client's key pair (the server may allow only known keys); default
+            with ``server_public_key``: a fresh pair per client.
+        insecure: allow a non-loopback server without ``server_public_key``.
+        max_jump: see :data:`MAX_SEQUENCE_JUMP`; stale_limit: see :data:`STALE_LIMIT`.
     """
 
     def __init__(self, connect: str, snapshot: str | None = None, *,
                  heartbeat_timeout: float = 1.0, conflate: bool = False, rcvhwm: int = 64,
-                 context: zmq.Context | None = None):
+                 context: zmq.Context | None = None, server_public_key: bytes | None = None,
+                 client_key: security.KeyPair | None = None, insecure: bool = False,
+                 max_jump: int = MAX_SEQUENCE_JUMP, stale_limit: int = STALE_LIMIT):
         self.connect = transport.check_endpoint(connect, "--connect", bind=False)
         self.snapshot = transport.check_endpoint(
             snapshot or transport.next_port_endpoint(connect), "--snapshot", bind=False)
         if heartbeat_timeout <= 0:
             raise InputError("must be > 0 seconds", field="heartbeat_timeout")
+        if client_key is not None and server_public_key is None:
+            raise InputError("a client key needs the server's public key",
+                             field="--server-public-key")
+        if server_public_key is None and not insecure:
+            for field_, ep in (("--connect", self.connect), ("--snapshot", self.snapshot)):
+                if not security.is_loopback(ep):
+                    raise InputError(f"{ep!r} is not on this machine: give the server's "
+                                     "public key (--server-public-key) so that the light is "
+                                     "authenticated, or pass --insecure", field=field_)
+        if server_public_key is not None:
+            if not security.has_curve():
+                raise InputError("this libzmq has no CURVE support",
+                                 field="--server-public-key")
+            if client_key is None:
+                client_key = security.KeyPair(*zmq.curve_keypair())
+        self.server_public_key = server_public_key
+        self.client_key = client_key
+        self.max_jump = int(max_jump)
+        self.stale_limit = int(stale_limit)
         self.heartbeat_timeout = float(heartbeat_timeout)
         self.conflate = conflate
         self.rcvhwm = int(rcvhwm)
@@ -104,6 +152,9 @@ class LightClient:
         self._snap: zmq.Socket | None = None
         self._last_heard = 0.0
         self._snap_asked = 0.0
+        self._stale_run = 0
+        self._stale_since = 0.0
+        self._recover = False
         self.error: BaseException | None = None
         """An unexpected error that ended the receiver thread (None while healthy)."""
 
@@ -171,18 +222,27 @@ class LightClient:
 
     # -- receiver thread -----------------------------------------------------------------
 
+    def _secure(self, sock: zmq.Socket) -> zmq.Socket:
+        """Frame size cap and, with the server's key, CURVE (set before connecting)."""
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.MAXMSGSIZE, wire.MAX_MESSAGE_BYTES)
+        if self.server_public_key is not None:
+            sock.setsockopt(zmq.CURVE_SERVERKEY, self.server_public_key)
+            sock.setsockopt(zmq.CURVE_PUBLICKEY, self.client_key.public)
+            sock.setsockopt(zmq.CURVE_SECRETKEY, self.client_key.secret)
+        return sock
+
     def _open(self) -> tuple[zmq.Socket, zmq.Socket]:
-        sub = self._ctx.socket(zmq.SUB)
-        sub.setsockopt(zmq.LINGER, 0)
+        sub = self._secure(self._ctx.socket(zmq.SUB))
         if self.conflate:
             sub.setsockopt(zmq.CONFLATE, 1)
         else:
             sub.setsockopt(zmq.RCVHWM, self.rcvhwm)
-        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.setsockopt(zmq.SUBSCRIBE, b"")  # the only subscription a server applies
         transport.connect(sub, self.connect, "--connect")
-        snap = self._ctx.socket(zmq.DEALER)
-        snap.setsockopt(zmq.LINGER, 0)
+        snap = self._secure(self._ctx.socket(zmq.DEALER))
         snap.setsockopt(zmq.SNDHWM, 1)
+        snap.setsockopt(zmq.RCVHWM, 4)
         transport.connect(snap, self.snapshot, "--snapshot")
         return sub, snap
 
@@ -221,6 +281,18 @@ class LightClient:
                 self._request_snapshot(self._snap)
                 self._snap_asked = self._last_heard
 
+    def _note_stale(self) -> bool:
+        """One more stale message (lock held); True when the client should re-synchronise
+        by snapshot: ``stale_limit`` in a row, or stale for ``heartbeat_timeout`` seconds."""
+        now = time.monotonic()
+        if self._stale_run == 0:
+            self._stale_since = now
+        self._stale_run += 1
+        if (self._stale_run >= self.stale_limit
+                or now - self._stale_since >= self.heartbeat_timeout):
+            self._recover = True  # the next snapshot reply is adopted whatever its sequence
+        return self._recover
+
     def _lost(self, now: float) -> bool:
         """True when nothing came for ``heartbeat_timeout``: the server counts as lost."""
         return now - self._last_heard > self.heartbeat_timeout
@@ -249,17 +321,29 @@ class LightClient:
             if light is None:  # heartbeat (or an empty snapshot)
                 if not from_snapshot:
                     st.heartbeats += 1
+                    if not new_epoch and header.sequence < cur:  # we are ahead of the server
+                        return self._note_stale()
                 return header.sequence > cur
-            if not new_epoch and header.sequence <= cur:
-                if not from_snapshot:  # an older snapshot reply is no disorder
-                    st.stale += 1
-                return False
+            adopt = from_snapshot and self._recover
+            if not new_epoch and header.sequence <= cur and not adopt:
+                if from_snapshot:  # an older snapshot reply is no disorder
+                    return False
+                st.stale += 1
+                return self._note_stale()
+            if (not new_epoch and not from_snapshot and cur > 0
+                    and header.sequence - cur > self.max_jump):
+                st.rejected["jump"] += 1  # confirmed only by a snapshot
+                return True
+            if adopt and not new_epoch and header.sequence <= cur:
+                st.recoveries += 1
             if new_epoch and self._epoch is not None:
                 st.restarts += 1
             elif not new_epoch and header.sequence > cur + 1 and cur > 0:
                 st.gaps += header.sequence - cur - 1
             self._latest = light  # the atomic swap: a complete, validated, immutable state
             self._epoch = header.epoch
+            self._stale_run = 0
+            self._recover = False
             st.applied += 1
             if from_snapshot:
                 st.from_snapshot += 1

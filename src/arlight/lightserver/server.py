@@ -15,6 +15,15 @@ socket:
   (late joiners, clients that noticed a gap or a restart).
 
 A restarted server draws a new random ``epoch``; clients accept its sequence from scratch.
+
+Exposure (docs/lightserver.md, "Threat model and defaults"): with a CURVE key pair
+(``curve``) both sockets authenticate and encrypt every connection, optionally only for
+allowed client keys (``allow_clients``); off loopback the server refuses to start without
+keys unless ``insecure``. Every connection passes the :class:`~.security.Gate` (at most
+``max_clients`` peers per socket); every inbound frame is capped at
+:data:`~.transport.MAX_REQUEST_BYTES`; the publish socket is an XPUB in manual mode that
+applies only the empty subscription (a flood of topics costs nothing but the reading);
+snapshot requests are answered at most once per ``snapshot_interval`` per peer.
 """
 
 from __future__ import annotations
@@ -23,14 +32,14 @@ import dataclasses
 import os
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import zmq
 
 from arlight.errors import ArlightError
-from arlight.lightserver import transport, wire
+from arlight.lightserver import security, transport, wire
 from arlight.nearfield.state import NearFieldLight
 
 HISTORY = 100_000
@@ -48,12 +57,21 @@ class ServerStats:
     heartbeats: int = 0
     snapshots: int = 0
     bad_requests: int = 0
+    snapshots_limited: int = 0
+    """Snapshot requests dropped by the per-peer rate limit."""
+    subscriptions: int = 0
+    """Empty-topic subscriptions applied (one per subscribing connection)."""
+    bad_subscriptions: int = 0
+    """Subscriptions to a non-empty topic (ignored; clients subscribe to everything)."""
     bytes_last: int = 0
     bytes_total: int = 0
     produce_seconds: deque[float] = field(default_factory=lambda: deque(maxlen=HISTORY))
     publish_seconds: deque[float] = field(default_factory=lambda: deque(maxlen=HISTORY))
     started: float = 0.0
     stopped: float = 0.0
+    refused: dict = field(default_factory=dict)
+    """Connections the gate refused: ``full`` (max_clients reached), ``key`` (CURVE key not
+    allowed)."""
 
 
 class LightServer:
@@ -73,15 +91,40 @@ class LightServer:
         sndhwm: per-subscriber send queue in messages; beyond it PUB drops for that
             subscriber only.
         epoch: server incarnation id (default: random).
+        curve: the server's CURVE key pair (:func:`~.security.load_secret`): both sockets
+            authenticate and encrypt; clients must pin its public key.
+        allow_clients: with ``curve``, the client public keys (Z85) allowed (None: any key).
+        insecure: allow a non-loopback bind without ``curve`` (otherwise InputError).
+        max_clients: connections per socket the gate lets through at once.
+        snapshot_interval: a peer's snapshot requests are answered at most once per this
+            many seconds (the rest are dropped; a client asks again).
     """
 
     def __init__(self, producer: Producer, *, bind: str = "tcp://127.0.0.1:5556",
                  snapshot_bind: str | None = None, rate_hz: float = 20.0,
                  heartbeat_s: float = 0.25, count: int | None = None,
                  duration: float | None = None, sndhwm: int = 16,
-                 epoch: int | None = None):
+                 epoch: int | None = None, curve: security.KeyPair | None = None,
+                 allow_clients: dict[bytes, bool] | None = None, insecure: bool = False,
+                 max_clients: int = 256, snapshot_interval: float = 0.05):
         if rate_hz < 0 or heartbeat_s <= 0:
             raise ArlightError("LightServer: rate_hz must be >= 0 and heartbeat_s > 0")
+        if max_clients < 1 or snapshot_interval < 0 or sndhwm < 1:
+            raise ArlightError("LightServer: max_clients >= 1, sndhwm >= 1 and "
+                               "snapshot_interval >= 0 required")
+        if allow_clients is not None and curve is None:
+            raise ArlightError("LightServer: allow_clients needs curve keys")
+        if curve is not None and not security.has_curve():
+            raise ArlightError("this libzmq has no CURVE support (pyzmq wheels have it)")
+        snap_addr = snapshot_bind or transport.next_port_endpoint(bind)
+        transport.check_endpoint(bind, "--bind", bind=True)
+        transport.check_endpoint(snap_addr, "--snapshot-bind", bind=True)
+        self.warnings = security.check_exposure({"--bind": bind, "--snapshot-bind": snap_addr},
+                                                curve is not None, insecure)
+        """Lines the caller should show (wildcard or unauthenticated exposure)."""
+        self.curve = curve
+        self.max_clients = int(max_clients)
+        self.snapshot_interval = float(snapshot_interval)
         self.producer = producer
         self.rate_hz = float(rate_hz)
         self.heartbeat_s = float(heartbeat_s)
@@ -95,20 +138,39 @@ class LightServer:
         self._lock = threading.Lock()
         self._threads: list[threading.Thread] = []
         self._inproc = f"inproc://lightserver-{id(self)}"
+        self._gate: security.Gate | None = None
+        self._snap_seen: OrderedDict[bytes, float] = OrderedDict()
         try:
-            self._pub = self._ctx.socket(zmq.PUB)
+            # the gate (ZAP handler) must listen before any socket binds
+            self._gate = security.Gate(self._ctx, self.max_clients)
+            self._gate.start()
+            if curve is not None:
+                self._gate.configure(allow_clients)
+            self._pub = self._ctx.socket(zmq.XPUB)
+            self._pub.setsockopt(zmq.XPUB_MANUAL, 1)  # we decide which subscriptions apply
             self._pub.setsockopt(zmq.SNDHWM, int(sndhwm))
-            self._pub.setsockopt(zmq.LINGER, 0)
             self._snap = self._ctx.socket(zmq.ROUTER)
-            self._snap.setsockopt(zmq.LINGER, 0)
             self._snap.setsockopt(zmq.ROUTER_MANDATORY, 0)
+            self._snap.setsockopt(zmq.SNDHWM, 4)  # replies queued per peer (then dropped)
+            self._snap.setsockopt(zmq.RCVHWM, 64)
+            self._monitors: dict[zmq.Socket, bytes] = {}
+            for sock, name in ((self._pub, "pub"), (self._snap, "snapshot")):
+                sock.setsockopt(zmq.LINGER, 0)
+                sock.setsockopt(zmq.MAXMSGSIZE, transport.MAX_REQUEST_BYTES)
+                sock.setsockopt(zmq.ZAP_DOMAIN, security.ZAP_DOMAINS[name])
+                if curve is not None:
+                    sock.setsockopt(zmq.CURVE_SERVER, 1)
+                    sock.setsockopt(zmq.CURVE_PUBLICKEY, curve.public)
+                    sock.setsockopt(zmq.CURVE_SECRETKEY, curve.secret)
+                mon = sock.get_monitor_socket(zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED)
+                mon.setsockopt(zmq.RCVHWM, 0)  # never drop a connection event
+                self._monitors[mon] = security.ZAP_DOMAINS[name]
             self._pull = self._ctx.socket(zmq.PAIR)
             self._pull.bind(self._inproc)
             pub_ep = transport.bind(self._pub, bind, "--bind")
-            snap_addr = snapshot_bind or transport.next_port_endpoint(bind)
             snap_ep = transport.bind(self._snap, snap_addr, "--snapshot-bind")
         except BaseException:
-            self._ctx.destroy(linger=0)
+            self._shutdown()
             raise
         self.endpoints = (pub_ep, snap_ep)
         """(publish, snapshot) endpoints actually bound."""
@@ -145,6 +207,12 @@ class LightServer:
         for t in self._threads:
             t.join(timeout)
         self._stats.stopped = time.time()
+        self._shutdown()
+
+    def _shutdown(self) -> None:
+        if self._gate is not None:
+            self._gate.stop()
+            self._gate = None
         self._ctx.destroy(linger=0)
 
     def __enter__(self) -> LightServer:
@@ -167,6 +235,8 @@ class LightServer:
         """A copy of the counters."""
         with self._lock:
             s = dataclasses.replace(self._stats)
+            if self._gate is not None:
+                s.refused = dict(self._gate.refused)
             s.produce_seconds = deque(self._stats.produce_seconds, maxlen=HISTORY)
             s.publish_seconds = deque(self._stats.publish_seconds, maxlen=HISTORY)
         return s
@@ -218,6 +288,9 @@ class LightServer:
         poller = zmq.Poller()
         poller.register(self._pull, zmq.POLLIN)
         poller.register(self._snap, zmq.POLLIN)
+        poller.register(self._pub, zmq.POLLIN)  # subscriptions (XPUB)
+        for mon in self._monitors:
+            poller.register(mon, zmq.POLLIN)
         last_sent = time.monotonic()
         while not self._stop.is_set():
             timeout = max(0.0, last_sent + self.heartbeat_s - time.monotonic())
@@ -239,6 +312,11 @@ class LightServer:
                     self._stats.publish_seconds.append(time.perf_counter() - t0)
             if self._snap in events:
                 self._answer_snapshot()
+            if self._pub in events:
+                self._read_subscriptions()
+            for mon, domain in self._monitors.items():
+                if mon in events:
+                    self._read_monitor(mon, domain)
             if time.monotonic() - last_sent >= self.heartbeat_s:
                 with self._lock:
                     seq = self._stats.published
@@ -246,11 +324,67 @@ class LightServer:
                 self._pub.send(wire.encode_heartbeat(seq, epoch=self.epoch, sent=time.time()))
                 last_sent = time.monotonic()
 
+    def _read_monitor(self, mon: zmq.Socket, domain: bytes) -> None:
+        from zmq.utils.monitor import recv_monitor_message
+
+        for _ in range(1000):
+            try:
+                ev = recv_monitor_message(mon, flags=zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if self._gate is not None:
+                self._gate.on_monitor_event(domain, ev["event"], ev["value"])
+
+    def _read_subscriptions(self) -> None:
+        """Apply empty-topic subscriptions (the only kind a client makes), ignore the rest
+        (XPUB_MANUAL: nothing is stored for them); unsubscriptions are ignored."""
+        for _ in range(10_000):  # bounded per pass: updates and heartbeats go on
+            try:
+                msg = self._pub.recv(flags=zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if msg == b"\x01":
+                self._pub.setsockopt(zmq.SUBSCRIBE, b"")  # for the peer that just sent it
+                with self._lock:
+                    self._stats.subscriptions += 1
+            elif msg[:1] == b"\x01":
+                with self._lock:
+                    self._stats.bad_subscriptions += 1
+
+    def _recv_request(self) -> list[bytes] | None:
+        """One request from the ROUTER: at most 3 frames kept (the rest read and dropped;
+        each frame is at most MAX_REQUEST_BYTES)."""
+        try:
+            frames = [self._snap.recv(flags=zmq.NOBLOCK)]
+        except zmq.Again:
+            return None
+        while self._snap.getsockopt(zmq.RCVMORE):
+            part = self._snap.recv()  # the whole message is already here
+            if len(frames) < 3:
+                frames.append(part)
+        return frames
+
     def _answer_snapshot(self) -> None:
-        frames = self._snap.recv_multipart()
+        for _ in range(1000):
+            frames = self._recv_request()
+            if frames is None:
+                return
+            self._answer_one(frames)
+
+    def _answer_one(self, frames: list[bytes]) -> None:
         if len(frames) != 2 or frames[1] != transport.SNAPSHOT_REQUEST:
             with self._lock:
                 self._stats.bad_requests += 1
+            return
+        now = time.monotonic()
+        last = self._snap_seen.pop(frames[0], None)
+        self._snap_seen[frames[0]] = now if last is None or (
+            now - last >= self.snapshot_interval) else last
+        while len(self._snap_seen) > 4 * self.max_clients + 16:  # bounded: oldest peers go
+            self._snap_seen.popitem(last=False)
+        if last is not None and now - last < self.snapshot_interval:
+            with self._lock:
+                self._stats.snapshots_limited += 1
             return
         with self._lock:
             latest = self._latest

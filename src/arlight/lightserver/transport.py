@@ -19,6 +19,11 @@ SNAPSHOT_REQUEST = b"SNAP1"
 """The one request a snapshot socket understands; the reply is the latest update message
 (or a heartbeat with sequence 0 while the server has none)."""
 
+MAX_REQUEST_BYTES = 64
+"""``ZMQ_MAXMSGSIZE`` of the server's sockets: what a peer may send it is a 5-byte snapshot
+request (ROUTER) or a 1-byte subscription (PUB side). A larger frame makes libzmq drop the
+connection from the frame header, before anything is allocated."""
+
 _TCP = re.compile(r"^tcp://(?P<host>\[[^\]]+\]|[^:/\[\]]+):(?P<port>\*|\d+)$")
 
 

@@ -25,9 +25,13 @@ VAL record (``VAL_DTYPE``, 32 B): position 3×f32 (m), normal as an octahedral m
 SH block: 9×3 f32, coefficient-major (``sh[k, c]``), W/(sr·m²).
 
 :func:`decode` checks everything (size, magic, version, kind, CRC, finite and non-negative
-values, counts within :data:`MAX_VALS` / :data:`MAX_OBJECTS`) before it builds the
-immutable :class:`~arlight.nearfield.NearFieldLight`, so a client can swap its state in one
-reference assignment and never render a half-applied update.
+values, counts within :data:`MAX_VALS` / :data:`MAX_OBJECTS` — read from the header before
+anything is allocated — and radiometry within :data:`MAX_INTENSITY`, :data:`MAX_COORDINATE`,
+:data:`MAX_AREA`, :data:`MAX_SH`) before it builds the immutable
+:class:`~arlight.nearfield.NearFieldLight`, so a client can swap its state in one reference
+assignment and never render a half-applied (or absurd) update. :func:`encode` refuses the
+same, so a server never sends what its clients would drop. :data:`MAX_MESSAGE_BYTES` (the
+largest legal message) sizes every socket's ``ZMQ_MAXMSGSIZE``.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from arlight.errors import ArlightError
+from arlight.methods.nearfield import OPTIONS as _NEARFIELD_OPTIONS
 from arlight.nearfield.state import SH_BLOCK_BYTES, VAL_RECORD_BYTES, NearFieldLight
 
 MAGIC = b"ARNF"
@@ -52,20 +57,35 @@ VAL_DTYPE = np.dtype([("position", "<f4", (3,)), ("normal", "<i2", (2,)),
                       ("intensity", "<f4", (3,)), ("area", "<f4")])
 VAL_BYTES = VAL_DTYPE.itemsize  # 32
 SH_BYTES = SH_BLOCK_BYTES  # 108
-MAX_VALS = 65536
-"""Largest M a decoder accepts (2 MiB of VALs; Rohmer uses 8 ≤ M ≤ 64)."""
+MAX_VALS: int = _NEARFIELD_OPTIONS["vals"].max
+"""Largest M a decoder accepts: what the ``nearfield`` method renders (its ``vals`` option's
+maximum, 256; Rohmer uses 8 ≤ M ≤ 64). A client's shadow maps and light loops scale with M."""
 MAX_OBJECTS = 4096
-"""Largest n_obj a decoder accepts."""
+"""Largest n_obj a decoder accepts (442 KiB of SH)."""
+MAX_INTENSITY = 1.0e8
+"""Largest VAL radiant intensity, W/sr, per RGB channel: far above any real emitter seen by a
+light probe (the sun's disc through a 1 m² window is ≈ 2·10⁷ W/sr), far below float32 range
+so that shading (I / r², sums over M) stays finite."""
+MAX_COORDINATE = 1.0e4
+"""Largest |x|, |y|, |z| of a VAL position, m (a 10 km room)."""
+MAX_AREA = 1.0e4
+"""Largest VAL disc area, m²."""
+MAX_SH = 1.0e8
+"""Largest |coefficient| of an SH block, W/(sr·m²)."""
+MAX_MESSAGE_BYTES = 48 + 32 * MAX_VALS + 108 * MAX_OBJECTS
+"""The largest legal message (450 608 B): the ``ZMQ_MAXMSGSIZE`` of the clients' sockets."""
 _SNORM = 32767.0
 
 assert HEADER_BYTES == 48 and VAL_BYTES == VAL_RECORD_BYTES
+assert MAX_MESSAGE_BYTES == HEADER_BYTES + VAL_BYTES * MAX_VALS + SH_BYTES * MAX_OBJECTS
 
 
 class WireError(ArlightError):
     """A message that is not a valid light update (truncated, corrupted, bad values).
 
     ``reason`` is a short key for counters: ``truncated``, ``magic``, ``version``, ``kind``,
-    ``counts``, ``length``, ``corrupted``, ``finite``, ``negative``, ``normal``, ``range``.
+    ``counts``, ``length``, ``corrupted``, ``finite``, ``negative``, ``normal``, ``range``
+    (beyond float32 when encoding, beyond the documented caps when decoding).
     """
 
     def __init__(self, message: str, reason: str = "invalid"):
@@ -163,6 +183,25 @@ def _f32(a: np.ndarray, what: str) -> np.ndarray:
     return out
 
 
+_CAPS = {"position": (MAX_COORDINATE, "m"), "intensity": (MAX_INTENSITY, "W/sr"),
+         "area": (MAX_AREA, "m²"), "sh": (MAX_SH, "W/(sr·m²)")}
+
+
+def _check_caps(fields: dict[str, np.ndarray], what: str) -> None:
+    """Finite, non-negative intensity and area, every magnitude within :data:`_CAPS`."""
+    for name, a in fields.items():
+        if not np.all(np.isfinite(a)):
+            raise WireError(f"{what}: non-finite {name}", "finite")
+    for name in ("intensity", "area"):
+        if np.any(fields[name] < 0):
+            raise WireError(f"{what}: {name} must be >= 0", "negative")
+    for name, (cap, unit) in _CAPS.items():
+        a = fields[name]
+        if a.size and float(np.max(np.abs(a))) > cap:
+            raise WireError(f"{what}: {name} {float(np.max(np.abs(a))):.3g} {unit} beyond "
+                            f"the wire limit {cap:g}", "range")
+
+
 def encode(light: NearFieldLight, *, epoch: int = 0, sent: float = 0.0) -> bytes:
     """Pack a light state: header (kind update) + 32·M + 108·n_obj bytes.
 
@@ -178,7 +217,10 @@ def encode(light: NearFieldLight, *, epoch: int = 0, sent: float = 0.0) -> bytes
     vals["normal"] = oct_encode(light.normals)
     vals["intensity"] = _f32(light.intensity, "intensity")
     vals["area"] = _f32(light.area, "area")
-    body = vals.tobytes() + _f32(light.sh, "sh").astype("<f4").tobytes()
+    sh = _f32(light.sh, "sh").astype("<f4")
+    _check_caps({"position": vals["position"], "intensity": vals["intensity"],
+                 "area": vals["area"], "sh": sh}, f"NearFieldLight {light.sequence}")
+    body = vals.tobytes() + sh.tobytes()
     header = HEADER.pack(MAGIC, WIRE_VERSION, KIND_UPDATE, 0, epoch & 0xFFFFFFFF,
                          int(light.sequence), float(light.timestamp), float(sent), m, n_obj, 0)
     return _finish(header, body)
@@ -244,14 +286,8 @@ def decode(message: bytes) -> tuple[Header, NearFieldLight | None]:
     vals = np.frombuffer(message, dtype=VAL_DTYPE, count=h.count, offset=HEADER_BYTES)
     sh = np.frombuffer(message, dtype="<f4", count=27 * h.n_obj,
                        offset=HEADER_BYTES + VAL_BYTES * h.count).reshape(h.n_obj, 9, 3)
-    fields = {"position": vals["position"], "intensity": vals["intensity"],
-              "area": vals["area"], "sh": sh}
-    for name, a in fields.items():
-        if not np.all(np.isfinite(a)):
-            raise WireError(f"light message {h.sequence}: non-finite {name}", "finite")
-    for name in ("intensity", "area"):
-        if np.any(fields[name] < 0):
-            raise WireError(f"light message {h.sequence}: {name} must be >= 0", "negative")
+    _check_caps({"position": vals["position"], "intensity": vals["intensity"],
+                 "area": vals["area"], "sh": sh}, f"light message {h.sequence}")
     try:
         light = NearFieldLight(positions=vals["position"].astype(np.float64),
                                normals=oct_decode(vals["normal"]),
