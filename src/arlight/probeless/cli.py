@@ -34,32 +34,76 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
-def _check_output(path: Path, inputs: list[Path], option: str) -> None:
-    from arlight.errors import InputError
+# Memory per TSDF voxel (Open3D's UniformTSDFVolume: tsdf, weight, colour as doubles, plus
+# the marching-cubes pass) and per pixel of a frame (colour float32 RGB, depth, the
+# pipeline's per-frame planes); time per voxel and frame of the integration.
+BYTES_PER_VOXEL = 48.0
+BYTES_PER_FRAME_PIXEL = 64.0
+MAX_RESOLUTION = 1024
 
-    for inp in inputs:
-        if path.resolve() == inp.resolve() or (path.exists() and inp.exists()
-                                               and os.path.samefile(path, inp)):
-            raise InputError(f"{path} would overwrite the input {inp}", field=option)
-    if path.is_dir():
-        raise InputError(f"{path} is a folder, expected a file name", field=option)
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise InputError(f"folder {parent} does not exist or is not writable", field=option)
+
+def _outputs_and_inputs(rgbd_dir: Path, poses: Path | None, output: Path, frames_out: Path,
+                        mesh: Path | None) -> tuple[dict, list[Path]]:
+    """The planned outputs (field → path) and every input file (the whole RGB-D folder,
+    the poses). An output inside the folder's colour or depth images would become a frame
+    of the sequence: refused."""
+    from arlight.errors import InputError
+    from arlight.output_guard import folder_files
+    from arlight.probeless.rgbd_io import image_dirs
+
+    outputs = {"--output": output, "--output (per-frame file)": frames_out}
+    if mesh is not None:
+        outputs["--mesh"] = mesh
+    for fld, path in outputs.items():
+        real = Path(os.path.realpath(path))
+        for d in image_dirs(rgbd_dir):
+            if real.is_relative_to(Path(os.path.realpath(d))):
+                raise InputError(f"is inside the image folder {d} of the RGB-D sequence; it "
+                                 "would change the sequence (choose another path)",
+                                 file=str(path), field=fld)
+    return outputs, folder_files(rgbd_dir) + ([poses] if poses is not None else [])
+
+
+def probeless_estimate(rgbd_dir: Path, resolution: int, max_frames: int | None):
+    """Memory/time :class:`~arlight.bounds.Estimate` of a run, from the TSDF size and the
+    frames' image headers (nothing is decoded)."""
+    from arlight.bounds import image_size, work_estimate
+    from arlight.probeless.rgbd_io import frame_files
+
+    pixels, frames = 0.0, 0
+    try:
+        colours, _ = frame_files(rgbd_dir)
+    except Exception:  # noqa: BLE001 - the reader reports a bad folder
+        colours = []
+    for c in colours[:max_frames]:
+        size = image_size(c)
+        if size is not None:
+            pixels += float(size[0]) * float(size[1])
+        frames += 1
+    voxels = float(resolution) ** 3
+    return work_estimate(BYTES_PER_VOXEL * voxels + BYTES_PER_FRAME_PIXEL * pixels,
+                         operations=voxels * max(frames, 1) + 2000.0 * pixels,
+                         output_bytes=voxels * 4.0)
 
 
 def run(rgbd_dir: Path, poses: Path | None, output: Path, intrinsics: str | None = None,
         depth_scale: float = 1000.0, variant: str = "ART4", volume: float = 2.0,
         resolution: int = 268, albedo: float = 0.5, depth_trunc: float = 4.0,
         max_frames: int | None = None, mesh: Path | None = None,
-        allow_low_confidence: bool = False) -> dict:
+        allow_low_confidence: bool = False, overwrite: bool = False,
+        force: bool = False) -> dict:
     """The command's work; returns a summary. Raises ArlightError / ValueError on bad input
-    (before writing anything)."""
+    (before writing anything): options, the outputs (:func:`arlight.output_guard.
+    check_outputs`: never a file of the RGB-D folder or the poses; never an existing file
+    arlight did not write unless ``overwrite``), the memory/time estimate (unless
+    ``force``), then the frames."""
     import numpy as np
 
     from arlight.backend.mitsuba_scene import build_views
+    from arlight.bounds import MAX_FRAMES, check_estimate
     from arlight.errors import InputError
     from arlight.io.images import atomic_write
+    from arlight.output_guard import check_outputs, record_written
     from arlight.probeless.estimate import estimate_light
     from arlight.probeless.pipeline import VARIANTS, Pipeline, Settings
     from arlight.probeless.reconstruct import reconstruct
@@ -73,16 +117,22 @@ def run(rgbd_dir: Path, poses: Path | None, output: Path, intrinsics: str | None
                           (depth_trunc, "--depth-trunc", 0.0)):
         if not np.isfinite(val) or val <= lo:
             raise InputError(f"must be a finite number > {lo:g}, got {val}", field=name)
-    if max_frames is not None and max_frames < 1:
-        raise InputError(f"expected at least 1 frame, got {max_frames}", field="--max-frames")
-    if not 8 <= resolution <= 1024:
-        raise InputError(f"expected 8 to 1024 voxels, got {resolution}", field="--resolution")
+    for val, name, hi in ((volume, "--volume", 1e4), (depth_trunc, "--depth-trunc", 1e4),
+                          (albedo, "--albedo", 1.0), (depth_scale, "--depth-scale", 1e9)):
+        if not np.isfinite(val) or not 0 < val <= hi:
+            raise InputError(f"must be a finite number in (0, {hi:g}], got {val}", field=name)
+    if max_frames is not None and not 1 <= max_frames <= MAX_FRAMES:
+        raise InputError(f"expected 1 to {MAX_FRAMES} frames, got {max_frames}",
+                         field="--max-frames")
+    if not 8 <= resolution <= MAX_RESOLUTION:
+        raise InputError(f"expected 8 to {MAX_RESOLUTION} voxels, got {resolution}",
+                         field="--resolution")
     frames_out = output.with_name(f"{output.stem}.frames.json")
-    inputs = [rgbd_dir] + ([poses] if poses is not None else [])
-    _check_output(output, inputs, "--output")
-    _check_output(frames_out, inputs, "--output")
-    if mesh is not None:
-        _check_output(mesh, inputs, "--mesh")
+    outputs, inputs = _outputs_and_inputs(rgbd_dir, poses, output, frames_out, mesh)
+    check_outputs(outputs, inputs, overwrite=overwrite)
+    check_estimate(probeless_estimate(rgbd_dir, resolution, max_frames),
+                   f"probeless on {rgbd_dir.name}", force,
+                   lower="--resolution or --max-frames", field="--resolution")
     frames = read_sequence(rgbd_dir, poses, intrinsics, depth_scale, max_frames)
     shape = reconstruct(frames, volume=volume,
                         resolution=resolution, depth_trunc=depth_trunc, albedo=albedo)
@@ -136,6 +186,7 @@ def run(rgbd_dir: Path, poses: Path | None, output: Path, intrinsics: str | None
         for p in written:
             p.unlink(missing_ok=True)
         raise
+    record_written(written)
     return {"estimate": est, "fit": fit, "frames": len(frames), "frames_file": frames_out}
 
 
@@ -160,12 +211,19 @@ def probeless(
     allow_low_confidence: Annotated[bool, typer.Option(
         help="write an undetermined light (flagged, confidence <= 0.1) instead of failing")
     ] = False,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="replace existing outputs arlight did not write (never a file "
+        "of the RGB-D folder or the poses)")] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="run even when the memory/time estimate is beyond the bounds")
+    ] = False,
 ) -> None:
     """Probeless light estimate from an RGB-D sequence (Gruber et al. 2014): TSDF
     reconstruction, 10 cm radiance transfer, least-squares 16-coefficient SH."""
     try:
         out = run(rgbd_dir, poses, output, intrinsics, depth_scale, variant, volume,
-                  resolution, albedo, depth_trunc, max_frames, mesh, allow_low_confidence)
+                  resolution, albedo, depth_trunc, max_frames, mesh, allow_low_confidence,
+                  overwrite, force)
     except (ArlightError, ValueError) as exc:
         _fail(str(exc))
     fit = out["fit"]

@@ -76,6 +76,20 @@ def _images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT)
 
 
+def image_dirs(folder: str | Path) -> list[Path]:
+    """The colour and depth image folders of an RGB-D folder that exist."""
+    folder = Path(folder)
+    return [folder / n for n in (*_COLOUR_DIRS, "depth") if (folder / n).is_dir()]
+
+
+def frame_files(folder: str | Path) -> tuple[list[Path], list[Path]]:
+    """The colour and depth image files of an RGB-D folder, in frame order (unchecked)."""
+    folder = Path(folder)
+    cdir = next((folder / n for n in _COLOUR_DIRS if (folder / n).is_dir()), None)
+    depth = folder / "depth"
+    return (_images(cdir) if cdir else [], _images(depth) if depth.is_dir() else [])
+
+
 def parse_intrinsics(text: str | None, folder: Path) -> tuple[float, float, float, float]:
     """``fx,fy,cx,cy`` from the option, else ``RGBD_DIR/intrinsics.json``."""
     if text is not None:
@@ -97,9 +111,11 @@ def parse_intrinsics(text: str | None, folder: Path) -> tuple[float, float, floa
         except (ValueError, KeyError, TypeError) as exc:
             raise InputError(f"expected fx, fy, cx, cy numbers ({exc})", file=str(f),
                              field="intrinsics") from exc
-    if not all(np.isfinite(vals)) or vals[0] <= 0 or vals[1] <= 0:
-        raise InputError(f"intrinsics must be finite with fx, fy > 0, got {vals}",
-                         field="intrinsics")
+    if (not all(np.isfinite(vals)) or vals[0] <= 0 or vals[1] <= 0
+            or max(abs(v) for v in vals) > 1e7):
+        raise InputError(f"intrinsics must be finite with 0 < fx, fy and |values| <= 1e7 px, "
+                         f"got {vals}", field="--intrinsics" if text is not None
+                         else "intrinsics")
     return vals  # type: ignore[return-value]
 
 
@@ -151,4 +167,5 @@ def read_sequence(folder: str | Path, poses: str | Path | None,
     return frames
 
 
-__all__ = ["parse_intrinsics", "quaternion_pose", "read_poses", "read_sequence"]
+__all__ = ["frame_files", "image_dirs", "parse_intrinsics", "quaternion_pose", "read_poses",
+           "read_sequence"]
