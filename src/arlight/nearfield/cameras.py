@@ -30,9 +30,15 @@ from pathlib import Path
 import numpy as np
 
 from arlight.errors import InputError, read_text
+from arlight.scene.schema import MAX_LENGTH
 from arlight.sphere.fisheye import FisheyeCamera, OcamCamera, load_camera
 
 Model = FisheyeCamera | OcamCamera
+
+MIN_IMAGE_SIDE = 8
+MAX_IMAGE_SIDE = 16384
+"""Sides (px) a rig camera's image may have (memory is bounded further by ``light atlas``'s
+estimate)."""
 
 
 @dataclass
@@ -83,9 +89,11 @@ def _vec3(entry: dict, key: str, where: str, file: str) -> np.ndarray:
         a = np.asarray(v, np.float64)
     except (TypeError, ValueError):
         a = np.zeros(0)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"expected 3 finite numbers, got {v!r}", file=file,
-                         field=f"{where}.{key}")
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.abs(a).max() > MAX_LENGTH:
+        raise InputError(f"expected 3 finite numbers of magnitude <= {MAX_LENGTH:g}, got "
+                         f"{v!r}", file=file, field=f"{where}.{key}")
+    if key != "position" and not np.any(a):
+        raise InputError("a direction must not be zero", file=file, field=f"{where}.{key}")
     return a
 
 
@@ -127,15 +135,37 @@ def load_rig(path: str | Path) -> list[RigCamera]:
         model: Model
         if "calibration" in e:
             calib = (path.parent / str(e["calibration"])).resolve()
-            model = load_camera(calib, e.get("fov_deg"))
+            fov_deg = e.get("fov_deg")
+            if fov_deg is not None and (isinstance(fov_deg, bool)
+                                        or not isinstance(fov_deg, int | float)
+                                        or not 0 < fov_deg <= 360):
+                raise InputError(f"expected a field of view in (0, 360] degrees, got "
+                                 f"{fov_deg!r}", file=file, field=f"{where}.fov_deg")
+            model = load_camera(calib, fov_deg)
+            if not all(MIN_IMAGE_SIDE <= x <= MAX_IMAGE_SIDE for x in model.size):
+                raise InputError(f"the calibration's image sides must be {MIN_IMAGE_SIDE} to "
+                                 f"{MAX_IMAGE_SIDE} px, got {list(model.size)}", file=file,
+                                 field=f"{where}.calibration")
         elif "equidistant" in e:
             q = e["equidistant"]
             try:
+                if not isinstance(q, dict) or len(q["size"]) != 2 or not all(
+                        isinstance(x, int) and not isinstance(x, bool) for x in q["size"]):
+                    raise ValueError(f"size must be two integers, got {q.get('size')!r}"
+                                     if isinstance(q, dict) else "not a table")
                 size = (int(q["size"][0]), int(q["size"][1]))
-                model = FisheyeCamera.equidistant(size, float(q.get("fov_deg", 180.0)))
+                fov = float(q.get("fov_deg", 180.0))
             except (KeyError, TypeError, ValueError, IndexError) as exc:
                 raise InputError(f"expected {{ size = [w, h], fov_deg = … }} ({exc})",
                                  file=file, field=f"{where}.equidistant") from exc
+            if not all(MIN_IMAGE_SIDE <= x <= MAX_IMAGE_SIDE for x in size):
+                raise InputError(f"image sides must be {MIN_IMAGE_SIDE} to {MAX_IMAGE_SIDE} "
+                                 f"px, got {list(size)}", file=file,
+                                 field=f"{where}.equidistant.size")
+            if not (np.isfinite(fov) and 0 < fov <= 360):
+                raise InputError(f"expected a field of view in (0, 360] degrees, got {fov}",
+                                 file=file, field=f"{where}.equidistant.fov_deg")
+            model = FisheyeCamera.equidistant(size, fov)
         else:
             raise InputError("uncalibrated fisheye: give `calibration = \"file\"` "
                              "(OCamCalib / OpenCV / JSON) or `equidistant = { size = [w, h],"
