@@ -69,6 +69,41 @@ def marker_poses(source: FrameSource, calib_path: str | Path, marker: str,
     return cam, poses, calib
 
 
+def sequence_inputs(raw: dict, scene: str | Path, source: FrameSource,
+                    depths: list[Path] | None = None, poses: str | Path = "scene",
+                    objects: str | Path | None = None, calib: str | Path | None = None,
+                    marker: str | None = None) -> tuple[Path, ...]:
+    """Every file and folder a sequence reads: the scene file and the files it references
+    (meshes, textures, environment maps, its frame; ``raw`` holds them as absolute paths),
+    the frames (folder and files, or the video), depth images, poses, object, calibration
+    and marker files. The output may not be, contain or replace any of them."""
+    from arlight.scene.load import PATH_KEYS
+
+    found: list[Path] = [Path(scene), source.path, *source.files, *(depths or [])]
+
+    def walk(node: object, key: str = "") -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, k)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v, key)
+        elif key in PATH_KEYS and isinstance(node, str):
+            found.append(Path(node))
+
+    walk(raw)
+    if depths:
+        found.append(Path(depths[0]).parent)
+    for p in (objects, calib):
+        if p is not None:
+            found.append(Path(p))
+    if str(poses) not in ("scene", "marker"):
+        found.append(Path(poses))
+    if marker is not None and marker.lower().endswith(".toml"):
+        found.append(Path(marker))
+    return tuple(dict.fromkeys(found))
+
+
 def build_job(scene: ARScene, source: FrameSource, method: str, settings: RenderSettings,
               poses: str | Path = "scene", objects: str | Path | None = None,
               axes: str = "opencv", calib: str | Path | None = None,
@@ -109,4 +144,4 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
                        frames_fingerprint=source.fingerprint, split=split)
 
 
-__all__ = ["build_job", "fit_camera", "marker_poses"]
+__all__ = ["build_job", "fit_camera", "marker_poses", "sequence_inputs"]

@@ -68,15 +68,19 @@ def sequence_command(
                      "parts of spp/split samples (separate Ray tasks), averaged; progressive "
                      "methods only", min=1, max=MAX_SPP)] = 1,
     restart: Annotated[bool, typer.Option("--restart", help="replace another sequence's "
-                       "frames in OUT instead of refusing")] = False,
+                       "frames in OUT instead of refusing (nothing is removed before every "
+                       "input is checked and the first new frame is rendered)")] = False,
+    force: Annotated[bool, typer.Option("--force", help="run beyond the memory/time bounds "
+                                        "(frames × resolution × spp)")] = False,
 ) -> None:
     """Render an AR video: every frame of a sequence, resumable, optionally on Ray."""
     import os
 
+    from arlight.bounds import check_estimate, check_range, estimate
     from arlight.methods import RenderSettings
     from arlight.methods.spec import parse_option_pairs
     from arlight.scene.load import load_scene, render_settings_for
-    from arlight.sequence.build import build_job
+    from arlight.sequence.build import build_job, sequence_inputs
     from arlight.sequence.frames import FrameSource
     from arlight.sequence.runner import RunOptions, run_sequence
 
@@ -91,8 +95,15 @@ def sequence_command(
     if bad:
         raise InputError(f"unknown video format {bad[0]!r}; expected mp4, webm or none",
                          field="--video")
+    if fps is not None:
+        check_range(fps, "--fps", 0.001, 1000)
     sc = load_scene(scene)
     source = FrameSource(frames)
+    w, h = source.size
+    est = estimate(w, h, settings.spp, paths=2, layers=4 if layers else 1,
+                   renders=source.count)
+    check_estimate(est, f"rendering {source.count} frames of {w}×{h} at {settings.spp} spp",
+                   force)
     depths = None
     if depth is not None:
         depths = FrameSource(depth).files
@@ -108,9 +119,7 @@ def sequence_command(
                     layers=layers, threads=threads if ray is not None else None,
                     split=split)
     job.test_hook = os.environ.get("ARLIGHT_TEST_SEQUENCE_HOOK") or None  # fault tests
-    inputs = tuple(p for p in (scene, frames, depth, objects) if p is not None)
-    if poses not in ("scene", "marker"):
-        inputs += (Path(poses),)
+    inputs = sequence_inputs(sc.raw, scene, source, depths, poses, objects, calib, marker)
     summary = run_sequence(job, source, out, RunOptions(ray=ray, workers=workers,
                                                         videos=videos, restart=restart),
                            depths=depths, inputs=inputs)

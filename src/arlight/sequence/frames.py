@@ -2,9 +2,10 @@
 
 A folder's images (PNG, JPEG, EXR, ...; see :mod:`arlight.io.images`) are taken in natural
 sort order of their names (``f2.png`` before ``f10.png``); every one must have the same size.
-A video is decoded by ffmpeg (:mod:`arlight.sequence.video`). :class:`FrameSource` is
-checked when opened (count, size, the first frame decoded), so a bad input fails before any
-output is written.
+A video is decoded by ffmpeg (:mod:`arlight.sequence.video`). :class:`FrameSource` reads
+only headers when opened (count, size); :meth:`FrameSource.validate` decodes every frame
+once (a truncated or unreadable frame, one of another size), which the runner does before
+the output folder is touched, so a bad input fails before any output is written.
 
 A frame comes back as :class:`InputFrame`: LDR code values (uint8/uint16, decoded to linear
 radiance through the scene camera's transfer function by the renderer) or linear HDR
@@ -73,8 +74,12 @@ class FrameSource:
                 raise InputError(f"no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in the "
                                  "folder", file=str(p), field="--frames")
             self.count = len(self.files)
-            first = self._read_file(0)
-            self.size = first.size
+            from arlight.insert.imagesize import image_size
+
+            # the size from the first file's header: nothing is decoded before the cost of
+            # the run is checked (a 100 000 × 100 000 frame is refused, not decoded)
+            size = image_size(self.files[0])
+            self.size = size if size is not None else self._read_file(0).size
             hdr = {is_hdr_path(f) for f in self.files}
             if len(hdr) > 1:
                 raise InputError("the folder mixes HDR and LDR images", file=str(p),
@@ -116,6 +121,13 @@ class FrameSource:
             raise InputError(f"image is {frame.size[0]}×{frame.size[1]} but the first frame "
                              f"is {size[0]}×{size[1]}", file=str(f), field="--frames")
         return frame
+
+    def validate(self) -> None:
+        """Decode every frame once and check its size (InputError naming the file): a
+        folder's images one at a time (never all in memory); a video was decoded in full
+        when opened (its frame count is counted by decoding)."""
+        for i in range(len(self.files)):
+            self._read_file(i)
 
     def __len__(self) -> int:
         return self.count

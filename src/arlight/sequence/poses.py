@@ -36,6 +36,9 @@ import numpy as np
 
 from arlight.errors import InputError, read_text
 
+MAX_COORDINATE = 1e6
+"""Largest translation (m) or scale a pose may have: anything beyond is a unit error."""
+
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 """Camera-axes flip between OpenCV (y down, z forward) and OpenGL/ARKit (y up, z backward)."""
 
@@ -109,10 +112,14 @@ class Keyframe:
         if m.shape != (4, 4) or not np.all(np.isfinite(m)) or \
                 not np.allclose(m[3], [0, 0, 0, 1]):
             raise InputError("expected a finite affine 4×4 matrix", field=where or None)
+        if np.any(np.abs(m[:3, 3]) > MAX_COORDINATE):
+            raise InputError(f"translation beyond ±{MAX_COORDINATE:g} m", field=where or None)
         a = m[:3, :3]
         s = np.linalg.norm(a, axis=0)
         if np.any(s < 1e-9):
             raise InputError("the matrix is singular", field=where or None)
+        if np.any(s > MAX_COORDINATE):
+            raise InputError(f"scale beyond {MAX_COORDINATE:g}", field=where or None)
         r = a / s
         if not np.allclose(r.T @ r, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0:
             raise InputError("expected translation · rotation · positive axis scale (no "

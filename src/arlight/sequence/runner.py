@@ -129,15 +129,35 @@ class _Bar:
             self.bar = None
 
 
+def _validate_depths(depths: Sequence[Any], size: tuple[int, int]) -> None:
+    """Read every depth image once (InputError naming the file) and check its size."""
+    from arlight.io.images import read_depth
+
+    for d in depths:
+        arr = d if isinstance(d, np.ndarray) else read_depth(d)
+        if (arr.shape[1], arr.shape[0]) != tuple(size):
+            raise InputError(f"depth image is {arr.shape[1]}×{arr.shape[0]} but the frames are "
+                             f"{size[0]}×{size[1]}", file=None if isinstance(d, np.ndarray)
+                             else str(d), field="--depth")
+
+
+def _output_bytes(job: SequenceJob) -> int:
+    """What a run writes at most: 16-bit RGB PNG frames, and float layers with --layers."""
+    px = job.camera.width * job.camera.height
+    return job.count * px * (6 + (4 * 3 * 4 if job.layers else 0))
+
+
 def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
                  options: RunOptions | None = None, depths: Sequence[Any] | None = None,
                  inputs: tuple[Path, ...] = ()) -> RunSummary:
     """Render every frame of ``job`` not yet in ``out``; see the module docstring.
 
-    ``depths``: per-frame depth images (arrays or files), or None. ``inputs``: input paths
-    the output folder must not contain. Raises :class:`InputError` before writing anything
-    when the inputs disagree (frame and pose counts, sizes) or the folder or the Ray
-    cluster cannot be used.
+    ``depths``: per-frame depth images (arrays or files), or None. ``inputs``: every input
+    file and folder (the output may not be, contain or lie in one, and no video or summary
+    may resolve to one). Raises :class:`InputError` before writing anything when the inputs
+    disagree (frame and pose counts, sizes), a frame or depth image does not decode, or the
+    folder or the Ray cluster cannot be used; the output folder is created (or, with
+    ``restart``, emptied) only when the first frame is written.
     """
     opts = options or RunOptions()
     if source.count != job.count:
@@ -155,8 +175,12 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
 
     if get_method(job.method).spec.capabilities.needs_depth and depths is None:
         raise InputError(f"{job.method} needs a depth image per frame", field="--depth")
+    # every input in full before the output folder is looked at, let alone changed
+    source.validate()
+    if depths is not None:
+        _validate_depths(depths, source.size)
     store = SequenceStore(out, job)
-    store.check(opts.restart, inputs)
+    store.check(opts.restart, inputs, opts.videos, _output_bytes(job))
     info = None
     t0 = time.perf_counter()
     if opts.ray is not None:
@@ -165,7 +189,7 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
         info = distributed.connect(opts.ray, opts.workers, job.threads or 1)  # fails here
     connected = time.perf_counter()
     try:
-        done = store.open(opts.restart)
+        done = store.begin(opts.restart)  # nothing is changed before the first frame
         todo = store.missing
         summary = RunSummary(frames=job.count, rendered=0, resumed=len(done), seconds=0.0,
                              backend="sequential" if info is None else f"ray ({opts.ray})",

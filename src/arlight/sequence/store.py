@@ -17,6 +17,13 @@ which the next run drops (it rewrites the log without it). The next run of the *
 (equal ``sequence.json`` hashes) renders only the frames that are not listed, or whose file is
 missing or differs from its SHA-256; a different job in the same folder is refused, naming
 what changed.
+
+Nothing in the folder is touched before the first frame is written (:meth:`SequenceStore.
+begin` only reads): a run that fails on its inputs leaves an earlier sequence — also with
+``--restart`` — byte for byte as it was, and creates no folder. An existing folder is used
+only when everything in it is laid out as above (a ``frames/`` folder of someone's pictures is
+not a sequence output), and the video and summary replace only files arlight recorded as its
+own (:mod:`arlight.output_guard`) unless ``--restart`` is given.
 """
 
 from __future__ import annotations
@@ -25,7 +32,10 @@ import contextlib
 import hashlib
 import json
 import os
+import re
 import shutil
+from collections.abc import Iterable
+from fnmatch import fnmatch
 from pathlib import Path
 from typing import Any
 
@@ -40,8 +50,16 @@ HEADER = "sequence.json"
 LOG = "frames.jsonl"
 SUMMARY = "summary.json"
 KNOWN = (HEADER, LOG, SUMMARY, "frames", "layers", "sequence.mp4", "sequence.webm",
-         ".sequence.*")
-"""Top-level entries of a sequence folder (an existing folder of only these is ours)."""
+         ".sequence.*", ".frames.*", ".summary.*", ".arlight-written.json",
+         ".arlight-written.json.*")
+"""Top-level entries of a sequence folder (an existing folder of only these is ours): the
+files above, the temporaries of :func:`atomic_write` a killed run may leave, and the ledger
+of :mod:`arlight.output_guard`."""
+
+_FRAME_FILE = re.compile(r"^(\d{6}\.png|\.\d{6}\..*\.png)$")
+_LAYER_DIR = re.compile(r"^\d{6}$")
+_LAYER_FILE = re.compile(r"^\.?[A-Za-z0-9_]+(\..*)?\.exr$")
+_TEMPORARY = re.compile(r"^\.(sequence|frames|summary)\..+")
 
 
 def frame_file(index: int) -> str:
@@ -63,16 +81,39 @@ class SequenceStore:
         self.out = Path(os.path.abspath(Path(out).expanduser()))
         self.job = job
         self.done: dict[int, dict[str, Any]] = {}
+        self._restart = False
+        self._opened = False
 
     # --------------------------------------------------------------- before any work
-    def check(self, restart: bool = False, inputs: tuple[Path, ...] = ()) -> dict[int, dict]:
+    def check(self, restart: bool = False, inputs: Iterable[str | Path] = (),
+              videos: tuple[str, ...] = (), expected_bytes: int = 0) -> dict[int, dict]:
         """Check the folder (nothing is written): the frames already done of this job.
 
-        Raises :class:`InputError` when the folder cannot be written, holds files that are
-        not a sequence output, or holds another job's sequence (unless ``restart``)."""
+        Raises :class:`InputError` when the folder is an input or lies inside an input folder
+        (the frames), contains an input, cannot be written, holds files that are not a
+        sequence output, holds another job's sequence (unless ``restart``), or when a video
+        or summary path resolves to an input or to a file arlight did not write (unless
+        ``restart``). ``inputs``: every file and folder the run reads."""
+        from arlight.output_guard import check_outputs
         from arlight.outputs_atomic import check_output_dir
 
-        check_output_dir(self.out, KNOWN, inputs=inputs)
+        inputs = [Path(p) for p in inputs]
+        real = Path(os.path.realpath(self.out))
+        for p in inputs:
+            rp = Path(os.path.realpath(p))
+            if rp == real:
+                raise InputError(f"is the input {p}; the output would replace it (choose "
+                                 "another output folder)", file=str(self.out), field="--out")
+            if rp.is_dir() and real.is_relative_to(rp):
+                raise InputError(f"lies inside the input folder {p}; the output would add "
+                                 "files to it (choose a folder outside it)",
+                                 file=str(self.out), field="--out")
+        check_output_dir(self.out, KNOWN, expected_bytes, inputs=inputs)
+        self._check_layout()
+        check_outputs({"--video": [self.out / f"sequence.{v}" for v in videos],
+                       "summary": self.out / SUMMARY},
+                      [p for p in inputs if not p.is_dir()], overwrite=restart,
+                      overwrite_flag="--restart")
         header = self._read_header()
         if header is None or restart:
             return {}
@@ -83,6 +124,44 @@ class SequenceStore:
                              f"{', '.join(diff)}); choose another folder, or --restart to "
                              "replace it", file=str(self.out), field="--out")
         return self._read_log()
+
+    def _check_layout(self) -> None:
+        """Refuse a folder whose files are not all a sequence's own (see the module
+        docstring): ``frames/`` holding other pictures, a ``layers/`` of other files, or any
+        file without the ``sequence.json`` every run writes before its first frame."""
+        if not self.out.is_dir():
+            return
+
+        def foreign(rel: str) -> InputError:
+            return InputError(f"holds {rel!r}, which a sequence run did not write; the folder "
+                              "is not a sequence output (choose an empty or new folder)",
+                              file=str(self.out), field="--out")
+
+        files = []
+        for p in sorted(self.out.rglob("*")):
+            rel = p.relative_to(self.out)
+            parts = rel.parts
+            if p.is_symlink() or not (p.is_dir() or p.is_file()):
+                raise foreign(str(rel))
+            if p.is_dir():
+                ok = (parts[0] in ("frames", "layers") and len(parts) == 1) or \
+                    (parts[0] == "layers" and len(parts) == 2 and _LAYER_DIR.match(parts[1]))
+            elif len(parts) == 1:
+                ok = any(fnmatch(rel.name, g) for g in KNOWN)
+            elif parts[0] == "frames":
+                ok = len(parts) == 2 and bool(_FRAME_FILE.match(parts[1]))
+            else:
+                ok = parts[0] == "layers" and len(parts) == 3 and \
+                    bool(_LAYER_DIR.match(parts[1])) and bool(_LAYER_FILE.match(parts[2]))
+            if not ok:
+                raise foreign(str(rel))
+            if p.is_file() and not _TEMPORARY.match(rel.name) and \
+                    rel.name != ".arlight-written.json":
+                files.append(rel)
+        if files and not (self.out / HEADER).is_file():
+            raise InputError(f"holds {str(files[0])!r} but no {HEADER}: not a sequence output "
+                             "(choose an empty or new folder)", file=str(self.out),
+                             field="--out")
 
     def _read_header(self) -> dict | None:
         p = self.out / HEADER
@@ -115,30 +194,48 @@ class SequenceStore:
         return done
 
     # --------------------------------------------------------------------- writing
+    def begin(self, restart: bool = False) -> dict[int, dict]:
+        """The frames already done (none with ``restart``). Reads only: the folder is created
+        — or, with ``restart``, emptied — when the first file is written
+        (:meth:`_ensure_open`), so a run that fails before its first frame changes nothing."""
+        self._restart = restart
+        self._opened = False
+        self.done = {} if restart else self._read_log()
+        return dict(self.done)
+
     def open(self, restart: bool = False) -> dict[int, dict]:
-        """Create or reopen the folder for this job; returns the frames already done."""
-        if restart and self.out.is_dir():
-            for name in os.listdir(self.out):
+        """Create or reopen the folder for this job now; returns the frames already done."""
+        done = self.begin(restart)
+        self._ensure_open()
+        return done
+
+    def _ensure_open(self) -> None:
+        if self._opened:
+            return
+        if self._restart and self.out.is_dir():
+            for name in os.listdir(self.out):  # only a sequence's own entries (checked)
+                if name == HEADER or not any(fnmatch(name, g) for g in KNOWN):
+                    continue
                 p = self.out / name
                 shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
         self.out.mkdir(parents=True, exist_ok=True)
+        header = {"format": FORMAT, "key": self.job.key, "parts": self.job.parts,
+                  "frames": self.job.count, "method": self.job.method, "fps": self.job.fps}
+        with atomic_write(self.out / HEADER, ".json") as tmp:  # first: the folder is ours
+            tmp.write_text(json.dumps(header, indent=1), encoding="utf-8")
         (self.out / "frames").mkdir(exist_ok=True)
         for p in (self.out / "frames").glob(".*"):  # temporaries of a killed run
             with contextlib.suppress(OSError):
                 p.unlink()
-        self.done = {} if restart else self._read_log()
-        header = {"format": FORMAT, "key": self.job.key, "parts": self.job.parts,
-                  "frames": self.job.count, "method": self.job.method, "fps": self.job.fps}
-        with atomic_write(self.out / HEADER, ".json") as tmp:
-            tmp.write_text(json.dumps(header, indent=1), encoding="utf-8")
         # the log without torn lines or stale entries, so appends start on a clean line
         with atomic_write(self.out / LOG, ".jsonl") as tmp:
             tmp.write_text("".join(json.dumps(self.done[i]) + "\n" for i in sorted(self.done)),
                            encoding="utf-8")
-        return dict(self.done)
+        self._opened = True
 
     def write(self, res: FrameResult) -> dict:
         """Write one frame's files, then append its line to the log (durably)."""
+        self._ensure_open()
         rel = frame_file(res.index)
         write_png(self.out / rel, res.display)
         if res.layers:
@@ -168,14 +265,22 @@ class SequenceStore:
 
     def write_video(self, formats: tuple[str, ...]) -> list[Path]:
         """Encode the frames into ``sequence.<fmt>`` for each format (atomically)."""
+        from arlight.output_guard import record_written
         from arlight.sequence.video import encode
 
-        return [encode(self.out / f"sequence.{fmt}", self.frames_display(), self.job.fps)
-                for fmt in formats]
+        self._ensure_open()
+        paths = [encode(self.out / f"sequence.{fmt}", self.frames_display(), self.job.fps)
+                 for fmt in formats]
+        record_written(paths)
+        return paths
 
     def write_summary(self, summary: dict) -> Path:
+        from arlight.output_guard import record_written
+
+        self._ensure_open()
         with atomic_write(self.out / SUMMARY, ".json") as tmp:
             tmp.write_text(json.dumps(summary, indent=1), encoding="utf-8")
+        record_written([self.out / SUMMARY])
         return self.out / SUMMARY
 
 
