@@ -169,7 +169,10 @@ def _clip_band(threshold: float, keep: np.ndarray | None, lum: np.ndarray | None
 
 
 def _vec3(v, name: str) -> np.ndarray:
-    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    try:
+        a = np.asarray(v, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
     if a.size != 3 or not np.all(np.isfinite(a)):
         raise ValueError(f"{name}: expected 3 finite numbers, got {v!r}")
     return a
