@@ -225,7 +225,7 @@ class LightClient:
     def _secure(self, sock: zmq.Socket) -> zmq.Socket:
         """Frame size cap and, with the server's key, CURVE (set before connecting)."""
         sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.MAXMSGSIZE, wire.MAX_MESSAGE_BYTES)
+        sock.setsockopt(zmq.MAXMSGSIZE, wire.MAX_MESSAGE_BYTES + transport.FRAME_OVERHEAD)
         if self.server_public_key is not None:
             sock.setsockopt(zmq.CURVE_SERVERKEY, self.server_public_key)
             sock.setsockopt(zmq.CURVE_PUBLICKEY, self.client_key.public)

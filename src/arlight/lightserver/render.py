@@ -46,21 +46,38 @@ def _percentile(values, q: float) -> float:
 
 def run_client(scene_path: Path, out: Path, *, connect: str, snapshot: str | None,
                frames: int, orbit_deg: float, spp: int, wait: float,
-               heartbeat_timeout: float, size: tuple[int, int] | None = None) -> dict:
+               heartbeat_timeout: float, size: tuple[int, int] | None = None,
+               server_public_key: bytes | None = None, client_key=None,
+               insecure: bool = False, force: bool = False) -> dict:
     """Render ``frames`` frames of ``scene_path`` lit by the server's latest state; returns
-    the summary also written to ``client.json`` (module docstring)."""
+    the summary also written to ``client.json`` (module docstring).
+
+    The render's memory and time (:func:`arlight.bounds.estimate` at the client's size and
+    ``spp``, one frame) are checked before anything starts; beyond the limits it is refused
+    (InputError naming ``--size``) unless ``force``. ``server_public_key`` / ``client_key``
+    / ``insecure``: see :class:`LightClient`.
+    """
+    from arlight.bounds import check_estimate, estimate
     from arlight.io.images import write_png
     from arlight.lightserver.nearfield_render import NearFieldRenderer
     from arlight.outputs_atomic import StagedOutput, check_output_dir
     from arlight.scene.load import load_scene
 
-    client = LightClient(connect, snapshot, heartbeat_timeout=heartbeat_timeout)
+    client = LightClient(connect, snapshot, heartbeat_timeout=heartbeat_timeout,
+                         server_public_key=server_public_key, client_key=client_key,
+                         insecure=insecure)
     scene = load_scene(scene_path)
     if size is not None:
         try:
             scene = scene.resized(*size)
         except ValueError as exc:
             raise InputError(str(exc), file=str(scene_path), field="--size") from exc
+    est = estimate(scene.camera.width, scene.camera.height, spp, layers=1)  # per frame
+    try:
+        check_estimate(est, f"arlight client at {scene.camera.width}x{scene.camera.height}",
+                       force)
+    except InputError as exc:
+        raise InputError(exc.message, field="--size") from exc
     if not scene.has_virtual:
         raise InputError("the client scene has no virtual object to light", file=str(scene_path),
                          field="shapes")

@@ -230,8 +230,9 @@ class Gate(ThreadAuthenticator):
         """Accept any CURVE client key (None) or only ``allowed``."""
         if allowed is None:
             self.configure_curve(domain="*", location=zmq.auth.CURVE_ALLOW_ANY)
-        else:
-            self.certs["*"] = dict(allowed)
+        else:  # pyzmq looks keys up per ZAP domain
+            for domain in ZAP_DOMAINS.values():
+                self.certs[domain.decode()] = dict(allowed)
 
     def on_monitor_event(self, domain: bytes, event: int, fd: int) -> None:
         """A connection accepted (+1) or closed (−1) on the socket of ``domain``."""
@@ -254,8 +255,9 @@ class Gate(ThreadAuthenticator):
                 self.refused["full"] += 1
                 self._send_zap_reply(msg[1], b"400", b"too many clients")
                 return
-        if len(msg) >= 7 and msg[5] == b"CURVE" and "*" in self.certs:
-            if not self.certs["*"].get(zmq.utils.z85.encode(msg[6])):
+        certs = self.certs.get(msg[2].decode(errors="replace")) if len(msg) >= 7 else None
+        if certs is not None and msg[5] == b"CURVE" and not self.allow_any:
+            if not certs.get(zmq.utils.z85.encode(msg[6])):
                 self.refused["key"] += 1
         await super().handle_zap_message(msg)
 

@@ -21,8 +21,9 @@ Exposure (docs/lightserver.md, "Threat model and defaults"): with a CURVE key pa
 allowed client keys (``allow_clients``); off loopback the server refuses to start without
 keys unless ``insecure``. Every connection passes the :class:`~.security.Gate` (at most
 ``max_clients`` peers per socket); every inbound frame is capped at
-:data:`~.transport.MAX_REQUEST_BYTES`; the publish socket is an XPUB in manual mode that
-applies only the empty subscription (a flood of topics costs nothing but the reading);
+:data:`~.transport.MAX_REQUEST_BYTES` (so is every subscription topic, which libzmq keeps
+per connection); the publish socket is an XPUB in manual mode that applies only the empty
+subscription (a topic never selects anything);
 snapshot requests are answered at most once per ``snapshot_interval`` per peer.
 """
 
@@ -156,7 +157,8 @@ class LightServer:
             self._monitors: dict[zmq.Socket, bytes] = {}
             for sock, name in ((self._pub, "pub"), (self._snap, "snapshot")):
                 sock.setsockopt(zmq.LINGER, 0)
-                sock.setsockopt(zmq.MAXMSGSIZE, transport.MAX_REQUEST_BYTES)
+                sock.setsockopt(zmq.MAXMSGSIZE, transport.MAX_REQUEST_BYTES_CURVE if curve
+                                else transport.MAX_REQUEST_BYTES)
                 sock.setsockopt(zmq.ZAP_DOMAIN, security.ZAP_DOMAINS[name])
                 if curve is not None:
                     sock.setsockopt(zmq.CURVE_SERVER, 1)

@@ -20,9 +20,18 @@ SNAPSHOT_REQUEST = b"SNAP1"
 (or a heartbeat with sequence 0 while the server has none)."""
 
 MAX_REQUEST_BYTES = 64
-"""``ZMQ_MAXMSGSIZE`` of the server's sockets: what a peer may send it is a 5-byte snapshot
-request (ROUTER) or a 1-byte subscription (PUB side). A larger frame makes libzmq drop the
-connection from the frame header, before anything is allocated."""
+"""``ZMQ_MAXMSGSIZE`` of the server's sockets without CURVE: what a peer may send is a 5-byte
+snapshot request (ROUTER) or a 1-byte subscription (PUB side). libzmq applies the cap to every
+frame on the wire, from the frame header, before anything is allocated, and drops the
+connection: a 64 MiB frame costs the server nothing, and a subscription topic — which libzmq
+stores for the connection's lifetime — is at most this long."""
+MAX_REQUEST_BYTES_CURVE = 384
+"""The same with CURVE: the handshake's INITIATE command (≈ 300 bytes with its metadata) must
+fit."""
+
+FRAME_OVERHEAD = 256
+"""Bytes a transport may add to a message frame (a CURVE MESSAGE command: 33 bytes): the
+clients' cap is the largest legal light message plus this."""
 
 _TCP = re.compile(r"^tcp://(?P<host>\[[^\]]+\]|[^:/\[\]]+):(?P<port>\*|\d+)$")
 
