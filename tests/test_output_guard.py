@@ -80,3 +80,38 @@ def test_unwritable_places(tmp_path):
                 check_writable_file(ro / "x.json", "-o")
     finally:
         ro.chmod(0o755)
+
+
+def test_the_ledger_is_never_an_output(tmp_path):
+    """Bug fixed: -o .arlight-written.json would have replaced the ledger itself."""
+    with pytest.raises(InputError, match="record"):
+        check_outputs({"-o": tmp_path / LEDGER}, [])
+
+
+def test_referenced_files_lists_the_files_a_scene_names(tmp_path):
+    from arlight.output_guard import referenced_files
+
+    (tmp_path / "m.ply").write_text("ply")
+    (tmp_path / "s.toml").write_text('[[shapes]]\nfile = "m.ply"\nname = "not-a-file"\n')
+    assert set(referenced_files(tmp_path / "s.toml")) == {tmp_path / "s.toml",
+                                                          tmp_path / "m.ply"}
+
+
+def test_output_folder_under_a_dangling_symlink_or_mkdir_refused_is_input_error(
+        tmp_path, monkeypatch):
+    """Old behaviour: exit 1 (FileExistsError / OSError in mkdir) for outputs_atomic."""
+    from arlight.outputs_atomic import StagedOutput, check_output_dir
+
+    os.symlink(tmp_path / "nowhere", tmp_path / "dangling")
+    with pytest.raises(InputError, match="dangling"):
+        check_output_dir(tmp_path / "dangling" / "out")
+    import errno
+    from pathlib import Path
+
+    def refuse(*_a, **_k):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(Path, "mkdir", refuse)
+    with pytest.raises(InputError, match="read-only"), StagedOutput(tmp_path / "o" / "x",
+                                                                    "test"):
+        pass
