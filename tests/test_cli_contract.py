@@ -14,32 +14,16 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from arlight.io.images import write_exr, write_png
+from tests.cli_harness import ARLIGHT, Case, check, clean_env
 from tests.conftest import area_light_scene
-
-ARLIGHT = shutil.which("arlight", path=str(Path(sys.executable).parent))
-
-
-@dataclass
-class Case:
-    """One bad invocation: arguments, expected status, words the message must contain."""
-
-    id: str
-    args: list[str]
-    needles: list[str]
-    code: int = 2
-    keep: Path | None = None  # an existing output that must stay as it was
-    result: dict = field(default_factory=dict)
 
 
 def _leaves(node, path=()):
@@ -81,13 +65,6 @@ def _wrong_values(value):
     if isinstance(value, dict):
         return [("num", 7)]
     return []
-
-
-def _snapshot(path: Path) -> dict[str, bytes]:
-    if path.is_file():
-        return {path.name: path.read_bytes()}
-    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*"))
-            if p.is_file()}
 
 
 def _previous_output(root: Path, name: str) -> Path:
@@ -355,24 +332,13 @@ def _insert_cases(root: Path) -> list[Case]:
     return cases
 
 
-def _run(case: Case, env: dict[str, str]) -> None:
-    r = subprocess.run([ARLIGHT, *case.args], capture_output=True, text=True, timeout=120,
-                       env=env, stdin=subprocess.DEVNULL)
-    case.result = {"code": r.returncode, "stderr": r.stderr, "stdout": r.stdout}
-
-
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
-    assert ARLIGHT, "the arlight console script is not installed next to the interpreter"
     root = tmp_path_factory.mktemp("contract")
     cases = _build(root)
-    before = {c.id: _snapshot(c.keep) for c in cases if c.keep is not None}
     listing = sorted(p.name for p in root.iterdir())
-    env = {**os.environ, "COLUMNS": "80", "ARLIGHT_CACHE": str(root / "cache")}
-    env.pop("ARLIGHT_DEBUG", None)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        list(pool.map(lambda c: _run(c, env), cases))
-    return cases, before, listing, root
+    failures = check(cases, clean_env(root))
+    return cases, failures, listing, root
 
 
 def test_enough_generated_cases(ran):
@@ -385,27 +351,7 @@ def test_every_bad_input_one_line_exit_2_no_output_change(ran):
     """Bugs caught: usage errors ending in a traceback (click not installed), light errors
     exiting 0, messages that wrap over lines or do not name the file/field, outputs touched
     by a failed run, staging folders left behind."""
-    cases, before, listing, root = ran
-    failures = []
-    for c in cases:
-        r = c.result
-        err = r["stderr"]
-        lines = [ln for ln in err.splitlines() if ln.strip()]
-        problems = []
-        if r["code"] != c.code:
-            problems.append(f"exit {r['code']}")
-        if "Traceback" in err + r["stdout"]:
-            problems.append("traceback")
-        if len(lines) != 1:
-            problems.append(f"{len(lines)} stderr lines")
-        elif not lines[0].startswith("error: "):
-            problems.append("no 'error:' prefix")
-        if not any(n.lower() in err.lower() for n in c.needles):
-            problems.append(f"message names none of {c.needles}")
-        if c.keep is not None and _snapshot(c.keep) != before[c.id]:
-            problems.append(f"{c.keep} changed")
-        if problems:
-            failures.append(f"{c.id}: {', '.join(problems)} :: {err.strip()[:300]!r}")
+    cases, failures, listing, root = ran
     assert not failures, f"{len(failures)} of {len(cases)} cases:\n" + "\n".join(failures)
     debris = [n for n in sorted(p.name for p in root.iterdir()) if n not in listing
               and n not in ("cache", "show.png")]
