@@ -79,13 +79,14 @@ class Client:
                 return item
 
 
-def run_clients(url: str, fn, n: int = 1):
-    """Run ``await fn(client, ...)`` with ``n`` connected clients; returns its result."""
+def run_clients(server, fn, n: int = 1):
+    """Run ``await fn(client, ...)`` with ``n`` clients connected to ``server`` (a
+    BackgroundServer: its WebSocket URL carries the token); returns its result."""
     import aiohttp
 
     async def main():
         async with aiohttp.ClientSession() as cs:
-            wss = [await cs.ws_connect(url + "ws") for _ in range(n)]
+            wss = [await cs.ws_connect(server.ws_url) for _ in range(n)]
             clients = [Client(ws) for ws in wss]
             try:
                 return await fn(*clients)

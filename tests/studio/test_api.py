@@ -63,7 +63,7 @@ def test_first_frame_and_bad_input_answered_with_errors(studio_server, studio_en
         assert not [m for m in b.json if m["type"] == "error"]
         return True
 
-    assert run_clients(studio_server.url, go, n=2)
+    assert run_clients(studio_server, go, n=2)
 
 
 def test_oversized_message_closes_only_that_connection(studio_server):
@@ -74,13 +74,13 @@ def test_oversized_message_closes_only_that_connection(studio_server):
             for _ in range(10):
                 await a.next(timeout=30)
 
-    run_clients(studio_server.url, go)
+    run_clients(studio_server, go)
 
     async def again(a):  # the server runs on
         h, _ = await a.wait_frame()
         return h["type"]
 
-    assert run_clients(studio_server.url, again) == "frame"
+    assert run_clients(studio_server, again) == "frame"
 
 
 def test_a_burst_of_drags_renders_the_newest_not_a_queue(studio_server, studio_engine):
@@ -98,7 +98,7 @@ def test_a_burst_of_drags_renders_the_newest_not_a_queue(studio_server, studio_e
         h, _ = await a.wait_frame(lambda h: h["seq"] == 139)
         return h, len(a.frames)
 
-    h, frames = run_clients(studio_server.url, go)
+    h, frames = run_clients(studio_server, go)
     assert frames < 15  # 40 drags, far fewer frames: no stale queue
     # the newest drag decided the pose: the anchor stands on the table under pointer + grab
     head = proxy.project(rest.position + [0, 0.05, 0])
@@ -121,7 +121,7 @@ def test_progressive_refinement_equals_arlight_render_progressive(studio_server,
         # read the session between two worker jobs (the worker refines on)
         return studio_engine.call(lambda: (s.refine, s.images["composite"].copy())).result(60)
 
-    n, image = run_clients(studio_server.url, go)
+    n, image = run_clients(studio_server, go)
     assert n >= 3
 
     def reference():
@@ -142,7 +142,7 @@ def test_exposure_and_layer_re_encode_without_rendering(studio_server, studio_en
         h2, img2 = await a.wait_frame(lambda h: h["layer"] == "mask")
         return (h0, _image(img0)), (h1, _image(img1)), (h2, _image(img2))
 
-    (h0, i0), (h1, i1), (h2, i2) = run_clients(studio_server.url, go)
+    (h0, i0), (h1, i1), (h2, i2) = run_clients(studio_server, go)
     assert h0["version"] == h1["version"] == h2["version"]  # no new render
     assert i1.astype(float).mean() > i0.astype(float).mean() + 20  # +2 EV is brighter
     # the mask: white on the bunny (image centre), black on the table corner
@@ -161,7 +161,7 @@ def test_save_writes_a_scene_that_loads_with_the_new_pose(studio_server, studio_
         await a.send({"type": "save", "name": "moved"})
         return h, await a.wait_json("saved")
 
-    h, saved = run_clients(studio_server.url, go)
+    h, saved = run_clients(studio_server, go)
     folder = studio_engine.save_dir
     assert saved["scene"] == "moved.toml" and (folder / "moved.png").is_file()
     sc = load_scene(folder / "moved.toml")
@@ -194,7 +194,7 @@ def test_save_never_overwrites_the_scene_inputs(studio_server, studio_engine, tm
         await a.send({"type": "save", "name": "scene"})
         return await a.wait_json("error")
 
-    err = run_clients(studio_server.url, go)
+    err = run_clients(studio_server, go)
     assert "input of the scene" in err["message"]
     assert sentinel.read_text() == "original"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
@@ -204,15 +204,19 @@ def test_save_never_overwrites_the_scene_inputs(studio_server, studio_engine, tm
                                   "static/..%2F..%2Fscene.toml", "static/index.html",
                                   "static/%2Fetc%2Fpasswd", "../../etc/passwd"])
 def test_static_files_are_a_fixed_list(studio_server, path):
+    # with the token too: a path outside the fixed list is never served
     with pytest.raises(urllib.error.HTTPError) as err:
-        urllib.request.urlopen(studio_server.url + path, timeout=30)
+        urllib.request.urlopen(f"{studio_server.base_url}/{path}?token={studio_server.token}",
+                               timeout=30)
     assert err.value.code in (403, 404)
 
 
 def test_page_and_assets_are_served(studio_server):
     page = urllib.request.urlopen(studio_server.url, timeout=30).read().decode()
     assert "/static/studio.js" in page and "http" not in page.replace("http-equiv", "")
-    js = urllib.request.urlopen(studio_server.url + "static/studio.js", timeout=30).read()
+    assert studio_server.token not in page  # the token stays in the URL, not the page
+    js = urllib.request.urlopen(studio_server.base_url + "/static/studio.js",
+                                timeout=30).read()
     assert b"new WebSocket" in js
 
 
@@ -236,7 +240,7 @@ def test_holding_an_object_pauses_refinement_until_release(studio_server, studio
         h, _ = await a.wait_frame(lambda h: h["refine"] > n1, timeout=120)
         return n0, n1, h["refine"]
 
-    n0, n1, n2 = run_clients(studio_server.url, go)
+    n0, n1, n2 = run_clients(studio_server, go)
     assert n1 == n0 and n2 > n1
 
 
@@ -265,7 +269,7 @@ def test_a_failing_render_is_reported_to_its_tab_only(studio_server, studio_engi
         ha, _ = await a.wait_frame(lambda h: h["seq"] == 2)
         return err, hb, ha, [m for m in b.json if m["type"] == "error"]
 
-    err, hb, ha, b_errors = run_clients(studio_server.url, go, n=2)
+    err, hb, ha, b_errors = run_clients(studio_server, go, n=2)
     assert "render exploded" in err["message"]
     assert hb["objects"]["bunny"]["yaw_deg"] == 20 and not b_errors
     assert ha["objects"]["bunny"]["yaw_deg"] == 30

@@ -45,26 +45,41 @@ def studio_command(
                                               "or webp")] = "jpeg",
     quality: Annotated[int, typer.Option("--quality", help="JPEG/WebP quality",
                                          min=1, max=100)] = 85,
+    token: Annotated[str | None, typer.Option("--token", envvar="ARLIGHT_STUDIO_TOKEN",
+                     show_envvar=True, help="the token the page and WebSocket must give "
+                     "(16+ URL-safe characters; default: a random one per launch, printed "
+                     "in the URL)")] = None,
+    max_sessions: Annotated[int, typer.Option("--max-sessions", help="most tabs open at "
+                            "once; a further one is refused (HTTP 503)", min=1,
+                            max=4096)] = 16,
 ) -> None:
     """Live AR composite in the browser: drag the virtual object, switch methods.
 
-    Serves http://HOST:PORT/ — drag the object on the real surface (its shadow and bounce
+    Serves http://HOST:PORT/?token=... (the URL printed; the token is new each launch) —
+    drag the object on the real surface (its shadow and bounce
     light follow), rotate and scale it, switch between the interactive methods (progressive
     ones refine while idle), change the exposure and the layer, save the scene. See
     docs/studio.md.
     """
     from rich.console import Console
 
+    from arlight.studio.access import is_loopback
     from arlight.studio.engine import Engine, StudioConfig
-    from arlight.studio.server import serve
+    from arlight.studio.server import resolve_token, serve
 
+    token = resolve_token(token)  # a bad --token fails before the scene loads
     config = StudioConfig(scene=scene, resolution=_resolution(resolution), method=method,
                           save_dir=save_dir, ground_truth=ground_truth,
-                          image_format=image_format.lower(), quality=quality)
+                          image_format=image_format.lower(), quality=quality,
+                          max_sessions=max_sessions)
     engine = Engine(config)
     console = Console(stderr=True)
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        console.print(f"[yellow]warning:[/] binding {host}: anyone who can reach this "
-                      "address can use the studio and write files into its save folder")
+    if not is_loopback(host):
+        console.print(f"[yellow]warning:[/] binding {host}: anyone on the network who "
+                      "gets the URL with its token can use the studio and write files "
+                      "into its save folder, and the traffic (token included) is plain "
+                      "HTTP; prefer the default 127.0.0.1 and an SSH tunnel")
     console.print("preparing the scene…")
-    serve(engine, host, port, print_fn=console.print)
+    # soft_wrap: the URL with its token stays on one line, whole, at any terminal width
+    serve(engine, host, port, token=token,
+          print_fn=lambda text: console.print(text, soft_wrap=True, highlight=False))

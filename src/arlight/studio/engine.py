@@ -4,8 +4,15 @@
   method is *prepared* once for its world (``method.prepare``) and every frame is a
   ``method.render`` of that state with the session's object poses as
   ``FrameView.object_transforms`` (``arlight.methods.base``: prepare once, render per frame).
-* Every Dr.Jit call — picking, placement, preparation, rendering — runs on one worker
-  thread, so the methods never see two threads. Sessions are served round robin.
+* Picking, placement, rendering and saving run on one render worker thread; sessions with
+  pending work are served round robin, one frame per turn. **Preparation** runs off that
+  path, on a preparation thread of its own per method (:meth:`Engine._prepare_state`): a
+  tab that switches to a method with a slow preparation gets a ``preparing`` status and
+  waits for it alone while the worker renders the other tabs' frames; tabs that want the
+  same method share one preparation. A method's ``prepare`` and ``render`` never overlap
+  for the same state (the state is handed to the worker only when complete).
+* At most :attr:`StudioConfig.max_sessions` sessions are open at once
+  (:class:`SessionLimit` beyond it; the server answers HTTP 503).
 * **Latest wins.** A client message only updates the session's state and bumps its
   version; the worker renders whatever the newest state is when it gets to the session, so
   a burst of drag events costs one frame, never a queue of stale ones. A frame in flight
@@ -27,6 +34,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import copy
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -40,6 +48,7 @@ from arlight.errors import InputError
 from arlight.evaluate.metrics import rmse
 from arlight.methods import Method, RenderSettings, get_method, methods
 from arlight.methods.base import Layers, Prepared
+from arlight.output_guard import check_outputs, file_digest, record_written, written_by_arlight
 from arlight.progressive import Accumulator, frame_settings
 from arlight.scene.load import PATH_KEYS
 from arlight.scene.model import ARScene
@@ -83,6 +92,7 @@ class StudioConfig:
         quality: JPEG/WebP quality, 1–100.
         seed: base seed of the Monte Carlo methods.
         max_refine: most frames a progressive method accumulates while idle.
+        max_sessions: most sessions (tabs) open at once; a further one is refused.
     """
 
     scene: Path
@@ -94,6 +104,20 @@ class StudioConfig:
     quality: int = 85
     seed: int = 0
     max_refine: int = 256
+    max_sessions: int = 16
+
+
+class SessionLimit(RuntimeError):
+    """The studio already has ``max_sessions`` open sessions."""
+
+
+class SaveExists(ProtocolError):
+    """A save would replace existing files that this studio did not write; the page may
+    ask the user and send the save again with ``overwrite: true``."""
+
+    def __init__(self, message: str, names: list[str]) -> None:
+        super().__init__(message)
+        self.names = names
 
 
 @dataclass
@@ -123,6 +147,8 @@ class Session:
     closed: bool = False
     last_message: float = 0.0  # time.monotonic() of the newest client message
     holding: bool = False  # the pointer holds the picked object (pick .. release)
+    prep: concurrent.futures.Future | None = None  # the preparation this session waits for
+    prep_method: str | None = None  # ... of this method
     frames_sent: int = 0
     superseded: int = 0
     errors: int = 0
@@ -165,6 +191,19 @@ def _box_filter(image: np.ndarray, width: int, height: int) -> np.ndarray:
     return image.reshape(height, k, width, k, -1).mean(axis=(1, 3)).astype(np.float32)
 
 
+def new_jit_scope() -> None:
+    """Start a new Dr.Jit scope on this thread: required where arrays cross threads (a
+    preparation thread reads the world, the render worker then uses the prepared state);
+    Dr.Jit orders a kernel's variables by scope and refuses a dependency on a scope newer
+    than its own."""
+    import drjit as dr
+
+    from arlight.backend import VARIANT
+
+    dr.detail.new_scope(dr.JitBackend.CUDA if VARIANT.startswith("cuda")
+                        else dr.JitBackend.LLVM)
+
+
 def _transforms(poses: dict[str, ObjectPose]) -> dict[str, np.ndarray]:
     """``FrameView.object_transforms`` of the poses (objects at rest are left out)."""
     return {k: p.matrix() for k, p in poses.items() if not p.is_rest}
@@ -185,6 +224,9 @@ class Engine:
                              field="--format")
         if not 1 <= config.quality <= 100:
             raise InputError(f"must be in [1, 100], got {config.quality}", field="--quality")
+        if not 1 <= config.max_sessions <= 4096:
+            raise InputError(f"must be in [1, 4096], got {config.max_sessions}",
+                             field="--max-sessions")
         self.source = Path(config.scene).resolve()
         self.full = load_scene(self.source)
         if self.full.frame is None:
@@ -204,6 +246,11 @@ class Engine:
         self.default_method = self._default_method()
         self.settings = RenderSettings(spp=1, seed=config.seed)
         self._states: dict[str, Prepared] = {}
+        self._preparing: dict[str, concurrent.futures.Future] = {}
+        self._handoff = False  # a state came from a preparation thread since the last scope
+        self.max_sessions = int(config.max_sessions)
+        self.sessions_opened = 0  # every session ever opened (tests: refused = not counted)
+        self._created: dict[Path, str] = {}  # files this studio saved -> SHA-256 written
         self._sessions: dict[int, Session] = {}
         self._next_id = 1
         self._rr: collections.deque[int] = collections.deque()
@@ -232,6 +279,8 @@ class Engine:
                     walk(v)
 
         walk(self.full.raw)
+        if self.config.ground_truth is not None:
+            out.add(Path(self.config.ground_truth).resolve())
         return out
 
     def _ground_truth(self) -> np.ndarray | None:
@@ -357,6 +406,10 @@ class Engine:
                     if call is not None or work is not None:
                         break
                     self._cond.wait(timeout=REFINE_IDLE_S / 2)
+            if self._handoff:  # arrays from a preparation thread: a new scope first
+                with self._cond:
+                    self._handoff = False
+                new_jit_scope()
             if call is not None:
                 fn, fut = call
                 if fut.set_running_or_notify_cancel():
@@ -378,16 +431,30 @@ class Engine:
                 if s is None:
                     continue
                 kind = self._work_of(s)
-                if kind == want or (want == "render" and kind == "display"):
+                if kind == want or (want == "render" and kind in ("display", "prepfail")):
                     return s, kind
         return None
 
     def _work_of(self, s: Session) -> str | None:
+        """What the worker would do for ``s`` now (call with ``_cond`` held): ``render``,
+        ``display`` (re-encode), ``refine``, ``prepfail`` (report a failed preparation) or
+        None — also when the render waits for the method's preparation, which this starts
+        on its own thread."""
         with s.lock:
             if s.closed:
                 return None
             if s.version != s.rendered_version:
-                return "render"
+                if s.method in self._states:
+                    return "render"
+                if s.prep is not None and s.prep_method == s.method and s.prep.done():
+                    return "prepfail"  # it failed (a success is in _states)
+                if s.prep is None or s.prep_method != s.method:
+                    s.prep, s.prep_method = self._start_preparing(s.method), s.method
+                    s.post("json", {"type": "status", "preparing": s.method,
+                                    "message": f"preparing {s.method}…"})
+                if s.display_version != s.displayed_version:
+                    return "display"
+                return None
             if s.display_version != s.displayed_version:
                 return "display"
             if (s.refine and self.catalogue[s.method].progressive
@@ -406,6 +473,12 @@ class Engine:
         try:
             if kind == "display":
                 self._send_frame(s, superseded=False)
+            elif kind == "prepfail":
+                with s.lock:
+                    fut, s.prep = s.prep, None
+                exc = fut.exception() if fut is not None else None
+                if exc is not None:
+                    raise exc
             else:
                 self._render(s, refine=kind == "refine")
         except Exception as exc:  # noqa: BLE001 — one session's failure stays in it
@@ -416,11 +489,60 @@ class Engine:
             s.post("json", {"type": "error", "message": f"{type(exc).__name__}: {exc}",
                             "request": kind})
 
+    # ------------------------------------------------------------------ preparation
+    def _start_preparing(self, name: str) -> concurrent.futures.Future:
+        """The Future of ``name``'s preparation, started on its own thread unless one is
+        already running (call with ``_cond`` held)."""
+        fut = self._preparing.get(name)
+        if fut is not None:
+            return fut
+        fut = concurrent.futures.Future()
+        fut.set_running_or_notify_cancel()
+        self._preparing[name] = fut
+
+        def run() -> None:
+            try:
+                new_jit_scope()  # after whatever the worker made from the world
+                state = self._prepare_state(name)
+                new_jit_scope()
+            except BaseException as exc:  # noqa: BLE001 — reported to the waiting sessions
+                with self._cond:
+                    self._preparing.pop(name, None)
+                    self._cond.notify_all()
+                fut.set_exception(exc)
+                return
+            with self._cond:
+                self._states[name] = state
+                self._handoff = True  # the worker opens a new scope before using it
+                self._preparing.pop(name, None)
+                self._cond.notify_all()
+            fut.set_result(state)
+
+        threading.Thread(target=run, name=f"arlight-studio-prepare-{name}",
+                         daemon=True).start()
+        return fut
+
+    def _prepare_state(self, name: str) -> Prepared:
+        """``method.prepare`` for the studio's world (on a preparation thread)."""
+        return get_method(name).prepare(self.scene.world, self.settings)
+
+    @property
+    def preparing(self) -> list[str]:
+        """Methods being prepared now."""
+        with self._cond:
+            return list(self._preparing)
+
     # ------------------------------------------------------------------ sessions
     def open_session(self, post: Post) -> Session:
+        """A new session; :class:`SessionLimit` when ``max_sessions`` are open."""
         with self._cond:
+            if len(self._sessions) >= self.max_sessions:
+                raise SessionLimit(f"the studio already has {len(self._sessions)} open "
+                                   f"tabs (at most {self.max_sessions}); close one and "
+                                   "reload")
             s = Session(self._next_id, post, self.default_method, dict(self.rest_poses))
             self._next_id += 1
+            self.sessions_opened += 1
             self._sessions[s.id] = s
             self._rr.append(s.id)
             self._cond.notify_all()
@@ -453,7 +575,7 @@ class Engine:
         if kind == "pick":
             return self.call(self._pick, s, msg["x"], msg["y"], msg.seq)
         if kind == "save":
-            return self.call(self._save, s, msg["name"])
+            return self.call(self._save, s, msg["name"], msg.get("overwrite", False))
         if "object" in msg.fields and msg["object"] not in self.rest_poses:
             raise ProtocolError(f"{kind}: unknown object {msg['object']!r}; objects: "
                                 f"{', '.join(self.rest_poses)}")
@@ -507,13 +629,14 @@ class Engine:
         return {"type": "picked", "object": name, "seq": seq}
 
     # ------------------------------------------------------------------ rendering
-    def prepared(self, name: str, s: Session | None = None) -> Prepared:
-        """The method's prepared state for the studio's world (prepared on first use)."""
-        if name not in self._states:
-            if s is not None:
-                s.post("json", {"type": "status", "message": f"preparing {name}…"})
-            self._states[name] = get_method(name).prepare(self.scene.world, self.settings)
-        return self._states[name]
+    def prepared(self, name: str, timeout: float | None = None) -> Prepared:
+        """The method's prepared state, waiting for (or starting) its preparation; not
+        for the render worker, which never waits for one."""
+        with self._cond:
+            if name in self._states:
+                return self._states[name]
+            fut = self._start_preparing(name)
+        return fut.result(timeout)
 
     def _resolve_drag(self, s: Session) -> tuple[int, int | None]:
         """Stand the picked object on the surface under the pending drag target; returns
@@ -537,6 +660,9 @@ class Engine:
         t0 = time.perf_counter()
         with s.lock:
             version, seq = s.version, s.seq
+            if s.method not in self._states:  # switched since the worker chose this work
+                return
+            s.prep = None
         if not refine:
             version, seq = self._resolve_drag(s)
         with s.lock:
@@ -544,7 +670,9 @@ class Engine:
             n = s.refine + 1 if refine else 1
         t_place = time.perf_counter() - t0
         fn = get_method(method)
-        state = self.prepared(method, s)
+        state = self._states.get(method)
+        if state is None:  # switched meanwhile: the worker prepares it first
+            return
         view = replace(self.view, object_transforms=_transforms(poses))
         progressive = self.catalogue[method].progressive
         settings = self.settings
@@ -609,36 +737,88 @@ class Engine:
         s.post("frame", frame_message(header, data))
 
     # ------------------------------------------------------------------ saving
-    def _save(self, s: Session, name: str) -> dict[str, Any]:
+    def _save_paths(self, scene: ARScene, name: str) -> dict[str, Path]:
+        """What a save of ``scene`` as ``name`` writes (what :func:`save_scene` writes,
+        and the composite)."""
+        out = {"scene": self.save_dir / f"{name}.toml"}
+        if scene.frame_codes is not None:
+            out["frame"] = self.save_dir / f"{name}.frame.png"
+        elif scene.frame is not None:
+            out["frame"] = self.save_dir / f"{name}.frame.exr"
+        if scene.depth is not None:
+            out["depth"] = self.save_dir / f"{name}.depth.exr"
+        out["composite"] = self.save_dir / f"{name}.png"
+        return out
+
+    def created_here(self, path: Path) -> bool:
+        """Whether ``path`` is a file this studio process saved, unchanged since."""
+        path = Path(os.path.realpath(path))
+        digest = self._created.get(path)
+        if digest is None or not path.is_file():
+            return False
+        try:
+            return file_digest(path) == digest
+        except OSError:
+            return False
+
+    def _check_save(self, paths: dict[str, Path], overwrite: bool) -> None:
+        """Refuse a save that would replace an input of the scene (always), or an existing
+        file this studio did not write (unless ``overwrite``: the user confirmed)."""
+        for p in paths.values():
+            if p.resolve().parent != self.save_dir:
+                raise ProtocolError(f"save: {p.name} is outside the save folder")
+            if p.resolve() in self.inputs:
+                raise ProtocolError(f"save: {p.name} is an input of the scene; choose "
+                                    "another name")
+        try:  # inputs (symlinks followed), a folder or an unwritable path in the way
+            check_outputs({f"save ({k})": p for k, p in paths.items()}, self.inputs,
+                          overwrite=True, overwrite_flag="overwrite")
+        except InputError as exc:
+            raise ProtocolError(f"save: {exc}") from None
+        if overwrite:
+            return
+        taken = [p for p in paths.values()
+                 if os.path.lexists(p) and not self.created_here(p)]
+        if taken:
+            earlier = [p.name for p in taken if written_by_arlight(p)]
+            note = (f" ({', '.join(earlier)}: written by an earlier arlight run)"
+                    if earlier else "")
+            raise SaveExists(f"save: {', '.join(p.name for p in taken)} already exist"
+                             f"{'s' if len(taken) == 1 else ''} in {self.save_dir} and "
+                             f"{'was' if len(taken) == 1 else 'were'} not saved by this "
+                             f"studio{note}; confirm to replace, or choose another name",
+                             [p.name for p in taken])
+
+    def _save(self, s: Session, name: str, overwrite: bool = False) -> dict[str, Any]:
         """Write ``<save_dir>/<name>.toml`` (the full-resolution scene with the session's
-        poses and method) and ``<name>.png`` (the composite as shown)."""
+        poses and method, its frame as ``<name>.frame.png``) and ``<name>.png`` (the
+        composite as shown). Only new files, files this studio saved, or — with
+        ``overwrite`` (the user confirmed) — other existing files; never an input."""
         from arlight.io.images import write_png
         from arlight.scene.load import load_scene
         from arlight.scene.save import save_scene
 
-        toml = (self.save_dir / f"{name}.toml").resolve()
-        png = (self.save_dir / f"{name}.png").resolve()
-        frame = (self.save_dir / f"{name}.frame.png").resolve()
-        for p in (toml, png, frame):
-            if p.parent != self.save_dir:
-                raise ProtocolError(f"save: {p.name} is outside the save folder")
-            if p in self.inputs:
-                raise ProtocolError(f"save: {p.name} is an input of the scene; choose "
-                                    "another name")
         with s.lock:
             poses, method = dict(s.poses), s.method
             images, ev = s.images, s.exposure
-        if images is None:
-            raise ProtocolError("save: nothing rendered yet")
         raw = copy.deepcopy(self.full.raw)
         render = {k: v for k, v in raw.get("render", {}).items()
                   if k in ("spp", "seed", "max_depth")}
         raw["render"] = {**render, "method": method}
         view = replace(self.full.view, object_transforms=_transforms(poses))
         scene = replace(ARScene.compose(self.full.world, view), raw=raw)
-        save_scene(scene, toml)
+        paths = self._save_paths(scene, name)
+        self._check_save(paths, overwrite)
+        if images is None:
+            raise ProtocolError("save: nothing rendered yet")
+        toml, png = paths["scene"], paths["composite"]
         write_png(png, imaging.display("composite", images, self.scene.camera.transfer, ev,
                                        None))
+        save_scene(scene, toml)  # its frame (and depth) first, the TOML last; atomic
         load_scene(toml)  # what was written reads back
+        written = [p for p in paths.values() if p.is_file()]
+        for p in written:
+            self._created[Path(os.path.realpath(p))] = file_digest(p)
+        record_written(written)
         return {"type": "saved", "scene": toml.name, "image": png.name,
-                "folder": str(self.save_dir)}
+                "files": [p.name for p in written], "folder": str(self.save_dir)}

@@ -15,7 +15,9 @@ exposure   ``ev``: display exposure offset, EV, in [−16, 16]
 layer      ``name``: composite, mixed, delta, mask or error
 reset      put every object back in its rest pose
 release    the pointer is up (a pick that found an object holds refinement until then)
-save       ``name``: file stem; writes ``<name>.toml`` (+ frame) and ``<name>.png``
+save       ``name``: file stem; writes ``<name>.toml`` (+ frame) and ``<name>.png``;
+           optional ``overwrite`` (bool): replace existing files this studio did not
+           write (the page sends it only after the user confirmed; never an input)
 ========== ==================================================================================
 
 Pixel coordinates are those of the studio's camera (``info.width × info.height``, top-left
@@ -59,7 +61,7 @@ FIELDS: dict[str, tuple[set[str], set[str]]] = {  # type -> (required, optional)
     "layer": ({"name"}, set()),
     "reset": (set(), set()),
     "release": (set(), set()),
-    "save": ({"name"}, set()),
+    "save": ({"name"}, {"overwrite"}),
 }
 
 
@@ -158,6 +160,10 @@ def parse(text: str | bytes, width: int, height: int) -> Message:
             raise ProtocolError("save: name must be a plain file stem (letters, digits, '_', "
                                 f"'-'; no dots or slashes), got {json.dumps(name)[:60]}")
         out["name"] = name
+        if "overwrite" in msg:
+            if not isinstance(msg["overwrite"], bool):
+                raise ProtocolError("save: overwrite must be true or false")
+            out["overwrite"] = msg["overwrite"]
     return Message(kind, seq, out)
 
 

@@ -15,6 +15,8 @@ const studio = {
 window.studio = studio;
 
 let ws = null;
+// The launch's token, from the page's URL (/?token=...): the WebSocket must give it too.
+const token = new URLSearchParams(location.search).get("token") || "";
 let dragging = false;
 let frameTimes = [];
 let drawing = false;
@@ -168,6 +170,18 @@ function onJson(msg) {
   else if (msg.type === "error") {
     studio.errors.push(msg);
     setStatus(`error: ${msg.message}`, true);
+    if (msg.request === "save") {
+      // files exist that this studio did not save: replace them only if the user says so
+      // (the server never replaces an input of the scene, confirmed or not)
+      const name = lastSave;
+      lastSave = null;
+      if (name && Array.isArray(msg.exists) && msg.exists.length &&
+          confirm(`${msg.exists.join(", ")} already exist${msg.exists.length === 1 ? "s" : ""}` +
+                  " and were not saved by this studio. Replace?")) {
+        lastSave = name;
+        send({type: "save", name, overwrite: true}, false);
+      }
+    }
   } else if (msg.type === "status") setStatus(msg.message, false);
   else if (msg.type === "picked") {
     if (msg.object) {
@@ -177,6 +191,7 @@ function onJson(msg) {
       canvas.classList.add("dragging");
     }
   } else if (msg.type === "saved") {
+    lastSave = null;
     $("saved").textContent = `saved ${msg.scene} and ${msg.image} in ${msg.folder}`;
     setStatus(`saved ${msg.scene}`, false);
   }
@@ -184,15 +199,19 @@ function onJson(msg) {
 
 function connect() {
   const proto = location.protocol === "https:" ? "wss:" : "ws:";
-  ws = new WebSocket(`${proto}//${location.host}/ws`);
+  ws = new WebSocket(`${proto}//${location.host}/ws?token=${encodeURIComponent(token)}`);
   ws.binaryType = "arraybuffer";
   ws.onopen = () => {
     studio.connected = true;
     $("conn").textContent = "connected"; $("conn").className = "pill ok";
   };
-  ws.onclose = () => {
+  ws.onclose = (ev) => {
     studio.connected = false;
     $("conn").textContent = "disconnected"; $("conn").className = "pill bad";
+    if (!studio.ready) {  // refused before info: a wrong token, or too many tabs open
+      setStatus("the studio refused this connection: open the URL with the token that " +
+                "`arlight studio` printed, or close other studio tabs", true);
+    }
   };
   ws.onmessage = (ev) => {
     if (typeof ev.data === "string") onJson(JSON.parse(ev.data));
@@ -250,6 +269,10 @@ $("exposure").addEventListener("input", () => {
   send({type: "exposure", ev}, false);
 });
 $("reset").addEventListener("click", () => send({type: "reset"}, true));
-$("save").addEventListener("click", () => send({type: "save", name: $("save-name").value}, false));
+let lastSave = null;  // the name of the save awaiting its reply (an overwrite asks first)
+$("save").addEventListener("click", () => {
+  lastSave = $("save-name").value;
+  send({type: "save", name: lastSave}, false);
+});
 
 connect();
