@@ -330,6 +330,11 @@ _SIGNALS: list[int] = []
 
 
 def _on_signal(signum: int, _frame: object) -> None:
+    from arlight import interrupts
+
+    if interrupts.deferring():  # inside a native call: raised when it returns
+        interrupts.defer(signum)
+        return
     _SIGNALS.append(signum)
     raise _Interrupted(signum)
 

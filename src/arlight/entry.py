@@ -15,14 +15,25 @@ import sys
 
 
 def _interrupted_while_starting(signum: int, _frame: object) -> None:
-    sys.stderr.write("arlight: interrupted while starting; nothing was written\n")
+    sys.stderr.write("error: interrupted while starting; the output was not written\n")
     os._exit(128 + signum)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the installed ``arlight`` command."""
-    signal.signal(signal.SIGINT, _interrupted_while_starting)
-    from arlight.cli import main as cli_main
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupted_while_starting)
+    # The imports start native threads (OpenBLAS, ...): started with the signals blocked,
+    # they keep them blocked (see arlight.interrupts); a Ctrl-C meanwhile is delivered
+    # when the block ends, to the start-up handler.
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        from arlight import interrupts
+
+        interrupts.test_point("startup")
+        from arlight.cli import main as cli_main
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     status = cli_main(argv)
     # The command has finished (its outputs are committed or it failed cleanly). Python's

@@ -106,6 +106,7 @@ from arlight.backend.mitsuba_scene import (
 )
 from arlight.backend.variant import ensure_variant
 from arlight.errors import InputError
+from arlight.interrupts import shielded, test_point
 from arlight.io.images import atomic_write
 from arlight.scene.model import ARScene
 
@@ -402,8 +403,10 @@ def _render(spec: dict[str, Any], progress: bool = False) -> dict[str, np.ndarra
     def render(scene: mi.Scene, kind: str, stream: str, b: int, n: int) -> np.ndarray:
         total = None
         for c, m in enumerate([n] if one_set else _chunks(n, pixels)):
-            img = mi.render(scene, sensor=sensor, integrator=integrator(kind, m), spp=m,
-                            seed=_seed(plan["seed"], stream, b, c))
+            test_point("kernel")
+            with shielded():  # a Ctrl-C waits for the render call (see arlight.interrupts)
+                img = mi.render(scene, sensor=sensor, integrator=integrator(kind, m), spp=m,
+                                seed=_seed(plan["seed"], stream, b, c))
             part = np.array(img, dtype=np.float64) * m
             total = part if total is None else total + part
         bar.advance()

@@ -55,6 +55,7 @@ import numpy as np
 
 from arlight.backend.variant import ensure_variant
 from arlight.errors import InputError
+from arlight.interrupts import shielded, test_point
 from arlight.scene.camera import Camera
 from arlight.scene.model import ARScene, Light, Material, Shape
 
@@ -475,7 +476,9 @@ def load_object(name: str, node: Node) -> mi.Shape | dict[str, Any]:
 def load_scene(view: Node) -> mi.Scene:
     """The ``mi.Scene`` of a view description (no sensor)."""
     objects = {name: load_object(name, node) for name, node in view["objects"].items()}
-    return mi.load_dict({"type": "scene", **objects})
+    test_point("scene")
+    with shielded():  # native construction; a Ctrl-C is delivered when it returns
+        return mi.load_dict({"type": "scene", **objects})
 
 
 def load_sensor(node: Node) -> mi.Sensor:

@@ -33,6 +33,7 @@ import numpy as np
 
 from arlight.backend.camera_rays import generate_rays, rays_from_samples
 from arlight.errors import InputError
+from arlight.interrupts import shielded, test_point
 from arlight.sampling.stream import CAMERA_LENS, CAMERA_PIXEL, SAMPLERS, LaneSampler
 from arlight.scene.camera import Camera
 
@@ -247,7 +248,9 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                 else:
                     rays = generate_rays(camera, pixel, k, spp, cmj_u)
                 outputs = kernel(rays, pixel, pass_seed, lanes, stream)
-            dr.eval(outputs)  # one render kernel; the reductions below read its results
+            test_point("kernel")
+            with shielded():  # a Ctrl-C waits for the kernel (see arlight.interrupts)
+                dr.eval(outputs)  # one render kernel; the reductions below read its results
             sums = {name: (dr.block_sum(v, n), dr.block_sum(v * v, n))
                     for name, v in outputs.items()}
             for name, (total, _) in sums.items():

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 
 from arlight.errors import ArlightError
+from arlight.interrupts import shielded, test_point
 
 _PREFERRED = ("cuda_ad_rgb", "llvm_ad_rgb")
 
@@ -28,11 +29,16 @@ def ensure_variant() -> str:
         if name not in mi.variants():
             errors.append(f"{name}: not built into this Mitsuba")
             continue
+        test_point("variant")
         try:
-            mi.set_variant(name)
-            import drjit as dr
+            # shielded: the switch imports Python modules from native code (an interrupt
+            # there came back as a RuntimeError, i.e. "bad input") and starts Dr.Jit's
+            # worker threads, which must never receive SIGINT (see arlight.interrupts)
+            with shielded():
+                mi.set_variant(name)
+                import drjit as dr
 
-            dr.eval(mi.Float(1.0) + 1.0)  # fails here when the JIT backend is unusable
+                dr.eval(mi.Float(1.0) + 1.0)  # fails here when the JIT backend is unusable
             return name
         except Exception as exc:  # the message says what is missing (CUDA, LLVM)
             errors.append(f"{name}: {exc}")
