@@ -167,3 +167,42 @@ def test_scale_and_rotate_sliders_exposure_and_layers(page, studio_engine):
                            "window.studio.header.objects.bunny.yaw_deg === 0 && "
                            "window.studio.header.exposure === 0", timeout=TIMEOUT_MS)
     assert not page.errors
+
+
+def test_saving_over_a_file_the_studio_did_not_write_asks_first(page, studio_engine,
+                                                               tmp_path, monkeypatch):
+    """The page sends ``overwrite`` only after the user confirmed: dismissed, the user's
+    file stays byte for byte; accepted, it is replaced. Its own earlier save is replaced
+    without a question."""
+    monkeypatch.setattr(studio_engine, "save_dir", tmp_path.resolve())
+    user = tmp_path / "theirs.png"
+    user.write_bytes(b"a user's picture")
+    asked: list[str] = []
+    answer = {"accept": False}
+
+    def on_dialog(dialog):
+        asked.append(dialog.message)
+        dialog.accept() if answer["accept"] else dialog.dismiss()
+
+    page.on("dialog", on_dialog)
+    try:
+        page.evaluate("window.studio.errors = []")
+        page.fill("#save-name", "theirs")
+        page.click("#save")
+        page.wait_for_function("window.studio.errors.length >= 1", timeout=TIMEOUT_MS)
+        page.wait_for_timeout(500)  # a wrong page would send the overwrite now
+        assert len(asked) == 1 and "theirs.png" in asked[0]
+        assert user.read_bytes() == b"a user's picture"
+        assert not (tmp_path / "theirs.toml").exists()
+        answer["accept"] = True
+        page.click("#save")
+        page.wait_for_function("document.getElementById('saved').textContent"
+                               ".includes('theirs.toml')", timeout=TIMEOUT_MS)
+        assert len(asked) == 2 and user.read_bytes() != b"a user's picture"
+        page.evaluate("document.getElementById('saved').textContent = ''")
+        page.click("#save")  # now this studio's own file: no question
+        page.wait_for_function("document.getElementById('saved').textContent"
+                               ".includes('theirs.toml')", timeout=TIMEOUT_MS)
+        assert len(asked) == 2
+    finally:
+        page.remove_listener("dialog", on_dialog)

@@ -31,7 +31,7 @@ def test_eight_clients_dragging_get_frames_and_no_errors(studio_server, studio_e
     async def go(*clients):
         return await asyncio.gather(*[one(c, i) for i, c in enumerate(clients)])
 
-    results = run_clients(studio_server.url, go, n=8)
+    results = run_clients(studio_server, go, n=8)
     assert all(errors == [] for errors, _ in results)
     assert all(frames >= 2 for _, frames in results)
     assert studio_engine._thread.is_alive()
