@@ -55,7 +55,7 @@ def studio_command(
 ) -> None:
     """Live AR composite in the browser: drag the virtual object, switch methods.
 
-    Serves http://HOST:PORT/?token=... (the URL printed; the token is new each launch) —
+    Serves http://HOST:PORT/?token=... (the URL it prints; a new token each launch):
     drag the object on the real surface (its shadow and bounce
     light follow), rotate and scale it, switch between the interactive methods (progressive
     ones refine while idle), change the exposure and the layer, save the scene. See
