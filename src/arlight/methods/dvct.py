@@ -67,6 +67,7 @@ from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.dlpv import RealMaps, real_maps, rsm_pair
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, ReducedLight, reduce_lights
@@ -284,8 +285,11 @@ def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f
     idx, inside = cell_index(grid, position + normal * (0.5 * grid.cell))
     act = active & inside
     val = flux * (sign / math.pi)
+    n = dr.width(buf) // 3
+    sums = scatter_sum_exact([val[0], val[1], val[2]], idx, act, n)  # order-independent
+    lanes = dr.arange(mi.UInt32, n)
     for c in range(3):
-        dr.scatter_reduce(dr.ReduceOp.Add, buf, val[c], idx * 3 + c, act)
+        dr.scatter_reduce(dr.ReduceOp.Add, buf, sums[c], lanes * 3 + c)  # one lane a slot
     return int(dr.count(act)[0]) if dr.width(act) else 0
 
 

@@ -35,6 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.shading import on_active
 
 Y00 = 0.5 / math.sqrt(math.pi)
@@ -202,8 +203,11 @@ def inject(vol: SHVolume, position: mi.Point3f, direction: mi.Vector3f, flux: mi
     f1 = COS_LOBE_1
     vals = [c0, scale * (-f1 * direction.x), scale * (f1 * direction.y),
             scale * (f1 * direction.z)]
+    # an ordered (fixed-point) sum: float atomics made the volume depend on thread timing
+    sums = scatter_sum_exact([ch for v in vals for ch in (v.x, v.y, v.z)], idx, act,
+                             vol.grid.n ** 3)
     for k in range(4):
-        dr.scatter_reduce(dr.ReduceOp.Add, vol.coeffs[k], vals[k], idx, act)
+        vol.coeffs[k] = vol.coeffs[k] + mi.Color3f(*sums[3 * k:3 * k + 3])
     dr.eval(vol.coeffs, act)
     return act
 
