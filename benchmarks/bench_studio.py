@@ -48,7 +48,7 @@ def _engine(resolution: tuple[int, int], method: str = "dir"):
 
 
 # ---------------------------------------------------------------------- load
-async def _client(url: str, seconds: float, rate: float, seed: int, engine) -> dict:
+async def _client(ws_url: str, seconds: float, rate: float, seed: int, engine) -> dict:
     import aiohttp
 
     from arlight.studio.protocol import split_frame
@@ -56,7 +56,7 @@ async def _client(url: str, seconds: float, rate: float, seed: int, engine) -> d
     rng = random.Random(seed)
     w, h = engine.width, engine.height
     out = {"frames": 0, "errors": [], "first_frame_s": None, "superseded": 0}
-    async with aiohttp.ClientSession() as cs, cs.ws_connect(url + "ws") as ws:
+    async with aiohttp.ClientSession() as cs, cs.ws_connect(ws_url) as ws:
         t0 = time.perf_counter()
         stop = t0 + seconds
 
@@ -104,13 +104,13 @@ def run_load(clients: int, seconds: float, rate: float, resolution: tuple[int, i
     proc = psutil.Process()
     with BackgroundServer(engine) as srv:
         async def warm():  # every method state and kernel the load uses, compiled
-            await _client(srv.url, 3.0, 5.0, 0, engine)
+            await _client(srv.ws_url, 3.0, 5.0, 0, engine)
 
         asyncio.run(warm())
         rss0 = proc.memory_info().rss
 
         async def main():
-            return await asyncio.gather(*[_client(srv.url, seconds, rate, 1 + i, engine)
+            return await asyncio.gather(*[_client(srv.ws_url, seconds, rate, 1 + i, engine)
                                           for i in range(clients)])
 
         samples: list[tuple[float, float]] = []
