@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from arlight.errors import ArlightError
-from arlight.methods.nearfield import OPTIONS as _NEARFIELD_OPTIONS
+from arlight.nearfield.state import MAX_VALS as NEARFIELD_MAX_VALS
 from arlight.nearfield.state import SH_BLOCK_BYTES, VAL_RECORD_BYTES, NearFieldLight
 
 MAGIC = b"ARNF"
@@ -57,9 +57,8 @@ VAL_DTYPE = np.dtype([("position", "<f4", (3,)), ("normal", "<i2", (2,)),
                       ("intensity", "<f4", (3,)), ("area", "<f4")])
 VAL_BYTES = VAL_DTYPE.itemsize  # 32
 SH_BYTES = SH_BLOCK_BYTES  # 108
-MAX_VALS: int = _NEARFIELD_OPTIONS["vals"].max
-"""Largest M a decoder accepts: what the ``nearfield`` method renders (its ``vals`` option's
-maximum, 256; Rohmer uses 8 ≤ M ≤ 64). A client's shadow maps and light loops scale with M."""
+MAX_VALS: int = NEARFIELD_MAX_VALS
+"""Largest M a decoder accepts: what the ``nearfield`` method renders (256)."""
 MAX_OBJECTS = 4096
 """Largest n_obj a decoder accepts (442 KiB of SH)."""
 MAX_INTENSITY = 1.0e8

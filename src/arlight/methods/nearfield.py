@@ -40,7 +40,7 @@ from arlight.nearfield.client import (
     shadow_maps,
     tile_lanes,
 )
-from arlight.nearfield.state import NearFieldLight
+from arlight.nearfield.state import MAX_VALS, NearFieldLight
 from arlight.realtime.gbuffer import assemble, render_gbuffer
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
@@ -56,7 +56,7 @@ OPTIONS: dict[str, Field] = {
                          max=4096),
     "tau": Field("float", 0.6, "direct share τ of the total radiant intensity (0.6: best "
                  "of 0.5–0.98 on cornell-near-field)", "", min=0.0, max=1.0),
-    "vals": Field("int", 16, "number of virtual area lights M", "", min=1, max=256),
+    "vals": Field("int", 16, "number of virtual area lights M", "", min=1, max=MAX_VALS),
     "atlas_resolution": Field("int", 256, "radiance atlas side", "texels", min=16,
                               max=2048),
     "shadows": Field("choice", "maps", "visibility: `maps` (two 128² maps per VAL, Rohmer) "

@@ -17,6 +17,10 @@ VAL_RECORD_BYTES = 32
 """Bytes of one VAL on Rohmer's wire (§4): position 12, octahedral normal 4, RGB 12, area 4."""
 SH_BLOCK_BYTES = 9 * 3 * 4
 """Bytes of one object's SH block on the wire: 9 RGB float32 coefficients (108)."""
+MAX_VALS = 256
+"""Most VALs the ``nearfield`` method renders (its ``vals`` option's maximum; Rohmer uses
+8 ≤ M ≤ 64) and the light server's wire accepts: a client's shadow maps and light loops
+scale with M."""
 
 
 @dataclass(frozen=True)
