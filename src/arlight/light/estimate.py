@@ -573,8 +573,9 @@ class LightEstimate:
         try:
             return cls.from_json(d, layout, base_dir=path.parent)
         except InputError as exc:
-            if exc.file is not None:  # a file it references (the HDR map) names itself
-                raise
+            if exc.file is not None:  # the HDR map it references: name both files
+                raise InputError(f"{exc.file}: {exc.message}", file=str(path),
+                                 field="hdr_map.file") from exc
             raise InputError(exc.message, file=str(path), field=exc.field) from exc
         except ValueError as exc:  # "<key>: <message>" of the checks above
             m = re.fullmatch(r"([\w.\[\]]+): (.*)", str(exc), re.S)
