@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 from arlight.cli import app
 from arlight.io.images import write_exr
 from arlight.methods.nearfield import OPTIONS
+from arlight.nearfield.state import MAX_VALS
 from arlight.scene.save import save_scene
 from tests.nearfield.conftest import room, scene, vbox
 
@@ -27,7 +28,8 @@ def _files(tmp_path):
 def test_vals_beyond_the_render_cap_is_refused(tmp_path):
     """Old behaviour: --vals 1000000000 silently wrote 116 VALs."""
     args = _files(tmp_path)
-    cap = int(OPTIONS["vals"].max)
+    cap = MAX_VALS
+    assert OPTIONS["vals"].max == MAX_VALS  # the cap the nearfield method renders
     r = CliRunner().invoke(app, [*args, "--vals", str(cap + 1), "-o", str(tmp_path / "v.json")])
     assert r.exit_code == 2 and "--vals" in r.output and not (tmp_path / "v.json").exists()
 

@@ -87,6 +87,7 @@ def atlas(
     from arlight.nearfield.capture import capture, real_scene
     from arlight.nearfield.lightfile import save_light
     from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
+    from arlight.nearfield.state import MAX_VALS
     from arlight.output_guard import check_outputs, record_written, referenced_files
     from arlight.scene.load import load_scene
 
@@ -95,7 +96,7 @@ def atlas(
         settings.check()
         # the caps of the nearfield method that renders the light (a light beyond them
         # could not be rendered; --vals 10^9 would silently give as many VALs as texels)
-        _check_int(vals, "--vals", 1, OPTIONS["vals"].max)
+        _check_int(vals, "--vals", 1, MAX_VALS)
         _check_int(atlas_resolution, "--atlas", 16, OPTIONS["atlas_resolution"].max)
         _check_int(size, "--size", 8, OPTIONS["capture_size"].max)
         _check_int(spp, "--spp", 1, OPTIONS["capture_spp"].max)
