@@ -5,7 +5,7 @@ that they do; ``docs/testing.md`` lists which test catches which mutation).
 Every mutation is applied at a seam that every method passes through, so any method —
 today's and future ones — is graded the same way:
 
-* :func:`arlight.composite.composite` — the one compositing equation
+* :func:`arlight.layers.composite` — the one compositing equation
   (``composite-mixed``, ``mask-0``, ``mask-1``, ``delta-0``);
 * :meth:`arlight.methods.base.Layers.assemble` — where a method hands over its layers
   (``radiance-5pct``);
@@ -53,18 +53,18 @@ def _patch_function(patch: Patch, module: str, name: str, replacement: Callable)
 
 
 def _composite_with(transform: Callable) -> Callable[[Patch], None]:
-    """A mutation of :func:`arlight.composite.composite` that rewrites its arguments (or its
+    """A mutation of :func:`arlight.layers.composite` that rewrites its arguments (or its
     result) with ``transform(background, mixed, delta, mask, original) -> image``."""
 
     def apply(patch: Patch) -> None:
-        import arlight.composite
+        import arlight.layers
 
-        original = arlight.composite.composite
+        original = arlight.layers.composite
 
         def mutant(background, mixed, delta, mask):
             return transform(background, mixed, delta, mask, original)
 
-        _patch_function(patch, "arlight.composite", "composite", mutant)
+        _patch_function(patch, "arlight.layers", "composite", mutant)
 
     return apply
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from arlight.composite import composite
+from arlight.layers import composite
 
 rng = np.random.default_rng(3)
 

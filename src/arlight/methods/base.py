@@ -2,8 +2,8 @@
 
 * :class:`RenderSettings` — samples, depth, seed and the method's options.
 * :class:`Layers` — ``mixed`` (I_m, virtual objects under the real light), ``delta``
-  (I_m − I_r, how the real scene changes), ``mask``, the composite (always from
-  :func:`arlight.composite.composite` through :meth:`Layers.assemble`), timings and counters.
+  (I_m − I_r, how the real scene changes), ``mask``, the composite (defined in
+  :mod:`arlight.layers`, re-exported here), timings and counters.
 * :class:`Method` — the protocol: a :class:`~arlight.methods.spec.MethodSpec` (name, typed
   options, capabilities), ``prepare(world, settings) -> state`` for scene-level work,
   ``render(state, view, settings) -> Layers`` per frame, and the one-shot
@@ -25,8 +25,8 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from arlight.composite import composite
 from arlight.errors import InputError
+from arlight.layers import Layers
 from arlight.methods.spec import MethodSpec, Options
 from arlight.scene.load import RENDER_DEFAULTS
 from arlight.scene.model import ARScene, FrameView, World
@@ -62,140 +62,6 @@ class RenderSettings:
             raise InputError(f"must be >= 1, got {self.spp}", field="spp")
         if self.max_depth == 0 or self.max_depth < -1:
             raise InputError(f"must be -1 or >= 1, got {self.max_depth}", field="max_depth")
-
-
-def _check_image(layer: str, value: Any, shape: tuple[int, ...], where: str,
-                 strict_dtype: bool, finite: bool = True) -> np.ndarray:
-    """``value`` as a float32 array of ``shape``, or a ValueError naming the layer.
-
-    ``strict_dtype``: only float32 passes (else any floating type, converted). ``finite``:
-    reject NaN and ±inf (else only NaN).
-    """
-    a = np.asarray(value)
-    want = "(H, W, 3)" if len(shape) == 3 else "(H, W)"
-    if a.shape != shape:
-        raise ValueError(f"{where}: layer {layer!r} has shape {a.shape}; expected {want} = "
-                         f"{shape}")
-    if a.dtype != np.float32 and (strict_dtype or a.dtype.kind != "f"):
-        extra = "" if strict_dtype else " (other float types are converted)"
-        raise ValueError(f"{where}: layer {layer!r} has dtype {a.dtype}; expected float32"
-                         f"{extra}")
-    a = a.astype(np.float32, copy=False)
-    bad = np.isnan(a) if not finite else ~np.isfinite(a)
-    if bad.any():
-        idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        kind = "non-finite" if finite else "NaN"
-        raise ValueError(f"{where}: layer {layer!r} has {int(bad.sum())} {kind} values "
-                         f"(first at {idx}: {a[idx]})")
-    return a
-
-
-def _image_shape(layer: str, h: int, w: int) -> tuple[int, ...]:
-    return (h, w) if layer == "mask" else (h, w, 3)
-
-
-@dataclass
-class Layers:
-    """The result of a method; images are ``(H, W, 3)`` float32 linear radiance.
-
-    Attributes:
-        background: the camera frame ``I_c``.
-        mixed: ``I_m`` — real proxy plus virtual objects.
-        delta: ``I_m − I_r`` — the change of the real scene (negative in shadows).
-        mask: ``M`` in [0, 1] ``(H, W)`` — virtual coverage, averaged over samples.
-        composite: ``M·I_m + (1 − M)·(I_c + delta)`` (Kán Eq. 2.20).
-        real: ``I_r`` where the method computes it, else None.
-        stderr: per-pixel standard errors of Monte Carlo layers, by layer name (+inf where
-            a pixel has a single sample).
-        stats: ``seconds`` (wall time of the call), ``time_<stage>`` (seconds per stage, see
-            :mod:`arlight.timing`), counts (``samples``, ``rays``) and rates.
-        method: the registered name of the method that produced the layers.
-    """
-
-    background: np.ndarray
-    mixed: np.ndarray
-    delta: np.ndarray
-    mask: np.ndarray
-    composite: np.ndarray
-    real: np.ndarray | None = None
-    stderr: dict[str, np.ndarray] = field(default_factory=dict)
-    stats: dict[str, float] = field(default_factory=dict)
-    method: str = ""
-
-    @staticmethod
-    def assemble(background: np.ndarray, mixed: np.ndarray, delta: np.ndarray,
-                 mask: np.ndarray, **kwargs) -> Layers:
-        """Build layers and the composite through the one shared compositing function.
-
-        ``background``, ``mixed``, ``delta`` (and ``real``) must be ``(H, W, 3)`` and
-        ``mask`` ``(H, W)`` floating-point arrays of finite values (converted to float32);
-        ``H, W`` come from ``background``. Anything else raises a ValueError naming the layer
-        and the expected shape.
-        """
-        where = "Layers.assemble"
-        bg = np.asarray(background)
-        if bg.ndim != 3 or bg.shape[2] != 3:
-            raise ValueError(f"{where}: layer 'background' has shape {bg.shape}; expected "
-                             "(H, W, 3)")
-        h, w = bg.shape[:2]
-        arrays = {"background": bg, "mixed": mixed, "delta": delta, "mask": mask}
-        if kwargs.get("real") is not None:
-            arrays["real"] = kwargs["real"]
-        checked = {k: _check_image(k, v, _image_shape(k, h, w), where, strict_dtype=False)
-                   for k, v in arrays.items()}
-        if "real" in checked:
-            kwargs["real"] = checked.pop("real")
-        bg, mixed, delta, mask = (checked[k] for k in ("background", "mixed", "delta", "mask"))
-        return Layers(background=bg, mixed=mixed, delta=delta, mask=mask,
-                      composite=composite(bg, mixed, delta, mask).astype(np.float32), **kwargs)
-
-    def check(self, height: int, width: int, where: str = "Layers") -> None:
-        """Raise a ValueError naming the first layer that is not a finite float32 array of
-        ``(height, width, 3)`` (``(height, width)`` for the mask); standard errors (float32
-        or float64) may be +inf (a single sample) but not NaN."""
-        images = {"background": self.background, "mixed": self.mixed, "delta": self.delta,
-                  "mask": self.mask, "composite": self.composite}
-        if self.real is not None:
-            images["real"] = self.real
-        for name, img in images.items():
-            _check_image(name, img, _image_shape(name, height, width), where,
-                         strict_dtype=True)
-        for name, img in self.stderr.items():
-            _check_image(f"stderr_{name}", img, _image_shape(name, height, width), where,
-                         strict_dtype=False, finite=False)
-
-
-def differential_samples(mixed, real, mask, background) -> dict:
-    """Per-sample layers of a differential Monte Carlo method (Dr.Jit arrays per lane).
-
-    ``delta = L_m − L_r`` per sample (paired, so its standard error is that of the
-    difference) and the per-sample composite ``m·L_m + (1 − m)(I_c + delta)``, whose moments
-    give the composite's standard error. Feed the dict to :func:`arlight.backend.passes.
-    run_passes` and its result to :func:`layers_from_passes`.
-    """
-    delta = mixed - real
-    comp = mask * mixed + (1.0 - mask) * (background + delta)
-    return {"mixed": mixed, "real": real, "delta": delta, "mask": mask, "composite": comp}
-
-
-def layers_from_passes(frame: np.ndarray, result, **stats: float) -> Layers:
-    """Layers from the moments of :func:`differential_samples` (a ``PassResult``).
-
-    Layers are the per-pixel means, ``stderr`` their standard errors; ``stats`` gets the
-    timing and sample counts (``seconds``, ``samples``, ``spp``, ``samples_per_second``) plus
-    the method's own entries. ``seconds`` here is the time of the passes; :class:`BaseMethod`
-    replaces it with the wall time of the whole call.
-    """
-    mom = result.moments
-    samples = result.lanes
-    spp = mom["mixed"].count
-    base = {"seconds": result.seconds, "samples": float(samples), "spp": float(spp),
-            "samples_per_second": samples / max(result.seconds, 1e-9)}
-    return Layers.assemble(frame, mom["mixed"].mean, mom["delta"].mean,
-                           mom["mask"].mean[..., 0], real=mom["real"].mean,
-                           stderr={k: mom[k].stderr for k in ("mixed", "real", "delta",
-                                                              "composite")},
-                           stats={**base, **stats})
 
 
 def require_frame(view: Any, source: Path | str | None = None) -> np.ndarray:

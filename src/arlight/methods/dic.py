@@ -44,12 +44,11 @@ import numpy as np
 
 from arlight.backend.passes import run_passes
 from arlight.errors import InputError
+from arlight.layers import differential_samples, layers_from_passes
 from arlight.methods.base import (
     Layers,
     Prepared,
     RenderSettings,
-    differential_samples,
-    layers_from_passes,
 )
 from arlight.methods.onepass_tracer import lane_keys
 from arlight.methods.reference import PathScenes, PathScenesMethod, frame_gather

@@ -39,11 +39,10 @@ import numpy as np
 
 from arlight.backend.passes import run_passes
 from arlight.errors import InputError
+from arlight.layers import differential_samples, layers_from_passes
 from arlight.methods.base import (
     Layers,
     RenderSettings,
-    differential_samples,
-    layers_from_passes,
 )
 from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions
 from arlight.methods.photons import (

@@ -73,12 +73,11 @@ from arlight.backend.mitsuba_scene import (
     sampler_count,
 )
 from arlight.backend.passes import MAX_LANES, effective_replicas, run_passes
+from arlight.layers import differential_samples, layers_from_passes
 from arlight.methods.base import (
     BaseMethod,
     Layers,
     RenderSettings,
-    differential_samples,
-    layers_from_passes,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.scene.model import FrameView, World

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from arlight.backend.mitsuba_scene import build_views
+from arlight.layers import composite
 from arlight.probeless.directions import SH_ORDER, fibonacci_sphere
 from arlight.probeless.pipeline import VARIANTS, Pipeline, Settings
 from arlight.probeless.reconstruct import reconstruct
@@ -91,8 +92,7 @@ def score_sequence(frames: list[SyntheticFrame], variants: list[str] | None = No
                          envmap_error(r.fit.sh, f.true_sh),
                          r.stats["time_rt"] + r.stats["time_estimate"], r.stats["rays"]))
             if virtual:
-                m = r.mask[..., None]
-                comp = m * r.mixed + (1 - m) * (f.rgbd.colour + r.delta)
+                comp = composite(f.rgbd.colour, r.mixed, r.delta, r.mask)
                 if name == "RM":
                     reference.append(comp)
                 msad.append(float(np.abs(comp - reference[i]).sum()))

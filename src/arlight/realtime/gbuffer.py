@@ -18,7 +18,7 @@ import numpy as np
 
 from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_VIRTUAL, SceneView
-from arlight.methods.base import Layers
+from arlight.layers import Layers
 from arlight.scene.camera import Camera
 
 
