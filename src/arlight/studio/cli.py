@@ -24,6 +24,56 @@ def _resolution(text: str | None) -> tuple[int, int] | None:
     return size
 
 
+def _check_host(host: str) -> None:
+    """An address this machine can bind: an IP literal or a name that resolves."""
+    import ipaddress
+    import socket
+
+    from arlight.errors import InputError
+
+    try:
+        ipaddress.ip_address(host.strip("[]"))
+        return
+    except ValueError:
+        pass
+    try:
+        socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise InputError(f"{host!r} is not an address or a name that resolves ({exc})",
+                         field="--host") from exc
+
+
+def _check_save_dir(save_dir: Path | None) -> None:
+    """The save folder must be an existing, writable folder (never a file or a dangling
+    link): a save must not be the first to find out."""
+    import os
+
+    from arlight.errors import InputError
+
+    if save_dir is None:
+        return
+    where = str(save_dir)
+    if os.path.islink(save_dir) and not save_dir.exists():
+        raise InputError(f"is a dangling symlink (to {os.readlink(save_dir)})", file=where,
+                         field="--save-dir")
+    if not save_dir.exists():
+        raise InputError("does not exist (create the folder first)", file=where,
+                         field="--save-dir")
+    if not save_dir.is_dir():
+        raise InputError("is not a folder", file=where, field="--save-dir")
+    if not os.access(save_dir, os.W_OK | os.X_OK):
+        raise InputError("is not writable", file=where, field="--save-dir")
+
+
+def _check_method(method: str | None) -> None:
+    from arlight.errors import InputError
+    from arlight.methods import available_methods
+
+    if method is not None and method not in available_methods():
+        raise InputError(f"unknown method {method!r}; available: "
+                         f"{', '.join(available_methods())}", field="--method")
+
+
 def studio_command(
     scene: Annotated[Path, typer.Argument(help="AR scene file with a frame and at least one "
                                           "virtual shape")],
@@ -67,7 +117,10 @@ def studio_command(
     from arlight.studio.engine import Engine, StudioConfig
     from arlight.studio.server import resolve_token, serve
 
-    token = resolve_token(token)  # a bad --token fails before the scene loads
+    token = resolve_token(token)  # a bad option fails before the scene loads
+    _check_host(host)
+    _check_save_dir(save_dir)
+    _check_method(method)
     config = StudioConfig(scene=scene, resolution=_resolution(resolution), method=method,
                           save_dir=save_dir, ground_truth=ground_truth,
                           image_format=image_format.lower(), quality=quality,
@@ -78,7 +131,7 @@ def studio_command(
         console.print(f"[yellow]warning:[/] binding {host}: anyone on the network who "
                       "gets the URL with its token can use the studio and write files "
                       "into its save folder, and the traffic (token included) is plain "
-                      "HTTP; prefer the default 127.0.0.1 and an SSH tunnel")
+                      "HTTP; prefer the default 127.0.0.1 and an SSH tunnel", soft_wrap=True)
     console.print("preparing the scene…")
     # soft_wrap: the URL with its token stays on one line, whole, at any terminal width
     serve(engine, host, port, token=token,

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import errno
 import logging
 import os
 from importlib import resources
@@ -27,7 +28,7 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 
-from arlight.errors import ArlightError
+from arlight.errors import ArlightError, InputError
 from arlight.studio import protocol
 from arlight.studio.access import Access, new_token
 from arlight.studio.engine import Engine, SaveExists, Session, SessionLimit
@@ -255,7 +256,13 @@ def serve(engine: Engine, host: str = "127.0.0.1", port: int = 8000,
         runner = web.AppRunner(create_app(engine, access), handle_signals=True)
         await runner.setup()
         site = web.TCPSite(runner, host, port)
-        await site.start()
+        try:
+            await site.start()
+        except OSError as exc:
+            await runner.cleanup()
+            raise InputError(f"cannot serve on {host}:{port}: {exc.strerror or exc}",
+                             field="--port" if exc.errno == errno.EADDRINUSE
+                             else "--host") from exc
         access.bind(_bound_port(site))
         print_fn(f"arlight studio: {access.page_url()}  ({engine.source.name}, "
                  f"{engine.width}×{engine.height}, at most {engine.max_sessions} tabs; "
