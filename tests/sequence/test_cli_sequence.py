@@ -177,3 +177,96 @@ def test_video_frame_source_decodes_every_frame(tmp_path):
     got = list(src.frames({1, 3}))
     assert [f.index for f in got] == [1, 3]
     assert [int(np.median(f.codes)) for f in got] == pytest.approx([60, 140], abs=2)
+
+
+def _tree(path: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*"))
+            if p.is_file()}
+
+
+def test_restart_with_a_truncated_frame_leaves_the_earlier_sequence_untouched(
+        tiny, full_run, tmp_path):
+    """A complete earlier sequence, ``--restart`` with a frame truncated in the middle of the
+    folder: exit 2 naming the frame, the earlier set byte for byte as it was, no file added.
+    Rejects: a restart that empties the folder before every frame is decoded (the old one
+    deleted everything, rendered frames 0–4, then failed on the truncated one)."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(full_run, out)
+    before = _tree(out)
+    frames = tmp_path / "frames"
+    shutil.copytree(tiny.frames, frames)
+    bad = frames / "f5.png"
+    bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
+    args = tiny.args(out, "--restart", "--seed", "7")
+    args[args.index("--frames") + 1] = str(frames)
+    rc, _, err = cli(args)
+    assert rc == 2 and "f5.png" in err and len(err.strip().splitlines()) == 1, err
+    assert _tree(out) == before
+    # a valid restart replaces it
+    rc, out_text, err = cli(tiny.args(out, "--restart", "--seed", "7"))
+    assert rc == 0, err
+    assert f"{tiny.n} rendered, 0 already done" in out_text
+    assert json.loads((out / "sequence.json").read_text())["key"] != \
+        json.loads((full_run / "sequence.json").read_text())["key"]
+
+
+def test_output_that_is_holds_or_lies_in_an_input_is_refused_naming_both(tiny, tmp_path):
+    """Rejects: ``-o`` equal to the poses file or the frames folder, or inside the frames
+    folder (files would be added to an input), accepted or refused without naming it."""
+    for target, words in [(tiny.poses, "is the input"), (tiny.frames, "is the input"),
+                          (tiny.frames / "out", "inside the input folder"),
+                          (tiny.folder, "contains the input")]:
+        before = _tree(tiny.folder)
+        rc, _, err = cli(tiny.args(target, "--restart"))
+        assert rc == 2 and words in err and str(target) in err, (target, err)
+        assert _tree(tiny.folder) == before and not (tiny.frames / "out").exists()
+
+
+def test_folder_of_other_pictures_named_frames_is_not_a_sequence(tiny, tmp_path):
+    """Rejects: a folder whose top-level names look like a sequence's (``frames/``) taken
+    for one, its pictures overwritten (or deleted by ``--restart``)."""
+    out = tmp_path / "mine"
+    (out / "frames").mkdir(parents=True)
+    (out / "frames" / "000000.png").write_bytes(b"my own picture")
+    (out / "frames" / "holiday.jpg").write_bytes(b"another")
+    for extra in ((), ("--restart",)):
+        rc, _, err = cli(tiny.args(out, *extra))
+        assert rc == 2 and "holiday.jpg" in err and "not a sequence output" in err, err
+        assert _tree(out) == {"frames/000000.png": b"my own picture",
+                              "frames/holiday.jpg": b"another"}
+
+
+def test_video_replaces_only_a_file_arlight_recorded(tiny, full_run, tmp_path):
+    """The video and summary of a finished run are recorded in the output guard's ledger; a
+    ``sequence.mp4`` that is not (someone's own file, or one edited since) is refused unless
+    ``--restart``. Rejects: a rerun that overwrites any file named like the video."""
+    import shutil
+
+    from arlight.output_guard import LEDGER
+
+    out = tmp_path / "out"
+    shutil.copytree(full_run, out)
+    assert (out / LEDGER).is_file()
+    (out / "sequence.mp4").write_bytes(b"my edit of the video")
+    rc, _, err = cli(tiny.args(out, "--layers"))
+    assert rc == 2 and "sequence.mp4" in err and "--restart" in err, err
+    assert (out / "sequence.mp4").read_bytes() == b"my edit of the video"
+
+
+def test_frame_count_times_resolution_is_bounded_before_decoding(tiny, tmp_path):
+    """A 40 000 × 30 000 first frame: refused from its header, naming --force, before it is
+    decoded. Rejects: an estimate made after decoding the frame (30 GB) or none at all."""
+    import shutil
+
+    from tests.test_cli_contract_sequence_insert import _huge_png
+
+    frames = tmp_path / "frames"
+    shutil.copytree(tiny.frames, frames)
+    _huge_png(frames / "f0.png", 40000, 30000)
+    args = tiny.args(tmp_path / "out")
+    args[args.index("--frames") + 1] = str(frames)
+    rc, _, err = cli(args)
+    assert rc == 2 and "--force" in err and "40000×30000" in err, err
+    assert not (tmp_path / "out").exists()

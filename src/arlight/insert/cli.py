@@ -88,10 +88,6 @@ def insert_command(
                                            lo_open=True),
                         plane_size=floats(plane_size, 2, "--plane-size"),  # type: ignore[arg-type]
                         boxes=[parse_box(b) for b in box or []], albedo_mode=albedo)
-    fn = get_method(method)
-    settings = RenderSettings(spp=spp, seed=seed, progress=True,
-                              options=parse_option_pairs(option or []))
-    fn.spec.parse_options(settings.options)  # a bad option fails before any work
     _, calibration, lights = prepare_inputs(req)
     if not photo.is_file():
         raise InputError("photo not found", file=str(photo), field="PHOTO")
@@ -109,6 +105,11 @@ def insert_command(
     est = estimate(w, h, spp, paths=2, layers=14)
     check_estimate(est, f"rendering the {w}×{h} photo at {spp} spp", force)
     check_insert_output(out, insert_inputs(req, lights), int(est.output_bytes))
+    # the method last among the checks: loading the methods costs seconds
+    fn = get_method(method)
+    settings = RenderSettings(spp=spp, seed=seed, progress=True,
+                              options=parse_option_pairs(option or []))
+    fn.spec.parse_options(settings.options)  # a bad option fails before any work
     result, layers = run_insert(req, out, method, settings)
     r = result.registration
     typer.echo(f"pose: {r.corners} corners, reprojection error {r.reprojection_px:.3f} px "

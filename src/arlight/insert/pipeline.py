@@ -196,6 +196,12 @@ def insert_inputs(req: InsertRequest, lights: Sequence[dict] = ()) -> list[Path]
         files.append(Path(req.marker))
     if not req.light.lower().startswith("sun:"):
         files.append(Path(req.light))
+        if req.light.lower().endswith(".json"):  # a light estimate's HDR map next to it
+            try:
+                d = json.loads(Path(req.light).read_text(encoding="utf-8"))
+                files.append(Path(req.light).parent / d["hdr_map"]["file"])
+            except (OSError, ValueError, KeyError, TypeError):
+                pass
     files += [Path(t["file"]) for t in lights if isinstance(t.get("file"), str)]
     return files
 

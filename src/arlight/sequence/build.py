@@ -114,25 +114,33 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
 
     Raises :class:`InputError` for an unknown method or option, a pose file whose frame count
     differs from the frames', unknown object names, or a marker missing from a frame."""
+    where = str(scene.source) if scene.source else "<scene>"
+    camera = fit_camera(scene.camera, source.size, where)
+    n = source.count
+    calibration = None
+    # the cheap files first (poses, object motion), then the method (loading the methods
+    # takes seconds), then the per-frame marker registration (the expensive part)
+    if str(poses) == "scene":
+        pose_list = [camera.world_from_camera.copy() for _ in range(n)]
+    elif str(poses) != "marker":
+        pose_list = camera_poses(poses, n, axes)
+    names = {s.name: s for s in scene.shapes}
+    obj = [{} for _ in range(n)] if objects is None else object_transforms(objects, n, names)
+    if str(poses) == "marker":
+        if calib is None or marker is None:
+            raise InputError("--poses marker needs --calib and --marker", field="--poses")
+        from arlight.insert.registration import load_calibration, parse_marker
+
+        parse_marker(marker)
+        load_calibration(calib)
     fn = get_method(method)
     fn.spec.parse_options(settings.options)
     if split > 1 and not fn.spec.capabilities.progressive:
         raise InputError(f"--split needs a progressive method (independent estimates per "
                          f"seed, averaged); {method!r} is not", field="--split")
-    where = str(scene.source) if scene.source else "<scene>"
-    camera = fit_camera(scene.camera, source.size, where)
-    n = source.count
-    calibration = None
     if str(poses) == "marker":
-        if calib is None or marker is None:
-            raise InputError("--poses marker needs --calib and --marker", field="--poses")
+        assert calib is not None and marker is not None
         camera, pose_list, calibration = marker_poses(source, calib, marker, camera)
-    elif str(poses) == "scene":
-        pose_list = [camera.world_from_camera.copy() for _ in range(n)]
-    else:
-        pose_list = camera_poses(poses, n, axes)
-    names = {s.name: s for s in scene.shapes}
-    obj = [{} for _ in range(n)] if objects is None else object_transforms(objects, n, names)
     world = scene.world
     reason = fn.spec.unsupported_reason(world, None)
     if reason:

@@ -82,7 +82,8 @@ def sequence_command(
     from arlight.scene.load import load_scene, render_settings_for
     from arlight.sequence.build import build_job, sequence_inputs
     from arlight.sequence.frames import FrameSource
-    from arlight.sequence.runner import RunOptions, run_sequence
+    from arlight.sequence.runner import RunOptions, run_sequence, validate_depths
+    from arlight.sequence.store import SequenceStore
 
     given = render_settings_for(scene, method, spp, max_depth, seed,
                                 parse_option_pairs(option or []))
@@ -110,6 +111,13 @@ def sequence_command(
         if not depths:
             raise InputError("expected a folder of depth images", file=str(depth),
                              field="--depth")
+    # every frame and depth image decoded, and the output checked against the inputs,
+    # before the method is loaded (seconds) or anything is written
+    source.validate()
+    if depths is not None:
+        validate_depths(depths, source.size)
+    inputs = sequence_inputs(sc.raw, scene, source, depths, poses, objects, calib, marker)
+    SequenceStore.check_paths(out, restart, inputs, videos)
     if threads is None and ray == "auto":
         threads = max(1, (os.cpu_count() or 1) // (workers or os.cpu_count() or 1))
     elif threads is None and ray is not None:
@@ -119,7 +127,6 @@ def sequence_command(
                     layers=layers, threads=threads if ray is not None else None,
                     split=split)
     job.test_hook = os.environ.get("ARLIGHT_TEST_SEQUENCE_HOOK") or None  # fault tests
-    inputs = sequence_inputs(sc.raw, scene, source, depths, poses, objects, calib, marker)
     summary = run_sequence(job, source, out, RunOptions(ray=ray, workers=workers,
                                                         videos=videos, restart=restart),
                            depths=depths, inputs=inputs)

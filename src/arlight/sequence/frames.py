@@ -126,8 +126,11 @@ class FrameSource:
         """Decode every frame once and check its size (InputError naming the file): a
         folder's images one at a time (never all in memory); a video was decoded in full
         when opened (its frame count is counted by decoding)."""
+        if getattr(self, "validated", False):
+            return
         for i in range(len(self.files)):
             self._read_file(i)
+        self.validated = True
 
     def __len__(self) -> int:
         return self.count

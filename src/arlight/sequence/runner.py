@@ -129,7 +129,7 @@ class _Bar:
             self.bar = None
 
 
-def _validate_depths(depths: Sequence[Any], size: tuple[int, int]) -> None:
+def validate_depths(depths: Sequence[Any], size: tuple[int, int]) -> None:
     """Read every depth image once (InputError naming the file) and check its size."""
     from arlight.io.images import read_depth
 
@@ -178,7 +178,7 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
     # every input in full before the output folder is looked at, let alone changed
     source.validate()
     if depths is not None:
-        _validate_depths(depths, source.size)
+        validate_depths(depths, source.size)
     store = SequenceStore(out, job)
     store.check(opts.restart, inputs, opts.videos, _output_bytes(job))
     info = None
@@ -253,4 +253,4 @@ def run_sequence(job: SequenceJob, source: FrameSource, out: str | Path,
     return summary
 
 
-__all__ = ["RunOptions", "RunSummary", "run_sequence"]
+__all__ = ["RunOptions", "RunSummary", "run_sequence", "validate_depths"]

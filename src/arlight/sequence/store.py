@@ -74,6 +74,45 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def _check_layout(out: Path) -> None:
+    """Refuse a folder whose files are not all a sequence's own (see the module
+    docstring): ``frames/`` holding other pictures, a ``layers/`` of other files, or any
+    file without the ``sequence.json`` every run writes before its first frame."""
+    if not out.is_dir():
+        return
+
+    def foreign(rel: str) -> InputError:
+        return InputError(f"holds {rel!r}, which a sequence run did not write; the folder "
+                          "is not a sequence output (choose an empty or new folder)",
+                          file=str(out), field="--out")
+
+    files = []
+    for p in sorted(out.rglob("*")):
+        rel = p.relative_to(out)
+        parts = rel.parts
+        if p.is_symlink() or not (p.is_dir() or p.is_file()):
+            raise foreign(str(rel))
+        if p.is_dir():
+            ok = (parts[0] in ("frames", "layers") and len(parts) == 1) or \
+                (parts[0] == "layers" and len(parts) == 2 and _LAYER_DIR.match(parts[1]))
+        elif len(parts) == 1:
+            ok = any(fnmatch(rel.name, g) for g in KNOWN)
+        elif parts[0] == "frames":
+            ok = len(parts) == 2 and bool(_FRAME_FILE.match(parts[1]))
+        else:
+            ok = parts[0] == "layers" and len(parts) == 3 and \
+                bool(_LAYER_DIR.match(parts[1])) and bool(_LAYER_FILE.match(parts[2]))
+        if not ok:
+            raise foreign(str(rel))
+        if p.is_file() and not _TEMPORARY.match(rel.name) and \
+                rel.name != ".arlight-written.json":
+            files.append(rel)
+    if files and not (out / HEADER).is_file():
+        raise InputError(f"holds {str(files[0])!r} but no {HEADER}: not a sequence output "
+                         "(choose an empty or new folder)", file=str(out),
+                         field="--out")
+
+
 class SequenceStore:
     """The output folder of one job; see the module docstring."""
 
@@ -94,26 +133,7 @@ class SequenceStore:
         sequence output, holds another job's sequence (unless ``restart``), or when a video
         or summary path resolves to an input or to a file arlight did not write (unless
         ``restart``). ``inputs``: every file and folder the run reads."""
-        from arlight.output_guard import check_outputs
-        from arlight.outputs_atomic import check_output_dir
-
-        inputs = [Path(p) for p in inputs]
-        real = Path(os.path.realpath(self.out))
-        for p in inputs:
-            rp = Path(os.path.realpath(p))
-            if rp == real:
-                raise InputError(f"is the input {p}; the output would replace it (choose "
-                                 "another output folder)", file=str(self.out), field="--out")
-            if rp.is_dir() and real.is_relative_to(rp):
-                raise InputError(f"lies inside the input folder {p}; the output would add "
-                                 "files to it (choose a folder outside it)",
-                                 file=str(self.out), field="--out")
-        check_output_dir(self.out, KNOWN, expected_bytes, inputs=inputs)
-        self._check_layout()
-        check_outputs({"--video": [self.out / f"sequence.{v}" for v in videos],
-                       "summary": self.out / SUMMARY},
-                      [p for p in inputs if not p.is_dir()], overwrite=restart,
-                      overwrite_flag="--restart")
+        self.check_paths(self.out, restart, inputs, videos, expected_bytes)
         header = self._read_header()
         if header is None or restart:
             return {}
@@ -125,43 +145,32 @@ class SequenceStore:
                              "replace it", file=str(self.out), field="--out")
         return self._read_log()
 
-    def _check_layout(self) -> None:
-        """Refuse a folder whose files are not all a sequence's own (see the module
-        docstring): ``frames/`` holding other pictures, a ``layers/`` of other files, or any
-        file without the ``sequence.json`` every run writes before its first frame."""
-        if not self.out.is_dir():
-            return
+    @staticmethod
+    def check_paths(out: str | Path, restart: bool = False, inputs: Iterable[str | Path] = (),
+                    videos: tuple[str, ...] = (), expected_bytes: int = 0) -> None:
+        """The checks of :meth:`check` that need no job (the command makes them before it
+        builds one): ``out`` against the inputs, its layout, the video and summary paths."""
+        from arlight.output_guard import check_outputs
+        from arlight.outputs_atomic import check_output_dir
 
-        def foreign(rel: str) -> InputError:
-            return InputError(f"holds {rel!r}, which a sequence run did not write; the folder "
-                              "is not a sequence output (choose an empty or new folder)",
-                              file=str(self.out), field="--out")
-
-        files = []
-        for p in sorted(self.out.rglob("*")):
-            rel = p.relative_to(self.out)
-            parts = rel.parts
-            if p.is_symlink() or not (p.is_dir() or p.is_file()):
-                raise foreign(str(rel))
-            if p.is_dir():
-                ok = (parts[0] in ("frames", "layers") and len(parts) == 1) or \
-                    (parts[0] == "layers" and len(parts) == 2 and _LAYER_DIR.match(parts[1]))
-            elif len(parts) == 1:
-                ok = any(fnmatch(rel.name, g) for g in KNOWN)
-            elif parts[0] == "frames":
-                ok = len(parts) == 2 and bool(_FRAME_FILE.match(parts[1]))
-            else:
-                ok = parts[0] == "layers" and len(parts) == 3 and \
-                    bool(_LAYER_DIR.match(parts[1])) and bool(_LAYER_FILE.match(parts[2]))
-            if not ok:
-                raise foreign(str(rel))
-            if p.is_file() and not _TEMPORARY.match(rel.name) and \
-                    rel.name != ".arlight-written.json":
-                files.append(rel)
-        if files and not (self.out / HEADER).is_file():
-            raise InputError(f"holds {str(files[0])!r} but no {HEADER}: not a sequence output "
-                             "(choose an empty or new folder)", file=str(self.out),
-                             field="--out")
+        out = Path(os.path.abspath(Path(out).expanduser()))
+        inputs = [Path(p) for p in inputs]
+        real = Path(os.path.realpath(out))
+        for p in inputs:
+            rp = Path(os.path.realpath(p))
+            if rp == real:
+                raise InputError(f"is the input {p}; the output would replace it (choose "
+                                 "another output folder)", file=str(out), field="--out")
+            if rp.is_dir() and real.is_relative_to(rp):
+                raise InputError(f"lies inside the input folder {p}; the output would add "
+                                 "files to it (choose a folder outside it)",
+                                 file=str(out), field="--out")
+        check_output_dir(out, KNOWN, expected_bytes, inputs=inputs)
+        check_outputs({"--video": [out / f"sequence.{v}" for v in videos],
+                       "summary": out / SUMMARY},
+                      [p for p in inputs if not p.is_dir()], overwrite=restart,
+                      overwrite_flag="--restart")
+        _check_layout(out)
 
     def _read_header(self) -> dict | None:
         p = self.out / HEADER
