@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from arlight.bounds import image_size
 from arlight.errors import InputError
-from arlight.insert.imagesize import image_size
 from arlight.insert.numbers import floats, rotation
 from arlight.insert.pipeline import (
     InsertRequest,

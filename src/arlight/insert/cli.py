@@ -61,8 +61,7 @@ def insert_command(
     OUT/registration.json (pose, reprojection error, albedo) and OUT/render/ (layers and
     composite.png), as one set.
     """
-    from arlight.bounds import check_estimate, estimate
-    from arlight.insert.imagesize import image_size
+    from arlight.bounds import check_estimate, estimate, image_size
     from arlight.insert.numbers import floats, number, rotation
     from arlight.insert.pipeline import (
         InsertRequest,

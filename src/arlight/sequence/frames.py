@@ -74,7 +74,7 @@ class FrameSource:
                 raise InputError(f"no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in the "
                                  "folder", file=str(p), field="--frames")
             self.count = len(self.files)
-            from arlight.insert.imagesize import image_size
+            from arlight.bounds import image_size
 
             # the size from the first file's header: nothing is decoded before the cost of
             # the run is checked (a 100 000 × 100 000 frame is refused, not decoded)
