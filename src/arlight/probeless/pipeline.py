@@ -720,13 +720,5 @@ class Pipeline:
         return out, 0, 0
 
 
-def run_variant(views: SceneViews, frames: list[tuple[Camera, np.ndarray, np.ndarray | None]],
-                variant: Variant | str, settings: Settings | None = None,
-                shade: bool = False) -> list[FrameResult]:
-    """Run a whole sequence ``[(camera, frame, depth), ...]`` with one variant."""
-    pipe = Pipeline(views, variant, settings)
-    return [pipe.process(c, f, d, shade=shade) for c, f, d in frames]
-
-
 __all__ = ["VARIANTS", "FrameResult", "Hits", "PhaseCache", "Pipeline", "Settings", "Variant",
-           "primary_hits", "run_variant", "virtual_edges"]
+           "primary_hits", "virtual_edges"]

@@ -291,15 +291,6 @@ def from_equirect(equirect: np.ndarray, mapping: str, size: tuple[int, int] | in
     return out, valid
 
 
-def pixel_directions(mapping: str, shape: tuple[int, int], **kwargs
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Direction of every pixel centre of an image in ``mapping`` -> ``(H, W, 3)``, mask."""
-    H, W = shape
-    _, unproj = _projector(mapping, (H, W), kwargs)
-    xs, ys = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
-    return unproj(np.stack([xs, ys], axis=-1))
-
-
 def project_directions(mapping: str, shape: tuple[int, int], directions: np.ndarray,
                        **kwargs) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates of world directions in an image of ``mapping``, plus valid mask."""
