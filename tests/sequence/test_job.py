@@ -125,6 +125,22 @@ def test_job_key_changes_with_every_input(tiny):
     assert [k for k in base if base[k] != other.parts[k]] == ["poses"]
 
 
+def test_job_key_tells_which_frame_an_object_motion_belongs_to(tiny):
+    """The former hasher flattened the per-frame object transforms into one list of
+    (name, matrix) items, so a motion at frame 0 and the same motion at frame 1 gave the
+    same key (and a resumed run would keep frames rendered for the other input)."""
+    job, _ = _job(tiny)
+    m = np.eye(4)
+    m[0, 3] = 0.5
+    empty = [{} for _ in job.poses]
+    first = SequenceJob(**{**job.__dict__, "objects": [{"ball": m}, *empty[1:]],
+                           "parts": {}})
+    second = SequenceJob(**{**job.__dict__, "objects": [{}, {"ball": m}, *empty[2:]],
+                            "parts": {}})
+    assert first.parts["objects"] != second.parts["objects"]
+    assert first.key != second.key
+
+
 @pytest.mark.parametrize("method", ["dlpv", pytest.param("ibl", marks=pytest.mark.slow)])
 def test_interactive_methods_render_a_sequence(tiny, method):
     job, src = _job(tiny, method=method)

@@ -14,7 +14,6 @@ radiance (float32).
 
 from __future__ import annotations
 
-import hashlib
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -99,11 +98,11 @@ class FrameSource:
 
     @property
     def fingerprint(self) -> str:
-        h = hashlib.sha256()
-        for f in self.files or [self.path]:
-            st = f.stat()
-            h.update(f"{f.name}:{st.st_size}:{st.st_mtime_ns};".encode())
-        return h.hexdigest()[:24]
+        from arlight.content_hash import content_hash
+
+        stats = [(f.name, f.stat()) for f in self.files or [self.path]]
+        return content_hash([(name, st.st_size, st.st_mtime_ns) for name, st in stats],
+                            length=24)
 
     def _read_file(self, i: int) -> InputFrame:
         from arlight.io.images import read_hdr, read_ldr

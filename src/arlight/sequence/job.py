@@ -23,8 +23,6 @@ part order, so the merged frame does not depend on which part finished first.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import time
 from dataclasses import dataclass, field, replace
@@ -32,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from arlight.content_hash import content_hash
 from arlight.methods import RenderSettings
 from arlight.scene.camera import Camera
 from arlight.scene.model import FrameView, World
@@ -97,14 +96,8 @@ class SequenceJob:
     def _part_hashes(self) -> dict[str, str]:
         """A hash per input of the job; equal hashes ⇒ equal frames (resume check)."""
 
-        def h(*items: Any) -> str:
-            d = hashlib.sha256()
-            for x in items:
-                if isinstance(x, np.ndarray):
-                    d.update(np.ascontiguousarray(x, np.float64).tobytes())
-                else:
-                    d.update(json.dumps(x, sort_keys=True, default=str).encode())
-            return d.hexdigest()[:16]
+        def h(*items: Any) -> str:  # canonical, type-tagged (arlight.content_hash)
+            return content_hash(*items, length=16)
 
         cam = self.camera
         s = self.settings
@@ -115,8 +108,8 @@ class SequenceJob:
                          cam.aperture_radius, cam.focus_distance, cam.aperture_shape,
                          repr(cam.transfer)],
                         *([] if calib is None else [calib.K, calib.dist])),
-            "poses": h(*self.poses),
-            "objects": h(*[x for o in self.objects for k in sorted(o) for x in (k, o[k])]),
+            "poses": h(self.poses),
+            "objects": h(self.objects),  # per frame: which frame a motion belongs to counts
             "method": h(self.method, s.options),
             "settings": h(s.spp, s.max_depth, s.rr_depth, s.seed, s.spp_per_pass,
                           self.vary_seed, *([self.split] if self.split > 1 else [])),
@@ -127,7 +120,7 @@ class SequenceJob:
     @property
     def key(self) -> str:
         """The job's identity (hash of :attr:`parts`)."""
-        return hashlib.sha256(json.dumps(self.parts, sort_keys=True).encode()).hexdigest()[:24]
+        return content_hash(self.parts, length=24)
 
     def frame_settings(self, index: int, part: int = 0) -> RenderSettings:
         """Settings of frame ``index`` (part ``part`` of :attr:`split`)."""
