@@ -82,7 +82,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import os
 import struct
 import zipfile
 import zlib
@@ -104,18 +103,17 @@ from arlight.backend.mitsuba_scene import (
     sampler_count,
     virtual_names,
 )
-from arlight.backend.variant import ensure_variant
+from arlight.cache import default_cache_dir  # re-exported: callers import it from here
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
 from arlight.io.images import atomic_write
+from arlight.jit import MAX_LANES, ensure_variant
 from arlight.scene.model import ARScene
 
 FORMAT_VERSION = 2
 """Bump when this module changes how the images are rendered (seeds, plans, estimators)."""
 MIN_MASK_SPP = 64
 """Fewest samples per pixel of the mask render."""
-MAX_LANES = 2_000_000
-"""Most camera samples (pixels × samples per pixel) one :func:`mitsuba.render` call traces."""
 
 _IMAGES = ("frame", "frame_stderr", "ground_truth", "ground_truth_stderr", "mask")
 
@@ -143,11 +141,6 @@ class SyntheticPhoto:
     spp: int
     seed: int
     key: str = ""
-
-
-def default_cache_dir() -> Path:
-    """``$ARLIGHT_CACHE`` or ``~/.cache/arlight`` (the synthetic photos live in ``synthetic/``)."""
-    return Path(os.environ.get("ARLIGHT_CACHE", Path.home() / ".cache" / "arlight"))
 
 
 # --------------------------------------------------------------------------------------------

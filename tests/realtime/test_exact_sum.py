@@ -6,7 +6,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.realtime.exact_sum import fixed_point_scale, scatter_sum_exact
 
 

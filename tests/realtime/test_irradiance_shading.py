@@ -13,7 +13,7 @@ import copy
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.reference import prepare_scenes
 from arlight.realtime.irradiance_shading import SplatLookup, splat_geometry

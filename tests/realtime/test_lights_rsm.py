@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from arlight.backend.mitsuba_scene import build_views
-from arlight.backend.variant import ensure_variant
 from arlight.errors import InputError
+from arlight.jit import ensure_variant
 from arlight.realtime.gbuffer import render_gbuffer, resolve
 from arlight.realtime.light_reduction import ReducedLight, reduce_lights
 from arlight.realtime.rsm import (

@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.realtime.oof import (
     NORMAL_GRID,
     build_field,

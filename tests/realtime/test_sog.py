@@ -11,7 +11,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.realtime.ibl_shading import MipEnvironment
 from arlight.realtime.sog import SoGTables, fit_lobe, ggx_transfer, sog_table
 

@@ -11,7 +11,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.realtime.sh_volume import Grid
 from arlight.realtime.voxels import (
     ConeVolumes,

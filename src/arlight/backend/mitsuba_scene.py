@@ -53,9 +53,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.variant import ensure_variant
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
+from arlight.jit import ensure_variant
 from arlight.scene.camera import Camera
 from arlight.scene.model import ARScene, Light, Material, Shape
 

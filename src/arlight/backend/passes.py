@@ -34,11 +34,9 @@ import numpy as np
 from arlight.backend.camera_rays import generate_rays, rays_from_samples
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
+from arlight.jit import MAX_LANES
 from arlight.sampling.stream import CAMERA_LENS, CAMERA_PIXEL, SAMPLERS, LaneSampler
 from arlight.scene.camera import Camera
-
-MAX_LANES = 2_000_000
-"""Default most lanes (camera samples) per pass of :func:`run_passes`."""
 
 Kernel = Callable[..., dict[str, mi.Float | mi.Color3f]]
 """kernel(rays, pixel_index, sampler_seed, n_lanes) -> {name: per-lane Float or Color3f};

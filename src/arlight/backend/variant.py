@@ -1,48 +1,7 @@
-"""Choosing the Mitsuba variant: ``cuda_ad_rgb`` on a GPU, else ``llvm_ad_rgb`` on the CPU.
+"""Compatibility shim: variant selection lives in :mod:`arlight.jit` (core tier, so that
+``io`` and ``sampling`` need not import the backend). New code imports
+``arlight.jit.ensure_variant``."""
 
-``ARLIGHT_VARIANT`` overrides the choice. The LLVM variant needs an LLVM runtime >= 16
-(``apt-get install -y libllvm19`` on Debian 12; ``DRJIT_LIBLLVM_PATH`` points Dr.Jit at a
-specific ``libLLVM.so``).
-"""
+from arlight.jit import ensure_variant
 
-from __future__ import annotations
-
-import os
-
-from arlight.errors import ArlightError
-from arlight.interrupts import shielded, test_point
-
-_PREFERRED = ("cuda_ad_rgb", "llvm_ad_rgb")
-
-
-def ensure_variant() -> str:
-    """Set (once) and return the Mitsuba variant arlight renders with."""
-    import mitsuba as mi
-
-    current = mi.variant()
-    if current is not None:
-        return current
-    wanted = os.environ.get("ARLIGHT_VARIANT")
-    candidates = (wanted,) if wanted else _PREFERRED
-    errors = []
-    for name in candidates:
-        if name not in mi.variants():
-            errors.append(f"{name}: not built into this Mitsuba")
-            continue
-        test_point("variant")
-        try:
-            # shielded: the switch imports Python modules from native code (an interrupt
-            # there came back as a RuntimeError, i.e. "bad input") and starts Dr.Jit's
-            # worker threads, which must never receive SIGINT (see arlight.interrupts)
-            with shielded():
-                mi.set_variant(name)
-                import drjit as dr
-
-                dr.eval(mi.Float(1.0) + 1.0)  # fails here when the JIT backend is unusable
-            return name
-        except Exception as exc:  # the message says what is missing (CUDA, LLVM)
-            errors.append(f"{name}: {exc}")
-    raise ArlightError(
-        "no usable Mitsuba variant. " + "; ".join(errors) +
-        ". On Debian 12 install the LLVM runtime with `apt-get install -y libllvm19` "
-        "(or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version >= 16).")
+__all__ = ["ensure_variant"]

@@ -45,11 +45,12 @@ from typing import Any
 
 import numpy as np
 
+from arlight.cache import default_cache_dir
 from arlight.errors import InputError
 from arlight.evaluate import metrics as M
 from arlight.evaluate.suite import SuiteScene, get_scene
 from arlight.methods import RenderSettings, get_method
-from arlight.synthetic import SyntheticPhoto, content_key, default_cache_dir
+from arlight.synthetic import SyntheticPhoto, content_key
 from arlight.timing import stage_times
 
 RSS_INTERVAL_S = 0.005

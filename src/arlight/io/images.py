@@ -30,7 +30,7 @@ def _bitmap_module():
     import mitsuba as mi
 
     if mi.variant() is None:
-        from arlight.backend.variant import ensure_variant
+        from arlight.jit import ensure_variant
 
         ensure_variant()
     return mi

@@ -191,7 +191,7 @@ def object_mesh(shape: Shape, loaded: mi.Shape | None) -> tuple[MeshData, np.nda
 def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PRTData:
     """Transfer (cached), light SH, reduced lights and occlusion field of ``world``; with
     ``glossy`` the mip-mapped environment and the SoG tables (:func:`glossy_tables`)."""
-    from arlight.synthetic import default_cache_dir
+    from arlight.cache import default_cache_dir
 
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)

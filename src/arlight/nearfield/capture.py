@@ -17,7 +17,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import build_views
 from arlight.backend.rays import np3
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.nearfield.cameras import RigCamera
 from arlight.scene.model import World
 

@@ -15,13 +15,28 @@ the projected pixel. Texels no camera sees get 0 (Rohmer §8: they "lose light")
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
 from arlight.errors import InputError
 from arlight.nearfield.atlas import AtlasGeometry
-from arlight.nearfield.cameras import RigCamera
 from arlight.nearfield.raytrace import segment_visible
+
+
+class RigCamera(Protocol):
+    """What projection needs of a rig camera (:class:`arlight.nearfield.cameras.RigCamera`
+    satisfies it; a protocol so that ``cameras`` may import this module without a circle)."""
+
+    name: str
+    model: Any  # project(u) -> (pixels, inside); world_from_camera
+    position: np.ndarray
+
+    @property
+    def axis(self) -> np.ndarray: ...
+
+    @property
+    def size(self) -> tuple[int, int]: ...
 
 
 def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:

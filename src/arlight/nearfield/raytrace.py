@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 
 EPS = 1e-4
 """Ray offset, m: origins leave surfaces and segments stop this short of their end."""

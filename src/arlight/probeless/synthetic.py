@@ -182,18 +182,18 @@ def sensor_depth(world: ARScene) -> np.ndarray:
     return np.where(np.isfinite(hits.z), hits.z, np.nan).astype(np.float32)
 
 
-def write_suite_depth(name: str) -> Path:
-    """Write ``depth.exr`` of suite scene ``name`` (full resolution, from its world.toml),
-    which its proxy.toml names as ``[frame] depth`` (the RGB-D input of ``probeless``)."""
-    from arlight.evaluate.suite import scenes_dir
+def write_suite_depth(folder: str | Path) -> Path:
+    """Write ``depth.exr`` of the suite scene in ``folder`` (full resolution, from its
+    world.toml), which its proxy.toml names as ``[frame] depth`` (the RGB-D input of
+    ``probeless``), e.g. ``src/arlight/data/scenes/bunny-box``."""
     from arlight.io.images import write_exr
     from arlight.scene.load import load_scene
 
-    folder = scenes_dir() / name
+    folder = Path(folder)
     return write_exr(folder / "depth.exr", sensor_depth(load_scene(folder / "world.toml")))
 
 
-if __name__ == "__main__":  # python -m arlight.probeless.synthetic SCENE
+if __name__ == "__main__":  # python -m arlight.probeless.synthetic SCENE_FOLDER
     import sys
 
     print(write_suite_depth(sys.argv[1]))

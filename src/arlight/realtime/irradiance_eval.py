@@ -29,11 +29,11 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
 from arlight.backend.rays import np3
+from arlight.jit import MAX_LANES
 from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions
 from arlight.realtime.shading import SHADOW_EPS
 
 GOLDEN = 0.6180339887498949
-MAX_LANES = 1 << 21  # lanes per wavefront launch (memory bound)
 
 
 def record_tracer(views: SceneViews, max_depth: int, rr_depth: int) -> OnePassTracer:

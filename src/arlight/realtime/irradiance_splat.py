@@ -19,7 +19,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.rays import np3
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 from arlight.realtime.irradiance_cache import (
     NORMAL_SCALE,
     Records,

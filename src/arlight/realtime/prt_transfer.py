@@ -20,7 +20,7 @@ Transfer lives in the object's frame; at run time the light is rotated into it
 :mod:`arlight.sphere.sh`), so a rigid object turns without new precomputation.
 
 Precomputations are cached on disk (``<cache>/prt/<key>.npz``, cache directory of
-:func:`arlight.synthetic.default_cache_dir`) and in memory, keyed by the SHA-256 of the
+:func:`arlight.cache.default_cache_dir`) and in memory, keyed by the SHA-256 of the
 object-space mesh content (vertices, faces, normals) and every setting that changes the result.
 """
 
@@ -37,6 +37,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.io.images import atomic_write
 from arlight.realtime.oof import RAY_CHUNK
 from arlight.scene.mesh import vertex_normals
 from arlight.scene.model import MeshData
@@ -230,10 +231,10 @@ def cached_transfer(mesh: MeshData, cache_dir: Path | None, order: int = 2,
     else:
         out = precompute(mesh, order, directions, bounces, albedo, name, progress, shadowed)
         if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".tmp.npz")
-            np.savez(tmp, transfer=out.transfer, order=out.order)
-            tmp.replace(path)
+            # a unique temporary name, renamed into place: concurrent workers (Ray) writing
+            # the same key never read or clobber a half-written file
+            with atomic_write(path, ".npz") as tmp:
+                np.savez(tmp, transfer=out.transfer, order=out.order)
     _MEMORY[key] = out
     return out
 

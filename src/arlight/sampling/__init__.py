@@ -4,6 +4,6 @@ of the path tracers (:mod:`.stream`).
 Importing this package selects the Mitsuba variant (its types only exist once one is set).
 """
 
-from arlight.backend.variant import ensure_variant
+from arlight.jit import ensure_variant
 
 VARIANT = ensure_variant()

@@ -1,0 +1,62 @@
+"""Dr.Jit / Mitsuba set-up shared by every tier: the variant and the wavefront width.
+
+Core tier: imports nothing of arlight but :mod:`arlight.errors` and
+:mod:`arlight.interrupts`, so :mod:`arlight.io`, :mod:`arlight.sampling` and the ground
+truth can select the variant without loading :mod:`arlight.backend`.
+
+* :func:`ensure_variant` — ``cuda_ad_rgb`` on a GPU, else ``llvm_ad_rgb`` on the CPU.
+* :data:`MAX_LANES` — the most lanes (camera samples, record rays) one wavefront launch
+  holds (memory bound).
+
+``ARLIGHT_VARIANT`` overrides the choice. The LLVM variant needs an LLVM runtime >= 16
+(``apt-get install -y libllvm19`` on Debian 12; ``DRJIT_LIBLLVM_PATH`` points Dr.Jit at a
+specific ``libLLVM.so``).
+"""
+
+from __future__ import annotations
+
+import os
+
+from arlight.errors import ArlightError
+from arlight.interrupts import shielded, test_point
+
+_PREFERRED = ("cuda_ad_rgb", "llvm_ad_rgb")
+
+MAX_LANES = 2_000_000
+"""Lanes per wavefront launch (a pass of the path tracers, a batch of the ground truth)."""
+
+
+def ensure_variant() -> str:
+    """Set (once) and return the Mitsuba variant arlight renders with."""
+    import mitsuba as mi
+
+    current = mi.variant()
+    if current is not None:
+        return current
+    wanted = os.environ.get("ARLIGHT_VARIANT")
+    candidates = (wanted,) if wanted else _PREFERRED
+    errors = []
+    for name in candidates:
+        if name not in mi.variants():
+            errors.append(f"{name}: not built into this Mitsuba")
+            continue
+        test_point("variant")
+        try:
+            # shielded: the switch imports Python modules from native code (an interrupt
+            # there came back as a RuntimeError, i.e. "bad input") and starts Dr.Jit's
+            # worker threads, which must never receive SIGINT (see arlight.interrupts)
+            with shielded():
+                mi.set_variant(name)
+                import drjit as dr
+
+                dr.eval(mi.Float(1.0) + 1.0)  # fails here when the JIT backend is unusable
+            return name
+        except Exception as exc:  # the message says what is missing (CUDA, LLVM)
+            errors.append(f"{name}: {exc}")
+    raise ArlightError(
+        "no usable Mitsuba variant. " + "; ".join(errors) +
+        ". On Debian 12 install the LLVM runtime with `apt-get install -y libllvm19` "
+        "(or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version >= 16).")
+
+
+__all__ = ["MAX_LANES", "ensure_variant"]
