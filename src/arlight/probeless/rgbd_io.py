@@ -26,6 +26,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.probeless.reconstruct import RGBDFrame
+from arlight.rotations import pose_matrix
 from arlight.scene.camera import Camera
 
 _COLOUR_DIRS = ("color", "colour", "rgb")
@@ -33,14 +34,9 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".tif", ".tiff", ".bmp"}
 
 
 def quaternion_pose(t: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """4×4 ``world_from_camera`` from a translation and a unit quaternion ``(x, y, z, w)``."""
-    x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-    m = np.eye(4)
-    m[:3, :3], m[:3, 3] = R, t
-    return m
+    """4×4 ``world_from_camera`` from a translation and a unit quaternion ``(x, y, z, w)``
+    (:func:`arlight.rotations.pose_matrix`)."""
+    return pose_matrix(t, q)
 
 
 def read_poses(path: Path) -> list[np.ndarray]:
@@ -61,8 +57,11 @@ def read_poses(path: Path) -> list[np.ndarray]:
                 v = [float(x) for x in ln]
                 if len(v) not in (7, 8):
                     raise ValueError(f"expected 7 or 8 numbers per line, got {len(v)}")
-                v = v[-7:]
-                poses.append(quaternion_pose(np.array(v[:3]), np.array(v[3:])))
+                v = np.array(v[-7:])
+                if not np.all(np.isfinite(v)) or not np.any(v[3:]):
+                    poses.append(np.full((4, 4), np.nan))  # refused below, by its index
+                else:
+                    poses.append(quaternion_pose(v[:3], v[3:]))
     except (ValueError, IndexError) as exc:
         raise InputError(f"malformed pose line ({exc})", file=str(path), field="poses") from exc
     for i, p in enumerate(poses):

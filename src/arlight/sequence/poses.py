@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from arlight.errors import InputError, read_text
+from arlight.rotations import matrix_to_quat, quat_to_matrix, slerp
 
 MAX_COORDINATE = 1e6
 """Largest translation (m) or scale a pose may have: anything beyond is a unit error."""
@@ -43,55 +44,7 @@ OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 """Camera-axes flip between OpenCV (y down, z forward) and OpenGL/ARKit (y up, z backward)."""
 
 
-# ------------------------------------------------------------------------------ quaternions
-def quat_to_matrix(q) -> np.ndarray:
-    """3×3 rotation of the unit quaternion ``q = (x, y, z, w)`` (normalised here)."""
-    x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def matrix_to_quat(r: np.ndarray) -> np.ndarray:
-    """Unit quaternion ``(x, y, z, w)`` with ``w >= 0`` of a 3×3 rotation (Shepperd's method:
-    the largest of the four squared components is taken first, for accuracy)."""
-    r = np.asarray(r, np.float64)
-    t = np.trace(r)
-    d = np.array([t, r[0, 0], r[1, 1], r[2, 2]])
-    k = int(np.argmax(d))
-    if k == 0:
-        s = 2.0 * math.sqrt(max(1.0 + t, 0.0))
-        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s,
-             s / 4]
-    elif k == 1:
-        s = 2.0 * math.sqrt(max(1.0 + 2 * r[0, 0] - t, 0.0))
-        q = [s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
-    elif k == 2:
-        s = 2.0 * math.sqrt(max(1.0 + 2 * r[1, 1] - t, 0.0))
-        q = [(r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
-    else:
-        s = 2.0 * math.sqrt(max(1.0 + 2 * r[2, 2] - t, 0.0))
-        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4, (r[1, 0] - r[0, 1]) / s]
-    q = np.asarray(q) / np.linalg.norm(q)
-    return -q if q[3] < 0 else q
-
-
-def slerp(q0, q1, t: float) -> np.ndarray:
-    """Spherical linear interpolation of unit quaternions, ``t ∈ [0, 1]``, along the shorter
-    arc: ``q(t) = sin((1−t)Ω)/sin Ω · q0 + sin(tΩ)/sin Ω · q1`` with ``cos Ω = |q0·q1|``
-    (q1 negated when the dot product is negative); normalised lerp when ``Ω < 1e-6``."""
-    a = np.asarray(q0, np.float64) / np.linalg.norm(q0)
-    b = np.asarray(q1, np.float64) / np.linalg.norm(q1)
-    dot = float(a @ b)
-    if dot < 0:
-        b, dot = -b, -dot
-    omega = math.acos(min(dot, 1.0))
-    if omega < 1e-6:
-        q = (1 - t) * a + t * b
-    else:
-        q = (math.sin((1 - t) * omega) * a + math.sin(t * omega) * b) / math.sin(omega)
-    return q / np.linalg.norm(q)
+# quaternions (x, y, z, w): arlight.rotations (scipy's Rotation and Slerp), re-exported here
 
 
 # ------------------------------------------------------------------------- decomposition
