@@ -21,10 +21,10 @@ import pytest
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.dic import DicMethod, DicSequence, render_frame
-from arlight.methods.onepass_tracer import OnePassTracer, TracerOptions, lane_keys
-from arlight.methods.reference import prepare_scenes
 from arlight.stats import agreement_fraction
 from arlight.timing import StageTimer
+from arlight.tracing.onepass import OnePassTracer, TracerOptions, lane_keys
+from arlight.tracing.scenes import prepare_scenes
 from tests.conftest import area_light_scene, diffuse, env_mirror_scene, load, with_constant_frame
 
 

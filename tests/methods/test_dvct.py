@@ -13,7 +13,6 @@ import pytest
 from arlight.cli import main
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
-from arlight.methods.dlpv import rsm_pair
 from arlight.methods.dvct import (
     SPEC,
     build_volumes,
@@ -22,6 +21,7 @@ from arlight.methods.dvct import (
     prepare,
 )
 from arlight.realtime.gbuffer import render_gbuffer
+from arlight.realtime.rsm import rsm_pair
 from arlight.scene.load import parse_scene
 from tests.methods.test_dlpv import box_scene, make
 

@@ -14,7 +14,8 @@ import pytest
 
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
-from arlight.methods.photons import (
+from arlight.scene.load import parse_scene
+from arlight.tracing.photons import (
     REAL_ONLY,
     SHARED,
     Cone,
@@ -26,8 +27,7 @@ from arlight.methods.photons import (
     merge_cones,
     trace_photons,
 )
-from arlight.methods.reference import prepare_scenes
-from arlight.scene.load import parse_scene
+from arlight.tracing.scenes import prepare_scenes
 
 IOR = 1.5
 R = 0.1

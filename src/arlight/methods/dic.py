@@ -6,16 +6,16 @@ Per frame (Algorithm 4.1):
    records older than ``t_max`` are re-evaluated with their own fixed random sequence;
    records near a virtual object that moved are dropped.
 2. *SplatIrradiance*: every record is splatted into a per-pixel buffer against the pinhole
-   G-buffer (Tabellion's weight, Eq. 2.15; :mod:`arlight.realtime.irradiance_cache`).
+   G-buffer (Tabellion's weight, Eq. 2.15; :mod:`arlight.tracing.irradiance_cache`).
 3. *DetectCacheMiss* by tiles (≤ 1 new record per tile per iteration, each tile resuming where
    it stopped); the new records' ``R_i`` (one first-hit kernel) and splat weights; repeat
    until no tile has a miss. Then *EvaluateIrradiance* of all new records in one Dr.Jit
    wavefront — one-pass path tracing from the record with Kán's four ray types,
-   multi-bounce, cosine-weighted (:mod:`arlight.realtime.irradiance_eval`) — and their splat.
+   multi-bounce, cosine-weighted (:mod:`arlight.tracing.irradiance_eval`) — and their splat.
    (Miss detection needs only the weights, which do not depend on the irradiance: the same
    records and values as evaluating inside the loop, one launch instead of one per
    iteration.)
-4. Final shading from the camera (:mod:`arlight.realtime.irradiance_shading`): direct light
+4. Final shading from the camera (:mod:`arlight.tracing.irradiance_shading`): direct light
    with the one-pass rules (the virtual objects' shadows on the real scene, their real
    continuation rays) plus ``ρ_d/π · E`` read from the splat buffer through the reprojection
    of §4.2.5 (depth of field, mirrors and glass read the pixel their hit projects to); real
@@ -50,10 +50,12 @@ from arlight.methods.base import (
     Prepared,
     RenderSettings,
 )
-from arlight.methods.onepass_tracer import lane_keys
-from arlight.methods.reference import PathScenes, PathScenesMethod, frame_gather
+from arlight.methods.fragments import PathScenesMethod
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.realtime.irradiance_cache import (
+from arlight.realtime.shading import virtual_bounds
+from arlight.scene.model import FrameView, World
+from arlight.timing import StageTimer
+from arlight.tracing.irradiance_cache import (
     Records,
     SplatBuffer,
     SplatGeometry,
@@ -61,12 +63,11 @@ from arlight.realtime.irradiance_cache import (
     invalidate_near,
     splat_batches,
 )
-from arlight.realtime.irradiance_eval import evaluate_records, record_radius, record_tracer
-from arlight.realtime.irradiance_shading import CameraWalk, SplatLookup, splat_geometry
-from arlight.realtime.irradiance_splat import splat_dr
-from arlight.realtime.shading import virtual_bounds
-from arlight.scene.model import FrameView, World
-from arlight.timing import StageTimer
+from arlight.tracing.irradiance_eval import evaluate_records, record_radius, record_tracer
+from arlight.tracing.irradiance_shading import CameraWalk, SplatLookup, splat_geometry
+from arlight.tracing.irradiance_splat import splat_dr
+from arlight.tracing.onepass import lane_keys
+from arlight.tracing.scenes import PathScenes, frame_gather
 
 OPTIONS: dict[str, Field] = {
     "rays": Field("int", 256, "mixed radiance rays per cache record (Kán: 100–4000)",

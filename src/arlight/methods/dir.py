@@ -35,9 +35,9 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.fragments import REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
-from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, concat_rays, light_rays, render_rsm_pair, shared_texels
 from arlight.realtime.shading import (

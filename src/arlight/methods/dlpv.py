@@ -43,18 +43,16 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
-from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.rsm import (
-    RSM,
-    LightRays,
+    RealMaps,
     RSMPair,
     check_memory,
-    light_rays,
-    render_rsm,
-    render_rsm_pair_reusing,
+    real_maps,
+    rsm_pair,
 )
 from arlight.realtime.sh_volume import (
     Grid,
@@ -89,8 +87,7 @@ OPTIONS: dict[str, Field] = {
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
     **REDUCTION_OPTIONS,
-    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
-                         max=64),
+    **GBUFFER_OPTIONS,
 }
 
 
@@ -101,20 +98,6 @@ SPEC = MethodSpec(
     options=OPTIONS,
     capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"})),
 )
-
-
-@dataclass
-class RealMaps:
-    """Per reduced light, the rays of its RSM and ``R_µ`` (the real proxy's map), cast once
-    when the world is prepared: the proxy and the lights do not change between frames, so a
-    frame casts only the rays that can reach a virtual object
-    (:func:`~arlight.realtime.rsm.render_rsm_pair_reusing`)."""
-
-    lights: LightSet  # the lights they were cast for (a replaced LightSet: cast again)
-    res: int
-    rays: list[LightRays]
-    mu: list[RSM]
-    box: tuple[np.ndarray, np.ndarray]  # the virtual objects' world bounding box (m)
 
 
 @dataclass
@@ -157,29 +140,6 @@ def prepare(world: World, options: Options) -> DLPVData:
         scale = 1.0 / plane_response(options.volume_size, options.steps, options.dampening)
     maps = None if grid is None else real_maps(views, lights, grid, options.rsm_size, bounds)
     return DLPVData(world, views, lights, grid, scale, maps)
-
-
-def real_maps(views: SceneViews, lights: LightSet, grid: Grid, res: int,
-              box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
-    """Every reduced light's RSM rays (directional maps cover the volume's bounding sphere)
-    and ``R_µ`` cast into the real-only view."""
-    bounds = (grid.centre, grid.size * np.sqrt(3.0) / 2.0)
-    rays = [light_rays(lt, res, bounds) for lt in lights.lights]
-    return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box)
-
-
-def rsm_pair(data: DLPVData) -> list[RSMPair]:
-    """``(R_ρ, R_µ)`` per reduced light of ``data`` (a :class:`DLPVData` or any prepared
-    state with ``views``, ``lights``, ``grid`` and ``real_maps``), from the prepared ``R_µ``
-    — cast again, for this call only, when ``data.lights`` is not the set they were cast
-    for."""
-    maps = data.real_maps
-    if maps is None:
-        return []
-    if maps.lights is not data.lights:
-        maps = real_maps(data.views, data.lights, data.grid, maps.res, maps.box)
-    return [render_rsm_pair_reusing(data.views, r, mu, maps.box)
-            for r, mu in zip(maps.rays, maps.mu, strict=True)]
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,

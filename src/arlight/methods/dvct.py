@@ -65,13 +65,12 @@ import numpy as np
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
-from arlight.methods.dlpv import RealMaps, real_maps, rsm_pair
+from arlight.methods.fragments import REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
-from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, ReducedLight, reduce_lights
-from arlight.realtime.rsm import RSMPair
+from arlight.realtime.rsm import RealMaps, RSMPair, real_maps, rsm_pair
 from arlight.realtime.rsm import check_memory as check_rsm_memory
 from arlight.realtime.sh_volume import Grid, cell_index
 from arlight.realtime.shading import (

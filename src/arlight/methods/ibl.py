@@ -39,6 +39,7 @@ import numpy as np
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.backend.rays import np3
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.ibl_shading import (
@@ -47,7 +48,6 @@ from arlight.realtime.ibl_shading import (
     environment_map,
     specular_fis,
 )
-from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.oof import (
     OOF_OPTIONS,
@@ -74,8 +74,7 @@ OPTIONS: dict[str, Field] = {
     **REDUCTION_OPTIONS,
     "area_grid": Field("int", 3, "cosine point lights per side of an area light (3 × 3: a "
                        "soft shadow; bunny-box +0.45 dB over 1)", "", min=1, max=16),
-    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
-                         max=64),
+    **GBUFFER_OPTIONS,
 }
 
 MATERIALS = frozenset({"diffuse", "phong", "roughconductor", "mirror"})

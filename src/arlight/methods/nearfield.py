@@ -30,6 +30,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
 from arlight.methods.base import BaseMethod, Layers, Prepared, RenderSettings
+from arlight.methods.fragments import GBUFFER_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.nearfield.client import (
     MaterialTable,
@@ -71,7 +72,7 @@ OPTIONS: dict[str, Field] = {
                      "(their n follows from their reflectance)", "", min=0.0),
     "directions": Field("int", 512, "visibility rays per vertex of the PRT transfer", "",
                         min=16, max=16384),
-    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel", "", min=1, max=64),
+    **GBUFFER_OPTIONS,
 }
 
 SPEC = MethodSpec(

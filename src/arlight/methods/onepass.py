@@ -3,7 +3,7 @@
 ``I_m``, ``I_r`` and the mask ``M`` come out of a single wavefront pass with Kán's four ray
 types (mixed/real radiance, mixed/real shadow) and four hit rules: paths that never touch a
 virtual object are traced once and serve both solutions; at a virtual hit a real-radiance
-continuation ray supplies ``I_r``. See :mod:`arlight.methods.onepass_tracer` for the tracer
+continuation ray supplies ``I_r``. See :mod:`arlight.tracing.onepass` for the tracer
 and ``docs/methods/onepass.md`` for the design.
 
 Options (``RenderSettings.options``, declared in :data:`OPTIONS`; ``arlight methods onepass``
@@ -14,7 +14,7 @@ of the ray counts), ``sampler`` (``sobol`` | ``independent``), ``replicas`` and
 ``replica_mode`` (the standard errors' independent randomisations), ``sample_offset``
 (progressive frames continuing one sequence, :mod:`arlight.backend.passes`),
 ``light_sampling`` (``solid_angle`` | ``mitsuba``, :mod:`arlight.sampling.lights`), ``caustics``
-(``none`` | ``photons``: differential caustic photon mapping, :mod:`arlight.methods.photons`)
+(``none`` | ``photons``: differential caustic photon mapping, :mod:`arlight.tracing.photons`)
 with ``photons``, ``photon_radius`` (m), ``ppm_iterations``, ``ppm_alpha``.
 
 Stats: ``seconds``, ``samples``, ``spp``, ``samples_per_second`` and ray counts per ray type
@@ -44,18 +44,19 @@ from arlight.methods.base import (
     Layers,
     RenderSettings,
 )
-from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions
-from arlight.methods.photons import (
+from arlight.methods.fragments import PathScenesMethod
+from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.scene.model import FrameView
+from arlight.timing import StageTimer
+from arlight.tracing.onepass import RAY_TYPES, OnePassTracer, TracerOptions
+from arlight.tracing.photons import (
     PhotonMap,
     PhotonSettings,
     build_indices,
     build_photon_maps,
     gather_caustics,
 )
-from arlight.methods.reference import PathScenes, PathScenesMethod, frame_gather
-from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.scene.model import FrameView
-from arlight.timing import StageTimer
+from arlight.tracing.scenes import PathScenes, frame_gather
 
 OPTIONS: dict[str, Field] = {
     "env_mode": Field("choice", "mis", "`mis`: environment maps are light-sampled with MIS; "

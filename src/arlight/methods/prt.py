@@ -44,11 +44,11 @@ from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.backend.rays import np3
 from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.ibl import render_layers, specular_tables
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import MipEnvironment, environment_map, rot_y
-from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.oof import OOF_OPTIONS, OcclusionField, field_from_options, virtual_scene
 from arlight.realtime.prt_transfer import (
@@ -86,8 +86,7 @@ OPTIONS: dict[str, Field] = {
     **REDUCTION_OPTIONS,
     "area_grid": Field("int", 3, "cosine point lights per side of an area light (3 × 3: a "
                        "soft shadow; bunny-box +0.45 dB over 1)", "", min=1, max=16),
-    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
-                         max=64),
+    **GBUFFER_OPTIONS,
 }
 
 SPEC = MethodSpec(

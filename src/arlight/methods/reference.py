@@ -62,26 +62,25 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from arlight.backend.camera_rays import rays_from_samples
 from arlight.backend.mitsuba_scene import (
     ROLE_VIRTUAL,
     SceneView,
-    SceneViews,
-    build_views,
     sampler_count,
 )
-from arlight.backend.passes import MAX_LANES, effective_replicas, run_passes
+from arlight.backend.passes import effective_replicas, run_passes
+from arlight.jit import MAX_LANES
 from arlight.layers import differential_samples, layers_from_passes
 from arlight.methods.base import (
-    BaseMethod,
     Layers,
     RenderSettings,
 )
+from arlight.methods.fragments import PathScenesMethod
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.scene.model import FrameView, World
+from arlight.scene.model import FrameView
 from arlight.timing import StageTimer
+from arlight.tracing.scenes import PathScenes, frame_gather
 
 
 def path_integrator(settings: RenderSettings) -> mi.SamplingIntegrator:
@@ -178,35 +177,6 @@ def virtual_coverage(view: SceneView, rays: mi.RayDifferential3f) -> mi.Float:
     """1 where the ray's first hit is a virtual shape, else 0."""
     si = view.scene.ray_intersect(mi.Ray3f(rays))
     return dr.select(view.hit_role(si) == ROLE_VIRTUAL, mi.Float(1.0), mi.Float(0.0))
-
-
-def frame_gather(frame: np.ndarray):
-    """A function pixel-index -> frame radiance (Color3f) for use inside kernels."""
-    flat = np.ascontiguousarray(frame.reshape(-1, 3), dtype=np.float32)
-    table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
-    return lambda pixel: dr.gather(mi.Color3f, table, pixel)
-
-
-@dataclass
-class PathScenes:
-    """Prepared state of the path tracers: the world and its two Mitsuba views."""
-
-    world: World
-    views: SceneViews
-
-
-def prepare_scenes(world: World) -> PathScenes:
-    """Build the real-only (µ) and mixed (ρ) Mitsuba scenes of ``world``."""
-    return PathScenes(world, build_views(world))
-
-
-class PathScenesMethod(BaseMethod):
-    """Base of the methods whose prepared state is :class:`PathScenes` (the path tracers and
-    the irradiance cache built on them)."""
-
-    def prepare_world(self, world: World, options: Options,
-                      settings: RenderSettings) -> PathScenes:
-        return prepare_scenes(world)
 
 
 class ReferenceMethod(PathScenesMethod):

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import drjit as dr
 import mitsuba as mi
@@ -36,7 +37,8 @@ import numpy as np
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.errors import InputError
 from arlight.realtime.gbuffer import facing, surface_albedo
-from arlight.realtime.light_reduction import ReducedLight
+from arlight.realtime.light_reduction import LightSet, ReducedLight
+from arlight.realtime.sh_volume import Grid
 from arlight.realtime.shading import spot_falloff
 
 BYTES_PER_TEXEL = 4 * 32
@@ -270,6 +272,52 @@ def shared_texels(a: RSM, b: RSM) -> mi.Bool:
     return (a.shape == b.shape) & ((a.t == b.t) | ((a.role == ROLE_MISS) & (b.role == ROLE_MISS)))
 
 
-__all__ = ["RSM", "LightRays", "check_memory", "concat_rays", "light_rays", "render_rsm",
-           "RSMPair", "render_rsm_pair", "render_rsm_pair_reusing", "replace_texels",
-           "rsm_subset", "shared_texels", "subset_rays"]
+@dataclass
+class RealMaps:
+    """Per reduced light, the rays of its RSM and ``R_µ`` (the real proxy's map), cast once
+    when the world is prepared: the proxy and the lights do not change between frames, so a
+    frame casts only the rays that can reach a virtual object
+    (:func:`~arlight.realtime.rsm.render_rsm_pair_reusing`)."""
+
+    lights: LightSet  # the lights they were cast for (a replaced LightSet: cast again)
+    res: int
+    rays: list[LightRays]
+    mu: list[RSM]
+    box: tuple[np.ndarray, np.ndarray]  # the virtual objects' world bounding box (m)
+
+
+class RSMState(Protocol):
+    """What :func:`rsm_pair` needs of a method's prepared state (dlpv's, dvct's)."""
+
+    views: SceneViews
+    lights: LightSet
+    grid: Grid | None
+    real_maps: RealMaps | None
+
+
+def real_maps(views: SceneViews, lights: LightSet, grid: Grid, res: int,
+              box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
+    """Every reduced light's RSM rays (directional maps cover the volume's bounding sphere)
+    and ``R_µ`` cast into the real-only view."""
+    bounds = (grid.centre, grid.size * np.sqrt(3.0) / 2.0)
+    rays = [light_rays(lt, res, bounds) for lt in lights.lights]
+    return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box)
+
+
+def rsm_pair(data: RSMState) -> list[RSMPair]:
+    """``(R_ρ, R_µ)`` per reduced light of ``data`` (any prepared state with ``views``,
+    ``lights``, ``grid`` and ``real_maps``: dlpv's and dvct's), from the prepared ``R_µ``
+    — cast again, for this call only, when ``data.lights`` is not the set they were cast
+    for."""
+    maps = data.real_maps
+    if maps is None:
+        return []
+    if maps.lights is not data.lights:
+        maps = real_maps(data.views, data.lights, data.grid, maps.res, maps.box)
+    return [render_rsm_pair_reusing(data.views, r, mu, maps.box)
+            for r, mu in zip(maps.rays, maps.mu, strict=True)]
+
+
+__all__ = ["LightRays", "RSM", "RSMPair", "RSMState", "RealMaps", "check_memory", "concat_rays",
+           "light_rays", "real_maps", "render_rsm", "render_rsm_pair", "render_rsm_pair_reusing",
+           "replace_texels", "rsm_pair", "rsm_subset", "shared_texels", "subset_rays"]

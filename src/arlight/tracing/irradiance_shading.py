@@ -19,7 +19,7 @@ the camera or through delta-specular bounces), and at a vertex with a smooth BSD
 
 and ends there; delta-specular vertices (mirrors, glass, Mitsuba's stochastic
 reflect/refract choice) continue the walk. As in the one-pass tracer
-(:mod:`arlight.methods.onepass_tracer`) a mixed walk that hits a virtual object forks: it goes
+(:mod:`arlight.tracing.onepass`) a mixed walk that hits a virtual object forks: it goes
 on mixed-only, and its *real continuation* (the ray passing through the virtual object) is
 traced afterwards for the forked lanes only, in µ from their camera rays; random numbers are
 hashes of (lane key, depth, dimension), so the retraced shared prefix is bit for bit the same.
@@ -37,10 +37,10 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.backend.rays import np3
-from arlight.methods.onepass_tracer import mis_weight
 from arlight.realtime.gbuffer import facing, surface_albedo
-from arlight.realtime.irradiance_cache import SplatGeometry
 from arlight.scene.camera import Camera
+from arlight.tracing.irradiance_cache import SplatGeometry
+from arlight.tracing.onepass import mis_weight
 
 _DIMS_PER_DEPTH = 8
 _DIM_NEE, _DIM_BSDF1, _DIM_BSDF2 = 0, 2, 3

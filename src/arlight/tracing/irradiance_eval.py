@@ -2,7 +2,7 @@
 
 All records of an iteration are evaluated in one wavefront: lane ``l`` is ray ``l % N`` of
 record ``l // N``. Each ray leaves the record in a cosine-weighted direction about its normal
-and is a *mixed radiance ray* of the one-pass tracer (:class:`arlight.methods.onepass_tracer.
+and is a *mixed radiance ray* of the one-pass tracer (:class:`arlight.tracing.onepass.
 OnePassTracer`, its four ray types and hit rules: a real continuation ray where it hits a
 virtual object, mixed and real shadow rays at real hits, random multi-bounce continuation), so
 
@@ -30,8 +30,8 @@ import numpy as np
 from arlight.backend.mitsuba_scene import SceneViews
 from arlight.backend.rays import np3
 from arlight.jit import MAX_LANES
-from arlight.methods.onepass_tracer import RAY_TYPES, OnePassTracer, TracerOptions
 from arlight.realtime.shading import SHADOW_EPS
+from arlight.tracing.onepass import RAY_TYPES, OnePassTracer, TracerOptions
 
 GOLDEN = 0.6180339887498949
 

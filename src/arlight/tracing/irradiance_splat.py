@@ -1,4 +1,4 @@
-"""Irradiance splatting in Dr.Jit: the fast path of :func:`arlight.realtime.irradiance_cache.
+"""Irradiance splatting in Dr.Jit: the fast path of :func:`arlight.tracing.irradiance_cache.
 splat`, which it must match (Kán §4.2.3, Eq. 2.15, 4.11).
 
 A GPU rasteriser scatters each record's quad into the pixels; float atomics would make the
@@ -20,14 +20,14 @@ import numpy as np
 
 from arlight.backend.rays import np3
 from arlight.jit import ensure_variant
-from arlight.realtime.irradiance_cache import (
+from arlight.scene.camera import Camera
+from arlight.tracing.irradiance_cache import (
     NORMAL_SCALE,
     Records,
     SplatBuffer,
     SplatGeometry,
     footprint_boxes,
 )
-from arlight.scene.camera import Camera
 
 BIN_PX = 8
 """Side of the screen bins records are sorted into, pixels."""

@@ -15,10 +15,10 @@ import numpy as np
 
 from arlight.jit import ensure_variant
 from arlight.methods import RenderSettings, get_method
-from arlight.methods.reference import prepare_scenes
-from arlight.realtime.irradiance_shading import SplatLookup, splat_geometry
 from arlight.scene.camera import Camera, look_at
 from arlight.stats import agreement_fraction
+from arlight.tracing.irradiance_shading import SplatLookup, splat_geometry
+from arlight.tracing.scenes import prepare_scenes
 from tests.conftest import area_light_scene, load, with_constant_frame
 
 

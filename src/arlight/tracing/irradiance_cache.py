@@ -4,7 +4,7 @@ buffer and cache-miss detection by tiles (Kán thesis §4.2.1, §4.2.3, §4.2.4;
 The cache is a *linear* vector of records (no spatial structure, Kán §4.2.4): records are
 appended in the order they are created and splatted in that order. Everything here is NumPy
 (deterministic sums in a fixed order, so a static scene splats bit for bit the same every
-frame); the records' irradiance is computed by :mod:`arlight.realtime.irradiance_eval`.
+frame); the records' irradiance is computed by :mod:`arlight.tracing.irradiance_eval`.
 
 * :class:`Records` — ``x_i``, ``n_i``, ``E_m``, ``E_d = E_m − E_r`` (W/m²), ``R_i`` (m), age
   (frames since evaluation), a per-record 32-bit key (its fixed random sequence) and a
@@ -282,7 +282,7 @@ def splat_batches(records: Records, geom: SplatGeometry, camera: Camera, kappa: 
     order — bitwise the buffer the miss loop built when it splatted each new batch onto the
     previous ones, so a static scene's next frame splats the same bits without re-splatting
     the whole cache in a fixed order each frame. ``splat_fn``: :func:`splat` (default) or
-    the Dr.Jit :func:`arlight.realtime.irradiance_splat.splat_dr`; ``start``: the buffer the
+    the Dr.Jit :func:`arlight.tracing.irradiance_splat.splat_dr`; ``start``: the buffer the
     batches are added to (default zeros)."""
     splat_fn = splat_fn or splat
     buf = start if start is not None else SplatBuffer.zeros(geom.width * geom.height)

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from arlight.realtime.irradiance_cache import splat
-from arlight.realtime.irradiance_splat import splat_dr
-from tests.realtime.test_irradiance_cache import plane_geometry, records_at
+from arlight.tracing.irradiance_cache import splat
+from arlight.tracing.irradiance_splat import splat_dr
+from tests.tracing.test_irradiance_cache import plane_geometry, records_at
 
 
 def test_dr_splat_matches_numpy_reference():

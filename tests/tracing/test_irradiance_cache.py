@@ -14,7 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from arlight.realtime.irradiance_cache import (
+from arlight.scene.camera import Camera, look_at
+from arlight.tracing.irradiance_cache import (
     NORMAL_SCALE,
     Records,
     SplatGeometry,
@@ -23,7 +24,6 @@ from arlight.realtime.irradiance_cache import (
     splat,
     tabellion_weight,
 )
-from arlight.scene.camera import Camera, look_at
 
 
 def test_weight_is_tabellions_equation():

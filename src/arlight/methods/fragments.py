@@ -1,0 +1,39 @@
+"""Pieces several method plug-ins share, so that no plug-in imports another.
+
+Part of the method contract tier (with :mod:`~arlight.methods.spec` and
+:mod:`~arlight.methods.base`):
+
+* :data:`GBUFFER_OPTIONS` — the G-buffer option (``gbuffer_spp``) of the rasterisation-class
+  methods (``dlpv``, ``dir``, ``dvct``, ``ibl``, ``prt``, ``nearfield``).
+* :data:`REDUCTION_OPTIONS` — the light-reduction options
+  (:mod:`arlight.realtime.light_reduction`).
+* :class:`PathScenesMethod` — base of the methods whose prepared state is
+  :class:`~arlight.tracing.scenes.PathScenes` (``reference``, ``onepass``, ``dic``).
+"""
+
+from __future__ import annotations
+
+from arlight.methods.base import BaseMethod, RenderSettings
+from arlight.methods.spec import Field, Options
+from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
+from arlight.scene.model import World
+from arlight.tracing.scenes import PathScenes, prepare_scenes
+
+GBUFFER_OPTIONS: dict[str, Field] = {
+    "gbuffer_spp": Field("int", 1, "G-buffer samples per pixel (stratified AA)", "", min=1,
+                         max=64),
+}
+"""``gbuffer_spp``: primary samples per pixel of :func:`arlight.realtime.gbuffer.
+render_gbuffer` (1: the rasteriser's G-buffer)."""
+
+
+class PathScenesMethod(BaseMethod):
+    """Base of the methods whose prepared state is :class:`PathScenes` (the path tracers and
+    the irradiance cache built on them)."""
+
+    def prepare_world(self, world: World, options: Options,
+                      settings: RenderSettings) -> PathScenes:
+        return prepare_scenes(world)
+
+
+__all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS"]
