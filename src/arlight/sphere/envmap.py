@@ -29,6 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from arlight.errors import InputError
 from arlight.sphere.fisheye import FisheyeCamera, OcamCamera
 
 MAPPINGS = ("equirect", "angular", "ball", "fisheye")
@@ -205,13 +206,14 @@ def _projector(mapping: str, shape: tuple[int, int], kw: dict
         return proj, unproj
     if mapping == "angular":
         if H != W:
-            raise ValueError(f"an angular map must be square, got {W}x{H}")
+            raise InputError(f"an angular map must be square, got {W}x{H}", field="image")
         return (lambda d: angular_project(d, W)), (lambda p: angular_unproject(p, W))
     if mapping == "ball":
         try:
             center, radius = kw["center"], float(kw["radius"])
         except KeyError as exc:
-            raise ValueError("mapping 'ball' needs center=(cx, cy) and radius (pixels)") from exc
+            raise InputError("mapping 'ball' needs center=(cx, cy) and radius (pixels)",
+                             field="center") from exc
         rot = kw.get("world_from_camera")
         return (lambda d: ball_project(d, center, radius, rot),
                 lambda p: ball_unproject(p, center, radius, rot))
@@ -221,8 +223,8 @@ def _projector(mapping: str, shape: tuple[int, int], kw: dict
             raise ValueError("mapping 'fisheye' needs camera=FisheyeCamera(...) or "
                              "OcamCamera(...)")
         if (W, H) != cam.size:
-            raise ValueError(f"fisheye image is {W}x{H} but the calibration is for "
-                             f"{cam.size[0]}x{cam.size[1]}")
+            raise InputError(f"fisheye image is {W}x{H} but the calibration is for "
+                             f"{cam.size[0]}x{cam.size[1]}", field="image")
         return cam.project, cam.unproject
     raise ValueError(f"unknown mapping {mapping!r}; expected one of {MAPPINGS}")
 
@@ -255,14 +257,15 @@ def to_equirect(image: np.ndarray, mapping: str, height: int | None = None,
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     if img.ndim != 3 or img.shape[2] < 3:
-        raise ValueError(f"expected an (H, W, 3) image, got shape {img.shape}")
+        raise InputError(f"expected an (H, W, 3) image, got shape {img.shape}", field="image")
     img = img[..., :3]
     if height is None:
         height = img.shape[0] if mapping == "equirect" else max(8, img.shape[0] // 2)
     height = int(height)
     if mapping == "equirect":
         if img.shape[1] != 2 * img.shape[0]:
-            raise ValueError(f"an equirect map must be 2:1, got {img.shape[1]}x{img.shape[0]}")
+            raise InputError(f"an equirect map must be 2:1, got {img.shape[1]}x{img.shape[0]}",
+                             field="image")
         out = resize_equirect(img, height)
         return mirror_lower_hemisphere(out) if mirror_lower else out
     proj, _ = _projector(mapping, img.shape[:2], kwargs)

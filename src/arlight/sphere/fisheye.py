@@ -52,20 +52,22 @@ class FisheyeCamera:
         self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
         self.D = np.asarray(self.D, dtype=np.float64).reshape(-1)
         if self.D.size != 4:
-            raise ValueError(f"fisheye distortion must have 4 coefficients, got {self.D.size}")
+            raise InputError(f"fisheye distortion must have 4 coefficients, got {self.D.size}",
+                             field="D")
         self.world_from_camera = np.asarray(self.world_from_camera, np.float64).reshape(3, 3)
         self.size = (int(self.size[0]), int(self.size[1]))
         for name, m in (("K", self.K), ("D", self.D), ("world_from_camera",
                                                        self.world_from_camera)):
             if not np.all(np.isfinite(m)):
-                raise ValueError(f"fisheye {name} holds NaN/Inf values")
+                raise InputError("holds NaN/Inf values", field=name)
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
-            raise ValueError(f"fisheye focal lengths must be > 0, got fx={self.K[0, 0]}, "
-                             f"fy={self.K[1, 1]}")
+            raise InputError(f"fisheye focal lengths must be > 0, got fx={self.K[0, 0]}, "
+                             f"fy={self.K[1, 1]}", field="K")
         if min(self.size) < 1:
-            raise ValueError(f"fisheye image size must be positive, got {self.size}")
+            raise InputError(f"fisheye image size must be positive, got {self.size}",
+                             field="size")
         if not 0 < self.fov_deg <= 360:
-            raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg}")
+            raise InputError(f"must be in (0, 360], got {self.fov_deg}", field="fov_deg")
 
     # ------------------------------------------------------------------ construction
 
@@ -92,25 +94,28 @@ class FisheyeCamera:
         ``world_from_camera``."""
         path = Path(path)
         if not path.is_file():
-            raise ValueError(f"{path}: calibration file not found")
+            raise InputError("calibration file not found", file=str(path))
         if path.suffix.lower() == ".json":
             try:
                 d = json.loads(path.read_text())
                 return cls(K=d["K"], D=d.get("D", [0, 0, 0, 0]), size=tuple(d["size"]),
                            fov_deg=float(fov_deg or d.get("fov_deg", 180.0)),
                            world_from_camera=d.get("world_from_camera", zenith_camera()))
+            except InputError as exc:  # the model's check, naming the field
+                raise InputError(exc.message, file=str(path), field=exc.field) from exc
             except (KeyError, TypeError, ValueError, AttributeError, UnicodeDecodeError,
                     OverflowError) as exc:
-                raise ValueError(f"{path}: bad fisheye calibration ({exc})") from exc
+                raise InputError(f"bad fisheye calibration ({exc})", file=str(path)) from exc
         import cv2
 
         try:
             fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         except (cv2.error, SystemError) as exc:  # a parse error of the YAML/XML
             msg = " ".join(str(exc).split())
-            raise ValueError(f"{path}: cannot parse calibration file ({msg[-160:]})") from exc
+            raise InputError(f"cannot parse calibration file ({msg[-160:]})",
+                             file=str(path)) from exc
         if not fs.isOpened():
-            raise ValueError(f"{path}: cannot open calibration file")
+            raise InputError("cannot open calibration file", file=str(path))
         try:
             K = next((fs.getNode(k).mat() for k in ("camera_matrix", "K")
                       if not fs.getNode(k).empty()), None)
@@ -120,17 +125,18 @@ class FisheyeCamera:
             h = fs.getNode("image_height").real()
         except cv2.error as exc:
             msg = " ".join(str(exc).split())
-            raise ValueError(f"{path}: bad calibration field ({msg[-160:]})") from exc
+            raise InputError(f"bad calibration field ({msg[-160:]})", file=str(path)) from exc
         finally:
             fs.release()
         if K is None or not w or not h or np.shape(K) != (3, 3):
-            raise ValueError(f"{path}: needs camera_matrix, image_width and image_height")
+            raise InputError("needs camera_matrix, image_width and image_height",
+                             file=str(path))
         D = np.zeros(4) if D is None else np.asarray(D, np.float64).ravel()[:4]
         K = np.array(K, np.float64)
         if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and np.isfinite(w)
                 and np.isfinite(h) and w > 0 and h > 0):
-            raise ValueError(f"{path}: camera_matrix, distortion_coefficients and the image "
-                             "size must be finite (and the size positive)")
+            raise InputError("camera_matrix, distortion_coefficients and the image size "
+                             "must be finite (and the size positive)", file=str(path))
         K[0, 2] += 0.5  # OpenCV puts pixel centres at integers; we put them at +0.5
         K[1, 2] += 0.5
         return cls(K=K, D=np.pad(D, (0, 4 - D.size)), size=(int(w), int(h)),
@@ -293,23 +299,24 @@ class OcamCamera:
                         ("affine", self.affine), ("world_from_camera",
                                                   self.world_from_camera)):
             if not np.all(np.isfinite(v)):
-                raise ValueError(f"OCamCalib {name} holds NaN/Inf values")
+                raise InputError("holds NaN/Inf values", field=name)
         if self.pol.size < 2 or self.invpol.size < 1:
-            raise ValueError("OCamCalib model needs >= 2 direct and >= 1 inverse coefficients")
+            raise InputError("OCamCalib model needs >= 2 direct and >= 1 inverse "
+                             "coefficients", field="pol" if self.pol.size < 2 else "invpol")
         if not self.pol[0] < 0:
-            raise ValueError(f"OCamCalib direct polynomial: a0 must be < 0 (the optical axis "
-                             f"is -z), got {self.pol[0]}")
+            raise InputError(f"a0 must be < 0 (the optical axis is -z), got {self.pol[0]}",
+                             field="direct polynomial")
         c, d, e = self.affine
         if abs(c - d * e) < 1e-12:
-            raise ValueError(f"OCamCalib affine (c, d, e) = {self.affine} is singular")
+            raise InputError(f"(c, d, e) = {self.affine} is singular", field="affine")
         if min(self.size) < 1:
-            raise ValueError(f"image size must be positive, got {self.size}")
+            raise InputError(f"must be positive, got {self.size}", field="image size")
         self.r_max = self._calibrated_radius()
         limit = 2 * np.degrees(self._axis_angle(np.array(self.r_max)))
         if self.fov_deg is None:
             self.fov_deg = float(limit)
         elif not 0 < float(self.fov_deg) <= 360:
-            raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg}")
+            raise InputError(f"must be in (0, 360], got {self.fov_deg}", field="fov_deg")
         self.fov_deg = float(self.fov_deg)
 
     # ------------------------------------------------------------------ file
@@ -353,8 +360,8 @@ class OcamCamera:
         try:
             return cls(pol=nums[0][1:], invpol=nums[1][1:], center=tuple(nums[2]),
                        affine=tuple(nums[3]), size=(int(w), int(h)), fov_deg=fov_deg)
-        except ValueError as exc:
-            raise InputError(str(exc), file=str(path)) from exc
+        except InputError as exc:  # the model's check, naming the record
+            raise InputError(exc.message, file=str(path), field=exc.field) from exc
 
     # ------------------------------------------------------------------ the model
 

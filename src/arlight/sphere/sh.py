@@ -34,6 +34,8 @@ from math import factorial
 
 import numpy as np
 
+from arlight.errors import InputError
+
 Y00 = 0.5 / np.sqrt(np.pi)  # 0.28209479...
 
 
@@ -48,7 +50,8 @@ def order_of(n: int) -> int:
     """Inverse of :func:`n_coeffs`; raises if ``n`` is not a perfect square."""
     L = int(round(np.sqrt(n))) - 1
     if (L + 1) ** 2 != n or n < 1:
-        raise ValueError(f"{n} is not a valid number of SH coefficients ((L+1)^2)")
+        raise InputError(f"{n} is not a valid number of SH coefficients ((L+1)^2)",
+                         field="coefficients")
     return L
 
 
