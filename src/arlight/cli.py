@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
 from arlight.bounds import MAX_FRAMES, MAX_SECONDS_BUDGET, MAX_SEED, MAX_SPP
 from arlight.errors import ArlightError
@@ -31,13 +30,26 @@ from arlight.importers.cli import import_mitsuba_command
 from arlight.insert.cli import insert_command
 from arlight.light import cli as light_cli
 from arlight.lightserver.cli import client_command, serve_light_command
+from arlight.nearfield.cli import atlas as atlas_command
+from arlight.probeless.cli import probeless as probeless_command
 from arlight.sequence.cli import sequence_command
 from arlight.studio.cli import studio_command
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="arlight: photorealistic AR — insert virtual objects into real frames "
                        "with the real light on them (differential rendering on Mitsuba 3).")
-console = Console(stderr=True)
+_CONSOLE = []
+
+
+def _console():
+    """The rich console on stderr, made on first use (rich costs ~70 ms to import, paid
+    only by the commands that print progress)."""
+    if not _CONSOLE:
+        from rich.console import Console
+
+        _CONSOLE.append(Console(stderr=True))
+    return _CONSOLE[0]
+
 
 
 @app.callback()
@@ -138,19 +150,19 @@ def render(
     if progressive:
         from arlight.progressive import run_cli
 
-        run_cli(sc, method, settings, out, time_budget, frames, ground_truth, console)
+        run_cli(sc, method, settings, out, time_budget, frames, ground_truth, _console())
         return
     layers = fn(sc, settings)
     paths = write_layers(layers, sc, out)
     s = layers.stats
     rays = f", {s['rays_per_sample']:.2f} rays/sample" if "rays_per_sample" in s else ""
-    console.print(f"[green]{method}[/]: {s.get('seconds', 0):.2f} s, "
+    _console().print(f"[green]{method}[/]: {s.get('seconds', 0):.2f} s, "
                   f"{s.get('samples_per_second', 0) / 1e6:.2f} Msamples/s{rays}")
     from arlight.timing import format_stages
 
     if stages := format_stages(s):
-        console.print(f"stages: {stages}")
-    console.print(f"composite: {paths['composite_png']}  (layers: {out}/*.exr)")
+        _console().print(f"stages: {stages}")
+    _console().print(f"composite: {paths['composite_png']}  (layers: {out}/*.exr)")
 
 
 @app.command()
@@ -193,7 +205,7 @@ def synth(
         write_png(tmp / "ground_truth.png", t.to_display(photo.ground_truth))
         write_exr(tmp / "ground_truth_stderr.exr", photo.ground_truth_stderr)
         write_exr(tmp / "mask.exr", photo.mask)
-    console.print(f"frame and ground truth written to {out}/ (cache key {photo.key})")
+    _console().print(f"frame and ground truth written to {out}/ (cache key {photo.key})")
 
 
 @app.command()
@@ -259,10 +271,14 @@ def demo(
     cam = load_scene(demo_scene_path()).camera
     _check_before_work(cam, spp, f"rendering the demo at {spp} spp", force, out, LAYER_FILES)
 
-    run_demo(out, spp=spp, method=method, console=console)
+    run_demo(out, spp=spp, method=method, console=_console())
 
 
-# command groups that live in their own packages
+# command groups that live in their own packages; the engines of `light probeless` (Gruber
+# et al. 2014) and `light atlas` (Rohmer et al. 2015, near-field server update) keep their
+# commands in their own packages and are mounted on the `light` group here
+light_cli.app.command("probeless")(probeless_command)
+light_cli.app.command("atlas")(atlas_command)
 app.add_typer(light_cli.app, name="light", help="light estimation: SH, environment maps, "
               "probes, fisheye cameras, light extraction")
 app.command("eval")(eval_cli.eval_command)

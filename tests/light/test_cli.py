@@ -8,14 +8,14 @@ import sys
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from arlight.io.images import write_exr
 from arlight.light.cli import app
 from arlight.light.estimate import LightEstimate
 from arlight.sphere.envmap import from_equirect
+from tests.cli_invoke import MainRunner
 
-runner = CliRunner()
+runner = MainRunner()
 
 
 @pytest.fixture

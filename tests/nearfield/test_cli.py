@@ -7,15 +7,15 @@ import json
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from arlight.cli import app
 from arlight.io.images import write_exr
 from arlight.nearfield.lightfile import load_light
 from arlight.scene.save import save_scene
+from tests.cli_invoke import MainRunner
 from tests.nearfield.conftest import room, scene, vbox
 
-runner = CliRunner()
+runner = MainRunner()
 
 CAM = ('[[cameras]]\nname = "{name}"\nposition = {pos}\nlook = {look}\nup = {up}\n'
        'equidistant = {{ size = [32, 32], fov_deg = 180.0 }}\n')

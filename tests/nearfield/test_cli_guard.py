@@ -4,13 +4,13 @@ rig's files (issue #28)."""
 from __future__ import annotations
 
 import numpy as np
-from typer.testing import CliRunner
 
 from arlight.cli import app
 from arlight.io.images import write_exr
 from arlight.methods.nearfield import OPTIONS
 from arlight.nearfield.state import MAX_VALS
 from arlight.scene.save import save_scene
+from tests.cli_invoke import MainRunner
 from tests.nearfield.conftest import room, scene, vbox
 
 RIG = ('[[cameras]]\nname = "c"\nposition = [0, 1, 0]\nlook = [0, 0, -1]\nup = [0, 1, 0]\n'
@@ -30,18 +30,18 @@ def test_vals_beyond_the_render_cap_is_refused(tmp_path):
     args = _files(tmp_path)
     cap = MAX_VALS
     assert OPTIONS["vals"].max == MAX_VALS  # the cap the nearfield method renders
-    r = CliRunner().invoke(app, [*args, "--vals", str(cap + 1), "-o", str(tmp_path / "v.json")])
+    r = MainRunner().invoke(app, [*args, "--vals", str(cap + 1), "-o", str(tmp_path / "v.json")])
     assert r.exit_code == 2 and "--vals" in r.output and not (tmp_path / "v.json").exists()
 
 
 def test_output_onto_the_rig_image_or_a_persons_file_is_refused(tmp_path):
     args = _files(tmp_path)
     before = (tmp_path / "a.exr").read_bytes()
-    r = CliRunner().invoke(app, [*args, "-o", str(tmp_path / "a.exr")])
+    r = MainRunner().invoke(app, [*args, "-o", str(tmp_path / "a.exr")])
     assert r.exit_code == 2 and "input" in r.output
     assert (tmp_path / "a.exr").read_bytes() == before
     (tmp_path / "mine.json").write_text("{}")
-    r = CliRunner().invoke(app, [*args, "-o", str(tmp_path / "mine.json")])
+    r = MainRunner().invoke(app, [*args, "-o", str(tmp_path / "mine.json")])
     assert r.exit_code == 2 and "--overwrite" in r.output
     assert (tmp_path / "mine.json").read_text() == "{}"
 
@@ -51,5 +51,5 @@ def test_atlas_bound_names_force(tmp_path, monkeypatch):
 
     args = _files(tmp_path)
     monkeypatch.setattr(B, "available_memory", lambda: 1000.0)
-    r = CliRunner().invoke(app, [*args, "-o", str(tmp_path / "v.json")])
+    r = MainRunner().invoke(app, [*args, "-o", str(tmp_path / "v.json")])
     assert r.exit_code == 2 and "--force" in r.output and not (tmp_path / "v.json").exists()

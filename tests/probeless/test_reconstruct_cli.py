@@ -9,13 +9,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
 from arlight.errors import InputError
 from arlight.light.estimate import LightEstimate
 from arlight.probeless import synthetic as S
 from arlight.probeless.reconstruct import reconstruct
 from arlight.probeless.rgbd_io import read_sequence
+from tests.cli_invoke import MainRunner
 
 SLAMBOOK = Path(str(resources.files("arlight") / "data" / "rgbd" / "slambook2_small"))
 
@@ -66,7 +66,7 @@ def test_cli_end_to_end_on_slambook_frames(tmp_path):
     from arlight.cli import app
 
     out = tmp_path / "light.json"
-    r = CliRunner().invoke(app, ["light", "probeless", str(SLAMBOOK), "--poses",
+    r = MainRunner().invoke(app, ["light", "probeless", str(SLAMBOOK), "--poses",
                                  str(SLAMBOOK / "pose.txt"), "--volume", "6", "--resolution",
                                  "160", "-o", str(out)])
     assert r.exit_code == 0, r.output
@@ -110,7 +110,7 @@ def test_bad_input_exit_2_nothing_written(tmp_path, frames, case):
         lines = (folder / "traj.log").read_text().splitlines()
         (folder / "traj.log").write_text("\n".join(
             ln if i % 5 == 0 else lines[i % 5] for i, ln in enumerate(lines)) + "\n")
-    r = CliRunner().invoke(app, args)
+    r = MainRunner().invoke(app, args)
     assert r.exit_code == 2, r.output
     assert expect in r.output and "Traceback" not in r.output
     assert not (tmp_path / "light.json").exists()

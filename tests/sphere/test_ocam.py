@@ -150,13 +150,12 @@ def test_real_photo_end_to_end(tmp_path):
     warns about its clipped whites, and reports the observed fraction of the sphere as
     confidence (< 0.5: the image crops the circle). Rejects a size/centre mix-up (the
     image would not match the calibration)."""
-    from typer.testing import CliRunner
-
     from arlight.light.cli import app
     from arlight.light.estimate import LightEstimate
+    from tests.cli_invoke import MainRunner
 
     out = tmp_path / "fish.json"
-    r = CliRunner().invoke(app, ["estimate", str(PHOTO), "--kind", "fisheye",
+    r = MainRunner().invoke(app, ["estimate", str(PHOTO), "--kind", "fisheye",
                                  "--fisheye-calib", str(CALIB), "-o", str(out)])
     assert r.exit_code == 0, r.output
     assert "clipped" in r.output

@@ -8,25 +8,30 @@ Examples::
     python -m arlight.light.cli estimate sky.png --kind fisheye --fov 185 -o light.json
     python -m arlight.light.cli show light.json -o light.png
 
-Outputs are written to a temporary file and renamed, so a failed run leaves nothing.
+Outputs are written to a temporary file and renamed, so a failed run leaves nothing. Bad
+input raises :class:`~arlight.errors.InputError` naming the file or the option;
+:func:`arlight.cli.main` prints it on one line and exits 2. ``light probeless`` and
+``light atlas`` live in their own packages and are mounted on this group by
+:mod:`arlight.cli`. The heavy modules (numpy, the estimators, matplotlib) are imported by the
+commands, not here: ``import arlight.cli`` stays cheap.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 
 from arlight.bounds import MAX_LIGHTS, MAX_SH_HEIGHT, MAX_SH_ORDER
-from arlight.io.images import atomic_write, read_linear
-from arlight.light.estimate import LAYOUTS, METHODS, SH_CONVENTIONS, LightEstimate
-from arlight.light.extract import ExtractedLight
-from arlight.sphere import envmap as E
-from arlight.sphere import sh as SH
-from arlight.sphere.fisheye import FisheyeCamera, load_camera
+from arlight.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from arlight.light.estimate import LightEstimate
 
 KINDS = ("equirect", "probe", "ball", "fisheye")
 
@@ -37,23 +42,23 @@ app = typer.Typer(
 )
 
 
-class CliError(Exception):
-    """A user error: printed without a traceback, exit status 2."""
-
-
-def _fail(message: str) -> None:
-    """One line on stderr, exit status 2 (also when the sub-app runs on its own)."""
-    typer.echo(f"error: {' '.join(str(message).split())}", err=True)
-    raise typer.Exit(code=2)
-
-
 def _check_number(value: float | None, option: str, lo: float, hi: float,
                   lo_open: bool = True) -> None:
     if value is None:
         return
-    if not np.isfinite(value) or (value <= lo if lo_open else value < lo) or value > hi:
-        raise CliError(f"{option}: expected a finite number in {'(' if lo_open else '['}"
-                       f"{lo:g}, {hi:g}], got {value}")
+    if not math.isfinite(value) or (value <= lo if lo_open else value < lo) or value > hi:
+        raise InputError(f"expected a finite number in {'(' if lo_open else '['}"
+                         f"{lo:g}, {hi:g}], got {value}", field=option)
+
+
+def _check_choice(value: str, option: str, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise InputError(f"expected one of {', '.join(choices)}, got {value!r}", field=option)
+
+
+def _check_count(value: int, option: str, lo: int, hi: int, unit: str = "") -> None:
+    if not lo <= value <= hi:
+        raise InputError(f"expected {lo} to {hi}{unit}, got {value}", field=option)
 
 
 def _check_output(output: Path, inputs: list[Path], option: str = "--output",
@@ -100,9 +105,9 @@ def _parse_vec(text: str | None, option: str, n: int) -> tuple[float, ...] | Non
         v = tuple(float(x) for x in text.split(","))
     except ValueError:
         v = ()
-    if len(v) != n or not all(np.isfinite(v)):
+    if len(v) != n or not all(math.isfinite(x) for x in v):
         what = "cx,cy in pixels" if n == 2 else "x,y,z (world, +Y up)"
-        raise CliError(f"{option}: expected {what}, got {text!r}")
+        raise InputError(f"expected {what}, got {text!r}", field=option)
     return v
 
 
@@ -110,16 +115,19 @@ def ball_pose(look: str | None, up: str | None) -> np.ndarray | None:
     """``world_from_camera`` (OpenCV axes) of the camera photographing a mirror ball, from
     the world direction it looks along and its up direction; None: the default pose
     (looking along world -Z, +Y up)."""
+    import numpy as np
+
     if look is None and up is None:
         return None
     z = np.array(_parse_vec(look, "--ball-look", 3) or (0.0, 0.0, -1.0))
     u = np.array(_parse_vec(up, "--ball-up", 3) or (0.0, 1.0, 0.0))
     if np.linalg.norm(z) == 0 or np.linalg.norm(u) == 0:
-        raise CliError("--ball-look/--ball-up: directions must not be zero")
+        raise InputError("directions must not be zero", field="--ball-look/--ball-up")
     z = z / np.linalg.norm(z)
     x = np.cross(z, u)
     if np.linalg.norm(x) < 1e-6:
-        raise CliError("--ball-look/--ball-up: the up direction is parallel to the view")
+        raise InputError("the up direction is parallel to the view",
+                         field="--ball-look/--ball-up")
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(z, x), z], axis=1)  # columns: right, down, forward
 
@@ -134,17 +142,25 @@ BALL_MAX_STRETCH = 4.0
 def ball_seen_half_angle(max_stretch: float = BALL_MAX_STRETCH) -> float:
     """Largest angle (rad) from the direction back to the camera that a mirror ball shows
     with a pixel footprint at most ``max_stretch`` x the centre's: ``2 acos(1/stretch)``."""
+    import numpy as np
+
     return 2.0 * float(np.arccos(1.0 / max_stretch))
 
 
 def _observed_fraction(seen: np.ndarray) -> float:
     """Fraction of the sphere covered by an equirect validity mask (solid-angle weighted)."""
+    import numpy as np
+
+    from arlight.sphere import envmap as E
+
     om = E.equirect_solid_angle(seen.shape[0], seen.shape[1])
     return float((om * seen).sum() / (4 * np.pi))
 
 
 def _fisheye_seen(cam, height: int = 256) -> np.ndarray:
     """Equirect mask of the directions a fisheye camera sees inside its image."""
+    from arlight.sphere import envmap as E
+
     xy, valid = cam.project(E.equirect_directions(height))
     w, h = cam.size
     return valid & (xy[..., 0] >= 0) & (xy[..., 0] <= w) & (xy[..., 1] >= 0) & (xy[..., 1] <= h)
@@ -193,23 +209,27 @@ def load_environment(image: Path, kind: str, height: int | None = None,
     ``fov`` (degrees): the fisheye field of view when given explicitly; None keeps the
     calibration file's (180 for an uncalibrated equidistant lens)."""
     if kind not in KINDS:
-        raise CliError(f"--kind: expected one of {', '.join(KINDS)}, got {kind!r}")
-    from arlight.io.images import is_hdr_path
+        raise InputError(f"expected one of {', '.join(KINDS)}, got {kind!r}", field="--kind")
+    import numpy as np
+
+    from arlight.io.images import is_hdr_path, read_linear
+    from arlight.sphere import envmap as E
+    from arlight.sphere.fisheye import FisheyeCamera, load_camera
 
     if image.is_dir():
-        raise CliError(f"{image}: is a folder, expected an image file")
+        raise InputError("is a folder, expected an image file", file=str(image))
     if kind in ("equirect", "probe") and not is_hdr_path(image):
-        raise CliError(f"{image}: an {kind} environment map must be HDR (.exr/.hdr/.pfm); "
-                       "an 8/16-bit picture holds display values clipped at white, not "
-                       "radiance")
+        raise InputError(f"an {kind} environment map must be HDR (.exr/.hdr/.pfm); an "
+                         "8/16-bit picture holds display values clipped at white, not "
+                         "radiance", file=str(image))
     _check_number(fov, "--fov", 0.0, 360.0)
     _check_number(ball_radius, "--ball-radius", 0.0, 1e6)
     pose = ball_pose(ball_look, ball_up) if kind == "ball" else None
     img = read_linear(image)
     H, W = img.shape[:2]
     if np.any(img < 0):
-        raise CliError(f"{image}: {int(np.count_nonzero(img < 0))} negative values; radiance "
-                       "must be >= 0")
+        raise InputError(f"{int(np.count_nonzero(img < 0))} negative values; radiance must "
+                         "be >= 0", file=str(image))
     warnings = []
     if not is_hdr_path(image):
         clipped = float(np.mean(img.max(axis=-1) >= 1.0 - 1e-6))
@@ -219,24 +239,26 @@ def load_environment(image: Path, kind: str, height: int | None = None,
                             "an HDR capture or an exposure bracket")
     if kind == "equirect":
         if W != 2 * H:
-            raise CliError(f"{image}: an equirect map must be 2:1, got {W}x{H}")
+            raise InputError(f"an equirect map must be 2:1, got {W}x{H}", file=str(image))
         m = img if height in (None, H) else E.resize_equirect(img, height)
         return Environment(m, 1.0, None, warnings)
     if kind == "probe":
         if W != H:
-            raise CliError(f"{image}: an angular light probe must be square, got {W}x{H}")
+            raise InputError(f"an angular light probe must be square, got {W}x{H}",
+                             file=str(image))
         return Environment(E.to_equirect(img, "angular", height=height), 1.0, None, warnings)
     if kind == "ball":
         center = _parse_vec(ball_center, "--ball-center", 2)
         if center is None or ball_radius is None or ball_radius <= 0:
-            raise CliError("--kind ball needs --ball-center cx,cy and --ball-radius (pixels)")
+            raise InputError("--kind ball needs --ball-center cx,cy and --ball-radius (pixels)",
+                             field="--ball-center")
         cx, cy = center
         tol = 1.0
         if (cx - ball_radius < -tol or cy - ball_radius < -tol
                 or cx + ball_radius > W + tol or cy + ball_radius > H + tol):
-            raise CliError(f"--ball-center/--ball-radius: the ball (centre {cx:g},{cy:g}, "
-                           f"radius {ball_radius:g} px) is not inside the {W}x{H} image "
-                           f"{image}")
+            raise InputError(f"the ball (centre {cx:g},{cy:g}, radius {ball_radius:g} px) is "
+                             f"not inside the {W}x{H} image {image}",
+                             field="--ball-center/--ball-radius")
         m = E.to_equirect(img, "ball", height=height, center=center, radius=ball_radius,
                           world_from_camera=pose)
         rot = np.diag([1.0, -1.0, -1.0]) if pose is None else pose
@@ -247,11 +269,12 @@ def load_environment(image: Path, kind: str, height: int | None = None,
     if fisheye_calib is not None:
         try:
             cam = load_camera(fisheye_calib, fov_deg=fov)
-        except ValueError as exc:
-            raise CliError(f"--fisheye-calib: {exc}") from exc
+        except InputError as exc:  # the calibration file given by --fisheye-calib
+            raise InputError(exc.message, file=exc.file or str(fisheye_calib),
+                             field=exc.field or "--fisheye-calib") from exc
         if cam.size != (W, H):
-            raise CliError(f"{image}: image is {W}x{H} but {fisheye_calib} is for "
-                           f"{cam.size[0]}x{cam.size[1]}")
+            raise InputError(f"image is {W}x{H} but {fisheye_calib} is for "
+                             f"{cam.size[0]}x{cam.size[1]}", file=str(image))
     else:
         cam = FisheyeCamera.equidistant((W, H), fov_deg=180.0 if fov is None else fov)
     m = E.to_equirect(img, "fisheye", height=height, camera=cam)
@@ -304,38 +327,33 @@ def estimate(
     ] = False,
 ) -> None:
     """Estimate a LightEstimate (main light, extra lights, SH remainder) from an image."""
-    try:
-        if layout not in LAYOUTS:
-            raise CliError(f"--layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
-        if sh_convention not in SH_CONVENTIONS:
-            raise CliError(f"--sh-convention: expected one of {', '.join(SH_CONVENTIONS)}, "
-                           f"got {sh_convention!r}")
-        if method not in METHODS:
-            raise CliError(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
-        if not 0 <= lights <= MAX_LIGHTS:
-            raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
-        if not 0 <= sh_order <= MAX_SH_ORDER:
-            raise CliError(f"--sh-order: expected 0 to {MAX_SH_ORDER}, got {sh_order}")
-        if height is not None and not 2 <= height <= MAX_SH_HEIGHT:
-            raise CliError(f"--height: expected 2 to {MAX_SH_HEIGHT} pixels, got {height}")
-        _check_number(threshold, "--threshold", 0.0, 1e30)
-        inputs = [image] + ([fisheye_calib] if fisheye_calib is not None else [])
-        _check_output(output, inputs)
-        if image.is_file():
-            check_image_bounds([image], force, height)
-        env = load_environment(image, kind, height, ball_center, ball_radius, fisheye_calib,
-                               fov, mirror_lower, ball_look, ball_up)
-        _check_output(output, inputs, overwrite=overwrite)
-        for w in env.warnings:
-            typer.echo(f"warning: {w}", err=True)
-        est = LightEstimate.from_envmap(env.map, n_lights=lights, sh_order=sh_order,
-                                        method=method, threshold=threshold,
-                                        confidence=env.confidence, sh_map=env.sh_map)
-        del env
-        _return_freed_memory()
-        est.save(output, layout=layout, protect=tuple(inputs), sh_convention=sh_convention)
-    except (CliError, ValueError) as exc:
-        _fail(str(exc))
+    import numpy as np
+
+    from arlight.light.estimate import LAYOUTS, METHODS, SH_CONVENTIONS, LightEstimate
+
+    _check_choice(layout, "--layout", LAYOUTS)
+    _check_choice(sh_convention, "--sh-convention", SH_CONVENTIONS)
+    _check_choice(method, "--method", METHODS)
+    _check_count(lights, "--lights", 0, MAX_LIGHTS)
+    _check_count(sh_order, "--sh-order", 0, MAX_SH_ORDER)
+    if height is not None:
+        _check_count(height, "--height", 2, MAX_SH_HEIGHT, " pixels")
+    _check_number(threshold, "--threshold", 0.0, 1e30)
+    inputs = [image] + ([fisheye_calib] if fisheye_calib is not None else [])
+    _check_output(output, inputs)
+    if image.is_file():
+        check_image_bounds([image], force, height)
+    env = load_environment(image, kind, height, ball_center, ball_radius, fisheye_calib,
+                           fov, mirror_lower, ball_look, ball_up)
+    _check_output(output, inputs, overwrite=overwrite)
+    for w in env.warnings:
+        typer.echo(f"warning: {w}", err=True)
+    est = LightEstimate.from_envmap(env.map, n_lights=lights, sh_order=sh_order,
+                                    method=method, threshold=threshold,
+                                    confidence=env.confidence, sh_map=env.sh_map)
+    del env
+    _return_freed_memory()
+    est.save(output, layout=layout, protect=tuple(inputs), sh_convention=sh_convention)
     share = est.explicit_fraction or 0.0
     typer.echo(f"wrote {output}: main light toward {np.round(est.main_direction, 3).tolist()}"
                f" + {len(est.lights)} more; the explicit lights hold {100 * share:.1f} % of "
@@ -343,12 +361,16 @@ def estimate(
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     scale = np.percentile(img, 99.0) or 1.0
     return np.clip(img / scale, 0, 1) ** (1 / 2.2)
 
 
 def _irradiance_sphere(est: LightEstimate, size: int = 160) -> np.ndarray:
     """A white Lambertian sphere seen from +Z (radiance E/pi), black outside."""
+    import numpy as np
+
     xs = (np.arange(size) + 0.5) / size * 2 - 1
     X, Y = np.meshgrid(xs, -xs)
     r2 = X**2 + Y**2
@@ -367,6 +389,8 @@ CIRCLE_AREA_MAX = 400.0
 def circle_areas(powers: np.ndarray) -> np.ndarray:
     """Marker areas (points^2) proportional to ``powers`` (luminance W/m^2): the most
     powerful light gets :data:`CIRCLE_AREA_MAX`, a light of half its power half the area."""
+    import numpy as np
+
     p = np.clip(np.asarray(powers, np.float64), 0.0, None)
     top = p.max(initial=0.0)
     return CIRCLE_AREA_MAX * p / top if top > 0 else np.zeros_like(p)
@@ -376,6 +400,8 @@ def sh_panel(recon: np.ndarray) -> tuple[np.ndarray, bool]:
     """What ``show`` draws for an SH reconstruction ``(H, W, 3)``: ``(tone-mapped RGB,
     False)`` when it is non-negative, else ``(signed luminance (H, W), True)`` for a
     diverging colour map centred on 0, so negative radiance is shown, not clipped."""
+    from arlight.sphere import sh as SH
+
     lum = recon @ SH.LUMINANCE
     if lum.min() < 0:
         return lum, True
@@ -389,6 +415,12 @@ def render_picture(est: LightEstimate, path: Path, title: str = "") -> Path:
     truncated SH rings below zero (negative radiance), its luminance is shown with a
     diverging colour map centred on 0 (blue < 0 < red) instead of clipping it."""
     import matplotlib
+    import numpy as np
+
+    from arlight.io.images import atomic_write
+    from arlight.light.extract import ExtractedLight
+    from arlight.sphere import envmap as E
+    from arlight.sphere import sh as SH
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -463,59 +495,44 @@ def show(
     ] = False,
 ) -> None:
     """Picture a light estimate: map with the lights, SH reconstruction, irradiance."""
-    from arlight.errors import InputError
+    from arlight.light.estimate import LightEstimate, hdr_map_path, read_json
     from arlight.output_guard import record_written, referenced_files
 
-    try:
-        if not 0 <= lights <= MAX_LIGHTS:
-            raise CliError(f"--lights: expected 0 to {MAX_LIGHTS}, got {lights}")
-        if source.is_dir():
-            raise CliError(f"{source}: is a folder, expected a light JSON or an image")
-        is_json = source.suffix.lower() == ".json"
-        # the light JSON's HDR map is an input too
-        inputs = (referenced_files(source) if is_json else [source]) + (
-            [fisheye_calib] if fisheye_calib else [])
-        _check_output(output, inputs)
-        if is_json:
-            from arlight.light.estimate import hdr_map_path, read_json
-
-            d = read_json(source)
-            if isinstance(d.get("hdr_map"), dict) and "file" in d["hdr_map"]:
-                try:
-                    check_image_bounds([hdr_map_path(d, source.parent)], force)
-                except InputError as exc:
-                    raise InputError(exc.message, file=str(source),
-                                     field=exc.field) from exc
-            est = LightEstimate.load(source)
-        else:
-            if source.is_file():
-                check_image_bounds([source], force)
-            env = load_environment(source, kind, None, ball_center, ball_radius,
-                                   fisheye_calib, fov, ball_look=ball_look, ball_up=ball_up)
-            for w in env.warnings:
-                typer.echo(f"warning: {w}", err=True)
-            _check_output(output, inputs, overwrite=overwrite)
-            est = LightEstimate.from_envmap(env.map, n_lights=lights,
-                                            confidence=env.confidence, sh_map=env.sh_map)
+    _check_count(lights, "--lights", 0, MAX_LIGHTS)
+    if source.is_dir():
+        raise InputError("is a folder, expected a light JSON or an image", file=str(source))
+    is_json = source.suffix.lower() == ".json"
+    # the light JSON's HDR map is an input too
+    inputs = (referenced_files(source) if is_json else [source]) + (
+        [fisheye_calib] if fisheye_calib else [])
+    _check_output(output, inputs)
+    if is_json:
+        d = read_json(source)
+        if isinstance(d.get("hdr_map"), dict) and "file" in d["hdr_map"]:
+            try:
+                check_image_bounds([hdr_map_path(d, source.parent)], force)
+            except InputError as exc:
+                raise InputError(exc.message, file=str(source), field=exc.field) from exc
+        est = LightEstimate.load(source)
+    else:
+        if source.is_file():
+            check_image_bounds([source], force)
+        env = load_environment(source, kind, None, ball_center, ball_radius,
+                               fisheye_calib, fov, ball_look=ball_look, ball_up=ball_up)
+        for w in env.warnings:
+            typer.echo(f"warning: {w}", err=True)
         _check_output(output, inputs, overwrite=overwrite)
-        render_picture(est, output, title=source.name)
-        record_written([output])
-    except (CliError, ValueError) as exc:
-        _fail(str(exc))
+        est = LightEstimate.from_envmap(env.map, n_lights=lights,
+                                        confidence=env.confidence, sh_map=env.sh_map)
+    _check_output(output, inputs, overwrite=overwrite)
+    render_picture(est, output, title=source.name)
+    record_written([output])
     typer.echo(f"wrote {output}")
 
 
-# Probeless estimation from RGB-D (Gruber et al. 2014, issue 16): its code lives in
-# arlight.probeless.cli; only the subcommand is registered here.
-from arlight.probeless.cli import probeless as _probeless  # noqa: E402
+if __name__ == "__main__":  # python -m arlight.light.cli ...: the same as `arlight light ...`
+    import sys
 
-app.command("probeless")(_probeless)
+    from arlight.cli import main
 
-# Near-field server update (Rohmer et al. 2015, issue 17): code in arlight.nearfield.cli.
-from arlight.nearfield.cli import atlas as _atlas  # noqa: E402
-
-app.command("atlas")(_atlas)
-
-
-if __name__ == "__main__":
-    app()
+    sys.exit(main(["light", *sys.argv[1:]]))

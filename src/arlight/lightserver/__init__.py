@@ -8,10 +8,21 @@ versioned header); clients keep the latest state and render their own frames wit
 See docs/lightserver.md.
 """
 
-from arlight.lightserver.client import ClientGroup, ClientStats, LightClient
-from arlight.lightserver.producers import ReplayProducer, SyntheticMovingLight
-from arlight.lightserver.server import LightServer, ServerStats
-from arlight.lightserver.wire import WireError, WireVersionError, decode, encode
+import importlib
+
+_EXPORTS = {"ClientGroup": "client", "ClientStats": "client", "LightClient": "client",
+            "ReplayProducer": "producers", "SyntheticMovingLight": "producers",
+            "LightServer": "server", "ServerStats": "server", "WireError": "wire",
+            "WireVersionError": "wire", "decode": "wire", "encode": "wire"}
+
+
+def __getattr__(name: str):
+    """The names below, imported on first use: ``import arlight.cli`` (which mounts the
+    ``serve-light``/``client`` commands) then does not load ZeroMQ and numpy."""
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["ClientGroup", "ClientStats", "LightClient", "LightServer", "ReplayProducer",
            "ServerStats", "SyntheticMovingLight", "WireError", "WireVersionError", "decode",

@@ -12,6 +12,16 @@ synthetic fisheye images: :mod:`arlight.nearfield.capture`; client shading:
 :class:`arlight.methods.nearfield.NearFieldClient`. See ``docs/methods/nearfield.md``.
 """
 
-from arlight.nearfield.state import NearFieldLight
+
+
+def __getattr__(name: str):
+    """:class:`NearFieldLight`, imported on first use (``import arlight.cli`` mounts
+    ``light atlas`` without loading numpy)."""
+    if name == "NearFieldLight":
+        from arlight.nearfield.state import NearFieldLight
+
+        return NearFieldLight
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["NearFieldLight"]

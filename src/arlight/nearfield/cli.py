@@ -6,7 +6,9 @@ SCENE is the proxy scene (real shapes: the reconstructed model; virtual shapes: 
 that get an SH block each). A camera of the rig that names an ``image`` is read from it
 (linear HDR, EXR / Radiance); the others are rendered (synthetic capture) in ``--world``
 (default: SCENE itself) with ``--spp`` paths per pixel. Without ``--cameras`` an automatic
-rig of fisheyes inside the proxy's bounds is used. Bad input exits with status 2.
+rig of fisheyes inside the proxy's bounds is used. Bad input raises
+:class:`~arlight.errors.InputError` naming the file or option (:func:`arlight.cli.main`: one
+line, exit status 2).
 """
 
 from __future__ import annotations
@@ -15,12 +17,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-
-
-def _fail(message: str) -> None:
-    typer.echo(f"error: {' '.join(str(message).split())}", err=True)
-    raise typer.Exit(code=2)
-
 
 # Memory of the server per atlas texel (supersampled geometry, radiance, split, dilated
 # atlases) and per rig pixel (an HDR image, its projection: rays, depths, weights).
@@ -80,7 +76,7 @@ def atlas(
 ) -> None:
     """Run one server update of the near-field pipeline and write the VALs and SH."""
     from arlight.bounds import check_estimate
-    from arlight.errors import ArlightError, InputError
+    from arlight.errors import InputError
     from arlight.io.images import read_hdr
     from arlight.methods.nearfield import OPTIONS
     from arlight.nearfield.cameras import default_rig, load_rig, seeing_cameras
@@ -91,50 +87,47 @@ def atlas(
     from arlight.output_guard import check_outputs, record_written, referenced_files
     from arlight.scene.load import load_scene
 
-    try:
-        settings = NearFieldSettings(atlas_resolution=atlas_resolution, tau=tau, vals=vals)
-        settings.check()
-        # the caps of the nearfield method that renders the light (a light beyond them
-        # could not be rendered; --vals 10^9 would silently give as many VALs as texels)
-        _check_int(vals, "--vals", 1, MAX_VALS)
-        _check_int(atlas_resolution, "--atlas", 16, OPTIONS["atlas_resolution"].max)
-        _check_int(size, "--size", 8, OPTIONS["capture_size"].max)
-        _check_int(spp, "--spp", 1, OPTIONS["capture_spp"].max)
-        inputs = [f for p in (scene, cameras, world) if p is not None
-                  for f in referenced_files(p)]
-        check_outputs({"--output": output}, inputs, overwrite=True)
-        proxy = load_scene(scene)
-        rig = load_rig(cameras) if cameras is not None else default_rig(proxy.world, size)
-        inputs += [c.image for c in rig if c.image is not None]
-        check_outputs({"--output": output}, inputs, overwrite=overwrite)
-        check_estimate(atlas_estimate(atlas_resolution, [(*c.size, c.image is None)
-                                                         for c in rig], spp),
-                       f"the atlas of {scene.name}", force,
-                       lower="--atlas, --size, --spp or the rig's image sizes",
-                       field="--atlas")
-        server = NearFieldServer(proxy.world, rig, settings)
-        if cameras is None:  # automatic rig: keep the cameras that see the proxy
-            server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
-        src = load_scene(world).world if world is not None else proxy.world
-        mi_scene = None
-        images = []
-        for k, cam in enumerate(server.cameras):
-            if cam.image is not None:
-                try:
-                    images.append(read_hdr(cam.image))
-                except InputError:
-                    raise
-                except Exception as exc:  # unreadable image: name it
-                    raise InputError(f"cannot read HDR image ({exc})", file=str(cam.image),
-                                     field=f"camera {cam.name}.image") from exc
-            else:
-                mi_scene = mi_scene or real_scene(src)
-                images.append(capture(mi_scene, cam, spp, 1000 * k))
-        light = server.update(images)
-        save_light(light, output, [s.name for s in proxy.world.virtual_shapes])
-        record_written([output])
-    except (ArlightError, ValueError) as exc:
-        _fail(str(exc))
+    settings = NearFieldSettings(atlas_resolution=atlas_resolution, tau=tau, vals=vals)
+    settings.check()
+    # the caps of the nearfield method that renders the light (a light beyond them
+    # could not be rendered; --vals 10^9 would silently give as many VALs as texels)
+    _check_int(vals, "--vals", 1, MAX_VALS)
+    _check_int(atlas_resolution, "--atlas", 16, OPTIONS["atlas_resolution"].max)
+    _check_int(size, "--size", 8, OPTIONS["capture_size"].max)
+    _check_int(spp, "--spp", 1, OPTIONS["capture_spp"].max)
+    inputs = [f for p in (scene, cameras, world) if p is not None
+              for f in referenced_files(p)]
+    check_outputs({"--output": output}, inputs, overwrite=True)
+    proxy = load_scene(scene)
+    rig = load_rig(cameras) if cameras is not None else default_rig(proxy.world, size)
+    inputs += [c.image for c in rig if c.image is not None]
+    check_outputs({"--output": output}, inputs, overwrite=overwrite)
+    check_estimate(atlas_estimate(atlas_resolution, [(*c.size, c.image is None)
+                                                     for c in rig], spp),
+                   f"the atlas of {scene.name}", force,
+                   lower="--atlas, --size, --spp or the rig's image sizes",
+                   field="--atlas")
+    server = NearFieldServer(proxy.world, rig, settings)
+    if cameras is None:  # automatic rig: keep the cameras that see the proxy
+        server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
+    src = load_scene(world).world if world is not None else proxy.world
+    mi_scene = None
+    images = []
+    for k, cam in enumerate(server.cameras):
+        if cam.image is not None:
+            try:
+                images.append(read_hdr(cam.image))
+            except InputError:
+                raise
+            except Exception as exc:  # unreadable image: name it
+                raise InputError(f"cannot read HDR image ({exc})", file=str(cam.image),
+                                 field=f"camera {cam.name}.image") from exc
+        else:
+            mi_scene = mi_scene or real_scene(src)
+            images.append(capture(mi_scene, cam, spp, 1000 * k))
+    light = server.update(images)
+    save_light(light, output, [s.name for s in proxy.world.virtual_shapes])
+    record_written([output])
     st = server.stats
     total = sum(v for k, v in st.items() if k != "cube_maps")
     typer.echo(f"wrote {output}: {light.count} VALs, SH for {light.n_objects} objects "

@@ -14,7 +14,8 @@ TSDF (:mod:`arlight.probeless.reconstruct`), runs the per-frame transfer and lig
 
 All input is checked before any work; an ill-conditioned light (a single plane, too few
 normals) is refused with exit status 2 unless ``--allow-low-confidence``. Either every output
-is written or none.
+is written or none. Bad input raises :class:`~arlight.errors.InputError` naming the file or
+option; :func:`arlight.cli.main` prints the one line and exits 2.
 """
 
 from __future__ import annotations
@@ -25,14 +26,6 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-
-from arlight.errors import ArlightError
-
-
-def _fail(message: str) -> None:
-    typer.echo(f"error: {' '.join(str(message).split())}", err=True)
-    raise typer.Exit(code=2)
-
 
 # Memory per TSDF voxel (Open3D's UniformTSDFVolume: tsdf, weight, colour as doubles, plus
 # the marching-cubes pass) and per pixel of a frame (colour float32 RGB, depth, the
@@ -92,8 +85,8 @@ def run(rgbd_dir: Path, poses: Path | None, output: Path, intrinsics: str | None
         max_frames: int | None = None, mesh: Path | None = None,
         allow_low_confidence: bool = False, overwrite: bool = False,
         force: bool = False) -> dict:
-    """The command's work; returns a summary. Raises ArlightError / ValueError on bad input
-    (before writing anything): options, the outputs (:func:`arlight.output_guard.
+    """The command's work; returns a summary. Raises :class:`~arlight.errors.InputError` on
+    bad input (before writing anything): options, the outputs (:func:`arlight.output_guard.
     check_outputs`: never a file of the RGB-D folder or the poses; never an existing file
     arlight did not write unless ``overwrite``), the memory/time estimate (unless
     ``force``), then the frames."""
@@ -220,12 +213,9 @@ def probeless(
 ) -> None:
     """Probeless light estimate from an RGB-D sequence (Gruber et al. 2014): TSDF
     reconstruction, 10 cm radiance transfer, least-squares 16-coefficient SH."""
-    try:
-        out = run(rgbd_dir, poses, output, intrinsics, depth_scale, variant, volume,
-                  resolution, albedo, depth_trunc, max_frames, mesh, allow_low_confidence,
-                  overwrite, force)
-    except (ArlightError, ValueError) as exc:
-        _fail(str(exc))
+    out = run(rgbd_dir, poses, output, intrinsics, depth_scale, variant, volume,
+              resolution, albedo, depth_trunc, max_frames, mesh, allow_low_confidence,
+              overwrite, force)
     fit = out["fit"]
     typer.echo(f"wrote {output} and {out['frames_file']}: {out['frames']} frames, dominant "
                f"light toward {[round(float(x), 3) for x in fit.direction]}, rank "
