@@ -31,7 +31,7 @@ Every other method gets a fresh seed :func:`frame_seed` ``(seed, n)`` per frame 
 estimates). Either way frame ``n`` is bitwise the one-shot render with :func:`frame_settings`
 ``(method, settings, n)``.
 
-:func:`run_cli` is what ``arlight render --progressive`` calls: a rich progress bar,
+:func:`run_cli` is what ``arlight render --progressive`` calls: a progress task,
 snapshots (EXR + PNG) at frames 1, 2, 4, 8, … and at the end, and, given a ground truth, the
 RMSE after every frame printed as it falls and written to ``error.csv`` / ``error.png``.
 """
@@ -240,17 +240,13 @@ def _refine_into(out: Path, scene: ARScene, method_name: str, settings: RenderSe
                  time_budget: float, frames: int, gt: np.ndarray | None, console
                  ) -> tuple[RefineStep, list[tuple[int, float, float]]]:
     """The refinement loop of :func:`run_cli`, writing its files into the folder ``out``."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
     from arlight.io.images import atomic_write
+    from arlight.progress import task
 
     rows: list[tuple[int, float, float]] = []
     last: RefineStep | None = None
     total = frames if frames else None
-    with Progress(TextColumn("{task.description}"), BarColumn(),
-                  TextColumn("{task.completed} frames"), TimeElapsedColumn(),
-                  TextColumn("{task.fields[err]}"), console=console, transient=True) as bar:
-        task = bar.add_task(f"{method_name} progressive", total=total, err="")
+    with task(f"{method_name} progressive (frames)", total) as bar:
         for step in refine(scene, method_name, settings, time_budget=time_budget,
                            frames=frames or None):
             last = step
@@ -260,7 +256,7 @@ def _refine_into(out: Path, scene: ARScene, method_name: str, settings: RenderSe
                 rows.append((step.frame, step.seconds, e))
                 err_text = f"RMSE {e:.5f}"
                 console.print(f"frame {step.frame:5d}  {step.seconds:7.2f} s  RMSE {e:.6f}")
-            bar.update(task, advance=1, err=err_text)
+            bar.advance(info=err_text)
             if step.frame & (step.frame - 1) == 0:
                 _snapshot(out, scene, step.image, step.frame)
     assert last is not None

@@ -108,6 +108,7 @@ from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
 from arlight.io.images import atomic_write
 from arlight.jit import MAX_LANES, ensure_variant
+from arlight.progress import task
 from arlight.scene.model import ARScene
 
 FORMAT_VERSION = 2
@@ -380,7 +381,8 @@ def _render(spec: dict[str, Any], progress: bool = False) -> dict[str, np.ndarra
     pixels = film["width"] * film["height"]
     one_set = spec["sensor"]["sampler"]["type"] != "independent"
     mask_plan = [plan["mask_spp"]] if spec["has_virtual"] else []
-    bar = _Progress(2 * len(plan["batches"]) + len(mask_plan), enabled=progress)
+    bar = task("synthetic photo (batches)", 2 * len(plan["batches"]) + len(mask_plan),
+               enabled=progress)
     loaded: dict[tuple[str, int], Any] = {}
 
     def integrator(kind: str, n: int) -> Any:
@@ -434,29 +436,6 @@ def _render(spec: dict[str, Any], progress: bool = False) -> dict[str, np.ndarra
         bar.close()
     return {"frame": frame, "frame_stderr": frame_se, "ground_truth": gt,
             "ground_truth_stderr": gt_se, "mask": np.clip(mask, 0.0, 1.0).astype(np.float32)}
-
-
-class _Progress:
-    """A rich progress bar over render batches (a no-op when disabled)."""
-
-    def __init__(self, total: int, enabled: bool):
-        self._bar = None
-        if enabled:
-            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-            self._bar = Progress(TextColumn("synthetic photo"), BarColumn(),
-                                 TextColumn("{task.completed}/{task.total} batches"),
-                                 TimeRemainingColumn(), transient=True)
-            self._bar.start()
-            self._task = self._bar.add_task("render", total=total)
-
-    def advance(self) -> None:
-        if self._bar is not None:
-            self._bar.update(self._task, advance=1)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.stop()
 
 
 __all__ = ["DEFAULT_SAMPLER", "FORMAT_VERSION", "SAMPLERS", "SyntheticPhoto", "batch_plan",

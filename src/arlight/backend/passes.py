@@ -35,6 +35,7 @@ from arlight.backend.camera_rays import generate_rays, rays_from_samples
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
 from arlight.jit import MAX_LANES
+from arlight.progress import task
 from arlight.sampling.stream import CAMERA_LENS, CAMERA_PIXEL, SAMPLERS, LaneSampler
 from arlight.scene.camera import Camera
 
@@ -213,7 +214,7 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
     cmj_seed = (seed ^ (sample_offset * 0x2C1B3C6D)) & 0xFFFFFFFF
     result = PassResult()
     start = time.perf_counter()
-    bar = _progress(progress, spp)
+    bar = task(progress or "render", spp, enabled=progress is not None)
     try:
         k0 = 0  # samples per pixel done so far
         for r0, g, j0, m in pass_plan(spp, n_rep, cap):
@@ -269,22 +270,8 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
                 mom.count += n
             result.lanes += lanes
             k0 += n
-            if bar is not None:
-                bar[0].update(bar[1], advance=n)
+            bar.advance(n)
     finally:
-        if bar is not None:
-            bar[0].stop()
+        bar.close()
     result.seconds = time.perf_counter() - start
     return result
-
-
-def _progress(label: str | None, total: int):
-    if label is None:
-        return None
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    prog = Progress(TextColumn("{task.description}"), BarColumn(),
-                    TextColumn("{task.completed}/{task.total} spp"), TimeRemainingColumn(),
-                    transient=True)
-    prog.start()
-    return prog, prog.add_task(label, total=total)

@@ -1,0 +1,74 @@
+"""The terminal's progress bars: the ``rich`` adapter of :mod:`arlight.progress`.
+
+The command line installs :class:`RichSink` for the duration of a command
+(:func:`terminal_bars`); every engine's :class:`arlight.progress.Task` then shows as one bar
+on stderr — description, bar, done/total, the task's status text, elapsed and remaining
+time — and disappears when the task closes. Nothing outside the CLI imports ``rich`` for
+progress.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Iterator
+
+from arlight import progress
+
+
+class RichSink:
+    """A :data:`arlight.progress.Sink` drawing one ``rich`` bar per open task."""
+
+    def __init__(self, console=None) -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self._bars = Progress(TextColumn("{task.description}"), BarColumn(),
+                              MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                              TimeElapsedColumn(), TimeRemainingColumn(),
+                              console=console or Console(stderr=True), transient=True)
+        self._tasks: dict[int, int] = {}
+        self._lock = threading.Lock()
+        self._started = False
+
+    def __call__(self, event: progress.Event) -> None:
+        with self._lock:
+            if not self._started:
+                self._bars.start()
+                self._started = True
+            tid = self._tasks.get(event.task)
+            if tid is None:
+                tid = self._tasks[event.task] = self._bars.add_task(
+                    event.label, total=event.total, completed=event.done, info=event.info)
+            self._bars.update(tid, completed=event.done, total=event.total, info=event.info)
+            if event.finished:
+                self._bars.remove_task(tid)
+                del self._tasks[event.task]
+
+    def stop(self) -> None:
+        """Remove the bars (at the end of the command)."""
+        with self._lock:
+            if self._started:
+                self._bars.stop()
+                self._started = False
+
+
+@contextlib.contextmanager
+def terminal_bars(console=None) -> Iterator[RichSink]:
+    """Show every task's progress on the terminal inside the block."""
+    bars = RichSink(console)
+    try:
+        with progress.sink(bars):
+            yield bars
+    finally:
+        bars.stop()
+
+
+__all__ = ["RichSink", "terminal_bars"]
