@@ -124,3 +124,30 @@ def test_box_spec():
     for bad in ("0,0,0:0,1,1", "0,0,0:1,1,1:2,0,0", "1,2:1,1,1"):
         with pytest.raises(InputError, match="--box"):
             parse_box(bad)
+
+
+def test_light_rig_file_is_read_by_the_schema_validator(tmp_path):
+    """A ``--light`` rig (``.toml``) goes through the scene schema's Validator: errors name
+    the file and the field (``sun[0].irradiance``, ``spot[0].cutoff_deg``), a spot has the
+    scene's ``spot`` fields and defaults. Rejects the former hand checks, which reported a
+    missing key as ``missing or malformed value (KeyError(...))`` without the field."""
+    from arlight.insert.lighting import light_tables
+
+    f = tmp_path / "rig.toml"
+    f.write_text("ambient = 0.2\n[[sun]]\ndirection = [0, 1, 0]\nirradiance = 2\n"
+                 "[[spot]]\nposition = [0, 2, 0]\ntarget = [0, 0, 0]\nintensity = 5\n")
+    sun, spot, amb = light_tables(str(f))
+    assert sun == {"type": "directional", "direction": [-0.0, -1.0, -0.0],
+                   "irradiance": [2.0, 2.0, 2.0]}
+    assert spot["type"] == "spot" and spot["cutoff_deg"] == 20.0 and spot["intensity"] == [5.0] * 3
+    assert amb == {"type": "constant", "radiance": [0.2] * 3}
+    for text, field in [("[[sun]]\ndirection = [0, 1, 0]\n", "sun[0].irradiance"),
+                        ("[[sun]]\ndirection = [0, 0, 0]\nirradiance = 1\n", "sun[0].direction"),
+                        ("[[spot]]\nposition = [0, 2, 0]\ntarget = [0, 0, 0]\nintensity = 1\n"
+                         "cutoff_deg = 120\n", "spot[0].cutoff_deg"),
+                        ("ambient = -1\n", "ambient"), ("sky = 1\n", "sky"),
+                        ("sun = 3\n", "sun")]:
+        f.write_text(text)
+        with pytest.raises(InputError) as exc:
+            light_tables(str(f))
+        assert exc.value.file == str(f) and exc.value.field == field, str(exc.value)

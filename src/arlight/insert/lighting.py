@@ -28,6 +28,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.scene.model import Light
+from arlight.scene.schema import LIGHT_TYPES, REQUIRED, Field, Validator
 
 HDR_SUFFIXES = (".hdr", ".exr")
 
@@ -85,36 +86,45 @@ def _parse_inline_sun(spec: str) -> list[dict[str, Any]]:
     return sun_lights(d, e, amb)
 
 
+SUN_FIELDS: dict[str, Field] = {
+    "direction": Field("vec3", REQUIRED, "direction *towards* the sun (board frame, +Y up)"),
+    "irradiance": Field("rgb", REQUIRED, "on a surface facing the sun", "W/m²", min=0.0),
+}
+RIG_FIELDS: dict[str, Field] = {
+    "sun": Field("table", [], "one `[sun]` table or a list of `[[sun]]` tables"),
+    "spot": Field("table", [], "`[[spot]]` tables, the fields of a scene's `spot` light"),
+    "ambient": Field("rgb", 0.0, "uniform sky radiance", "W/(sr·m²)", min=0.0),
+}
+"""The fields of a ``--light`` rig file (``.toml``), read by the schema ``Validator``; a spot
+has the fields of a scene's ``spot`` light (:data:`arlight.scene.schema.LIGHT_TYPES`)."""
+
+
+def _tables(v: Validator, value: Any, field: str, one_allowed: bool = False) -> list[dict]:
+    if one_allowed and isinstance(value, dict):
+        return [value]
+    if not isinstance(value, list):
+        raise v.fail(field, f"expected a list of tables, got {type(value).__name__}")
+    return [v.table(x, f"{field}[{i}]") for i, x in enumerate(value)]
+
+
 def _rig_from_toml(path: Path) -> list[dict[str, Any]]:
     src = str(path)
     try:
         d = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"cannot read the light rig ({exc})", file=src) from exc
-    if extra := sorted(set(d) - {"sun", "spot", "ambient"}):
-        raise InputError("unknown key; expected sun, spot, ambient", file=src, field=extra[0])
+    v = Validator(src, path.parent)
+    rig = v.fields(d, RIG_FIELDS, "")
     out: list[dict[str, Any]] = []
-    try:
-        suns = d.get("sun", [])
-        for i, s in enumerate([suns] if isinstance(suns, dict) else suns):
-            out += sun_lights(s["direction"], s["irradiance"], 0.0, f"sun[{i}]")
-        for i, s in enumerate(d.get("spot", [])):
-            f = f"spot[{i}]"
-            spot = {"type": "spot",
-                    "position": _vec3(s["position"], "position", f, False).tolist(),
-                    "target": _vec3(s["target"], "target", f, False).tolist(),
-                    "intensity": _rgb(s["intensity"], "intensity", f)}
-            for k in ("cutoff_deg", "beam_width_deg"):
-                if k in s:
-                    spot[k] = float(s[k])
-            out.append(spot)
-        amb = _rgb(d.get("ambient", 0.0), "ambient", "ambient")
-    except InputError as exc:
-        raise InputError(exc.message, file=src, field=exc.field) from exc
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise InputError(f"missing or malformed value ({exc!r})", file=src) from exc
-    if any(amb):
-        out.append({"type": "constant", "radiance": amb})
+    for i, s in enumerate(_tables(v, rig["sun"], "sun", one_allowed=True)):
+        sun = v.fields(s, SUN_FIELDS, f"sun[{i}]")
+        if not any(sun["direction"]):
+            raise v.fail(f"sun[{i}].direction", "must not be zero")
+        out += sun_lights(sun["direction"], sun["irradiance"], 0.0, f"sun[{i}]")
+    for i, s in enumerate(_tables(v, rig["spot"], "spot")):
+        out.append({"type": "spot", **v.fields(s, LIGHT_TYPES["spot"], f"spot[{i}]")})
+    if any(rig["ambient"]):
+        out.append({"type": "constant", "radiance": rig["ambient"]})
     if not out:
         raise InputError("the rig has no light (give [[sun]], [[spot]] or ambient)", file=src)
     return out

@@ -2,11 +2,11 @@
 
 Examples::
 
-    python -m arlight.light.cli estimate grace.hdr --kind equirect --lights 16 -o light.json
-    python -m arlight.light.cli estimate ball.exr --kind ball --ball-center 512,500 \\
+    arlight light estimate grace.hdr --kind equirect --lights 16 -o light.json
+    arlight light estimate ball.exr --kind ball --ball-center 512,500 \\
         --ball-radius 480 -o light.json
-    python -m arlight.light.cli estimate sky.png --kind fisheye --fov 185 -o light.json
-    python -m arlight.light.cli show light.json -o light.png
+    arlight light estimate sky.png --kind fisheye --fov 185 -o light.json
+    arlight light show light.json -o light.png
 
 Outputs are written to a temporary file and renamed, so a failed run leaves nothing. Bad
 input raises :class:`~arlight.errors.InputError` naming the file or the option;
@@ -529,10 +529,3 @@ def show(
     record_written([output])
     typer.echo(f"wrote {output}")
 
-
-if __name__ == "__main__":  # python -m arlight.light.cli ...: the same as `arlight light ...`
-    import sys
-
-    from arlight.cli import main
-
-    sys.exit(main(["light", *sys.argv[1:]]))

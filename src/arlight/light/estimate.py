@@ -75,6 +75,7 @@ from arlight.light.extract import (
     median_cut,
 )
 from arlight.output_guard import record_written, written_by_arlight
+from arlight.scene.schema import REQUIRED, Field, Validator
 from arlight.sphere import sh as SH
 
 LAYOUTS = ("arlight", "arcore", "arkit", "webxr")
@@ -174,7 +175,7 @@ def _vec3(v, name: str) -> np.ndarray:
     except (TypeError, ValueError):
         a = np.zeros(0)
     if a.size != 3 or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: expected 3 finite numbers, got {v!r}")
+        raise InputError(f"expected 3 finite numbers, got {v!r}", field=name)
     return a
 
 
@@ -216,8 +217,11 @@ class LightEstimate:
             raise InputError(f"magnitude beyond {MAX_VALUE:g}", field="main_irradiance")
         c = np.asarray(self.sh, dtype=np.float64)
         if c.ndim != 2 or c.shape[1] != 3:
-            raise ValueError(f"sh: expected (n, 3) coefficients, got shape {c.shape}")
-        SH.order_of(c.shape[0])
+            raise InputError(f"expected (n, 3) coefficients, got shape {c.shape}", field="sh")
+        try:
+            SH.order_of(c.shape[0])
+        except InputError as exc:
+            raise InputError(exc.message, field="sh.coefficients") from exc
         if not np.all(np.isfinite(c)):
             raise InputError(f"{int(np.count_nonzero(~np.isfinite(c)))} coefficients are "
                              "not finite (NaN/Inf)", field="sh.coefficients")
@@ -230,18 +234,18 @@ class LightEstimate:
             raise InputError(f"must be a finite number, got {self.timestamp}", field="timestamp")
         self.confidence = float(self.confidence)
         if not 0.0 <= self.confidence <= 1.0:
-            raise ValueError(f"confidence must be in [0, 1], got {self.confidence}")
+            raise InputError(f"must be in [0, 1], got {self.confidence}", field="confidence")
         self.main_solid_angle = float(self.main_solid_angle)
         self.main_spread = float(self.main_spread)
         for name in ("main_solid_angle", "main_spread"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+                raise InputError(f"must be a finite number >= 0, got {v}", field=name)
         if self.explicit_fraction is not None:
             self.explicit_fraction = float(self.explicit_fraction)
             if not 0.0 <= self.explicit_fraction <= 1.0 + 1e-9:
-                raise ValueError(f"explicit_fraction must be in [0, 1], got "
-                                 f"{self.explicit_fraction}")
+                raise InputError(f"must be in [0, 1], got {self.explicit_fraction}",
+                                 field="explicit_fraction")
         if self.hdr_map is not None:
             self.hdr_map = np.asarray(self.hdr_map, dtype=np.float32)
 
@@ -463,69 +467,88 @@ class LightEstimate:
             return "arcore"
         if "sphericalHarmonicsCoefficients" in d:
             return "arkit" if np.isscalar(d.get("primaryLightIntensity", 0.0)) else "webxr"
-        raise ValueError("not a light estimate: no known layout keys")
+        raise InputError("not a light estimate: no known layout keys")
 
     @classmethod
     def from_json(cls, d: dict, layout: str | None = None,
-                  base_dir: str | Path | None = None) -> LightEstimate:
-        """Parse a dict written by :meth:`to_json` (or by ARCore/ARKit/WebXR apps).
-        Raises ``ValueError`` naming the offending key; unknown keys are errors (as in
-        scene files), and so are values of the wrong type or NaN/Inf numbers."""
+                  base_dir: str | Path | None = None, file: str | None = None
+                  ) -> LightEstimate:
+        """Parse a dict written by :meth:`to_json` (or by ARCore/ARKit/WebXR apps) through the
+        schema :class:`~arlight.scene.schema.Validator` (the tables :data:`LAYOUT_FIELDS`).
+        Raises :class:`~arlight.errors.InputError` naming ``file`` and the field; unknown
+        keys are errors (as in scene files), and so are values of the wrong type, NaN/Inf
+        numbers and missing required fields."""
+        v = Validator(file, Path(base_dir) if base_dir is not None else Path("."))
         layout = layout or cls.detect_layout(d)
-        _check_keys(d, layout)
+        if layout not in LAYOUTS:
+            raise v.fail("layout", f"unknown layout {layout!r}; expected one of "
+                         f"{', '.join(LAYOUTS)}")
         try:
-            return cls._from_json(d, layout, base_dir)
-        except (TypeError, AttributeError, IndexError, OverflowError) as exc:
-            raise ValueError(f"{layout} light estimate: malformed value ({exc})") from exc
+            return cls._from_json(v.fields(v.table(d, ""), LAYOUT_FIELDS[layout], ""), layout,
+                                  v, base_dir)
+        except InputError as exc:
+            if exc.file is None and file is not None:  # the checks of __post_init__
+                raise InputError(exc.message, file=file, field=exc.field) from exc
+            raise
 
     @classmethod
-    def _from_json(cls, d: dict, layout: str, base_dir: str | Path | None) -> LightEstimate:
-        try:
-            if layout == "arlight":
-                ml = d["main_light"]
-                _check_arlight_values(d)
-                hdr = None
-                if "hdr_map" in d and base_dir is not None:
+    def _from_json(cls, d: dict, layout: str, v: Validator, base_dir: str | Path | None
+                   ) -> LightEstimate:
+        """``d``: the top-level fields, validated; the nested tables are validated here."""
+        if layout == "arlight":
+            ml = v.fields(v.table(d["main_light"], "main_light"), _MAIN_LIGHT, "main_light")
+            sh = v.table(d["sh"], "sh")
+            coeffs = sh.get("coefficients")
+            if isinstance(coeffs, list) and len(coeffs) > (MAX_SH_ORDER + 1) ** 2:
+                raise v.fail("sh.coefficients", f"{len(coeffs)} coefficients: more than SH "
+                             f"order {MAX_SH_ORDER} ({(MAX_SH_ORDER + 1) ** 2})")
+            sh = v.fields(sh, _SH_TABLE, "sh")
+            lights = d["lights"]
+            if not isinstance(lights, list):
+                raise v.fail("lights", "expected a list of light tables, got "
+                             f"{type(lights).__name__}")
+            if len(lights) > MAX_LIGHTS:
+                raise v.fail("lights", f"{len(lights)} lights; at most {MAX_LIGHTS}")
+            lights = [v.fields(v.table(lt, f"lights[{i}]"), _LIGHT, f"lights[{i}]")
+                      for i, lt in enumerate(lights)]
+            hdr = None
+            if d["hdr_map"] is not None:
+                fields = v.fields(v.table(d["hdr_map"], "hdr_map"), _HDR_MAP, "hdr_map")
+                if base_dir is not None:
                     from arlight.io.images import read_linear
 
-                    hdr = read_linear(hdr_map_path(d, base_dir))
-                return cls(main_direction=ml["direction_to_light"],
-                           main_irradiance=ml["irradiance"],
-                           main_solid_angle=ml.get("solid_angle", 0.0),
-                           main_spread=ml.get("spread", 0.0),
-                           explicit_fraction=d.get("explicit_energy_fraction"),
-                           sh=np.asarray(d["sh"]["coefficients"], np.float64),
-                           lights=[ExtractedLight.from_dict(x) for x in d.get("lights", [])],
-                           hdr_map=hdr, timestamp=d.get("timestamp", 0.0),
-                           confidence=d.get("confidence", 1.0))
-            if layout == "arcore":
-                c = _floats(d["environmentalHdrAmbientSphericalHarmonics"], 27).reshape(9, 3)
-                return cls(main_direction=d["environmentalHdrMainLightDirection"],
-                           main_irradiance=d["environmentalHdrMainLightIntensity"],
-                           sh=sh_from_foreign(c, condon_shortley=True),
-                           timestamp=float(d.get("timestamp", 0)) * 1e-9,
-                           confidence=d.get("confidence", 1.0))
-            if layout == "arkit":
-                c = _floats(d["sphericalHarmonicsCoefficients"], 27).reshape(3, 9).T
-                inten = float(d.get("primaryLightIntensity", 0.0))
-                return cls(main_direction=-_vec3(d["primaryLightDirection"],
-                                                 "primaryLightDirection"),
-                           main_irradiance=np.full(3, np.pi * inten / ARKIT_NEUTRAL_LUMENS),
-                           sh=sh_from_foreign(c, condon_shortley=False),
-                           timestamp=d.get("timestamp", 0.0), confidence=d.get("confidence", 1.0))
-            if layout == "webxr":
-                c = _floats(d["sphericalHarmonicsCoefficients"], 27).reshape(9, 3)
-                conv = d.get("shConvention", "threejs")
-                if conv not in SH_CONVENTIONS:
-                    raise ValueError(f"shConvention: expected one of {SH_CONVENTIONS}, got "
-                                     f"{conv!r}")
-                return cls(main_direction=_point(d["primaryLightDirection"]),
-                           main_irradiance=_point(d["primaryLightIntensity"]),
-                           sh=sh_from_foreign(c, condon_shortley=conv == "arcore"),
-                           timestamp=d.get("timestamp", 0.0), confidence=d.get("confidence", 1.0))
-        except KeyError as exc:
-            raise ValueError(f"{layout} light estimate: missing key {exc}") from exc
-        raise ValueError(f"unknown layout {layout!r}; expected one of {LAYOUTS}")
+                    try:
+                        hdr = read_linear(Path(base_dir) / fields["file"])
+                    except InputError as exc:  # the map it references: name both files
+                        raise v.fail("hdr_map.file", f"{exc.file}: {exc.message}"
+                                     if exc.file else exc.message) from exc
+            return cls(main_direction=ml["direction_to_light"],
+                       main_irradiance=ml["irradiance"], main_solid_angle=ml["solid_angle"],
+                       main_spread=ml["spread"],
+                       explicit_fraction=d["explicit_energy_fraction"],
+                       sh=np.asarray(sh["coefficients"], np.float64),
+                       lights=[ExtractedLight.from_dict(lt) for lt in lights],
+                       hdr_map=hdr, timestamp=d["timestamp"], confidence=d["confidence"])
+        if layout == "arcore":
+            key = "environmentalHdrAmbientSphericalHarmonics"
+            c = np.array(v.vector(d[key], 27, key)).reshape(9, 3)
+            return cls(main_direction=d["environmentalHdrMainLightDirection"],
+                       main_irradiance=d["environmentalHdrMainLightIntensity"],
+                       sh=sh_from_foreign(c, condon_shortley=True),
+                       timestamp=d["timestamp"] * 1e-9, confidence=d["confidence"])
+        key = "sphericalHarmonicsCoefficients"
+        if layout == "arkit":
+            c = np.array(v.vector(d[key], 27, key)).reshape(3, 9).T
+            inten = d["primaryLightIntensity"]
+            return cls(main_direction=-np.asarray(d["primaryLightDirection"]),
+                       main_irradiance=np.full(3, np.pi * inten / ARKIT_NEUTRAL_LUMENS),
+                       sh=sh_from_foreign(c, condon_shortley=False),
+                       timestamp=d["timestamp"], confidence=d["confidence"])
+        c = np.array(v.vector(d[key], 27, key)).reshape(9, 3)  # webxr
+        return cls(main_direction=_point(v, d["primaryLightDirection"], "primaryLightDirection"),
+                   main_irradiance=_point(v, d["primaryLightIntensity"], "primaryLightIntensity"),
+                   sh=sh_from_foreign(c, condon_shortley=d["shConvention"] == "arcore"),
+                   timestamp=d["timestamp"], confidence=d["confidence"])
 
     def save(self, path: str | Path, layout: str = "arlight",
              protect: tuple[str | Path, ...] = (), sh_convention: str = "threejs") -> Path:
@@ -569,18 +592,7 @@ class LightEstimate:
     def load(cls, path: str | Path, layout: str | None = None) -> LightEstimate:
         """Read a light JSON. Raises :class:`InputError` naming the file and the field."""
         path = Path(path)
-        d = read_json(path)
-        try:
-            return cls.from_json(d, layout, base_dir=path.parent)
-        except InputError as exc:
-            if exc.file is not None:  # the HDR map it references: name both files
-                raise InputError(f"{exc.file}: {exc.message}", file=str(path),
-                                 field="hdr_map.file") from exc
-            raise InputError(exc.message, file=str(path), field=exc.field) from exc
-        except ValueError as exc:  # "<key>: <message>" of the checks above
-            m = re.fullmatch(r"([\w.\[\]]+): (.*)", str(exc), re.S)
-            fld, msg = (m.group(1), m.group(2)) if m else (None, str(exc))
-            raise InputError(msg, file=str(path), field=fld) from exc
+        return cls.from_json(read_json(path), layout, base_dir=path.parent, file=str(path))
 
 
 def read_json(path: Path) -> dict:
@@ -598,74 +610,64 @@ def read_json(path: Path) -> dict:
     return d
 
 
-_KEYS = {
-    "arlight": {"format", "version", "main_light", "sh", "lights", "hdr_map", "timestamp",
-                "confidence", "explicit_energy_fraction"},
-    "arcore": {"layout", "environmentalHdrAmbientSphericalHarmonics",
-               "environmentalHdrMainLightDirection", "environmentalHdrMainLightIntensity",
-               "timestamp", "state", "confidence"},
-    "arkit": {"layout", "sphericalHarmonicsCoefficients", "primaryLightDirection",
-              "primaryLightIntensity", "timestamp", "confidence"},
-    "webxr": {"layout", "shConvention", "sphericalHarmonicsCoefficients",
-              "primaryLightDirection", "primaryLightIntensity", "timestamp", "confidence"},
+_CONFIDENCE = Field("float", 1.0, "observed fraction of the sphere", min=0.0, max=1.0)
+_SH27 = Field("table", REQUIRED, "27 floats (9 RGB coefficients, the layout's order)")
+LAYOUT_FIELDS: dict[str, dict[str, Field]] = {
+    "arlight": {
+        "format": Field("str", None, f"`{FORMAT_TAG}`"),
+        "version": Field("int", 1, "format version"),
+        "main_light": Field("table", REQUIRED, "the main light (below)"),
+        "sh": Field("table", REQUIRED, "radiance SH of the remainder (below)"),
+        "lights": Field("table", [], "further explicit lights (below)"),
+        "hdr_map": Field("table", None, "the HDR map next to the JSON (below)"),
+        "timestamp": Field("float", 0.0, "capture time", "s"),
+        "confidence": _CONFIDENCE,
+        "explicit_energy_fraction": Field("float", None, "share of the map's energy in the "
+                                          "explicit lights", min=0.0, max=1.0 + 1e-9),
+    },
+    "arcore": {
+        "layout": Field("str", None),
+        "environmentalHdrAmbientSphericalHarmonics": _SH27,
+        "environmentalHdrMainLightDirection": Field("vec3", REQUIRED, "toward the light"),
+        "environmentalHdrMainLightIntensity": Field("vec3", REQUIRED, "RGB irradiance"),
+        "timestamp": Field("float", 0.0, "capture time", "ns"),
+        "state": Field("str", None),
+        "confidence": _CONFIDENCE,
+    },
+    "arkit": {
+        "layout": Field("str", None),
+        "sphericalHarmonicsCoefficients": _SH27,
+        "primaryLightDirection": Field("vec3", REQUIRED, "the direction the light travels"),
+        "primaryLightIntensity": Field("float", 0.0, "SceneKit lumens"),
+        "timestamp": Field("float", 0.0, "capture time", "s"),
+        "confidence": _CONFIDENCE,
+    },
+    "webxr": {
+        "layout": Field("str", None),
+        "shConvention": Field("choice", "threejs", choices=SH_CONVENTIONS),
+        "sphericalHarmonicsCoefficients": _SH27,
+        "primaryLightDirection": Field("table", REQUIRED, "{x, y, z, w}, toward the light"),
+        "primaryLightIntensity": Field("table", REQUIRED, "{x, y, z, w}, RGB irradiance"),
+        "timestamp": Field("float", 0.0, "capture time", "s"),
+        "confidence": _CONFIDENCE,
+    },
 }
-_SUB_KEYS = {"main_light": {"direction_to_light", "irradiance", "solid_angle", "spread"},
-             "sh": {"order", "quantity", "basis", "coefficients"},
-             "hdr_map": {"file", "mapping"}}
+"""The top-level fields of each JSON layout (read by the schema's ``Validator``)."""
+_IRRADIANCE = Field("vec3", REQUIRED, "RGB irradiance on a surface facing the light", "W/m²",
+                    min=0.0, max=MAX_VALUE)
+_MAIN_LIGHT = {"direction_to_light": Field("vec3", REQUIRED, "toward the light"),
+               "irradiance": _IRRADIANCE,
+               "solid_angle": Field("float", 0.0, "", "sr", min=0.0),
+               "spread": Field("float", 0.0, "angular radius", "rad", min=0.0)}
+_LIGHT = {"direction": Field("vec3", REQUIRED, "toward the light"), "irradiance": _IRRADIANCE,
+          "solid_angle": Field("float", 0.0, "", "sr", min=0.0),
+          "spread": Field("float", 0.0, "angular radius", "rad", min=0.0)}
+_SH_TABLE = {"order": Field("int", None), "quantity": Field("str", None),
+             "basis": Field("str", None),
+             "coefficients": Field("rgb_list", REQUIRED, "(L+1)² RGB rows")}
+_HDR_MAP = {"file": Field("str", REQUIRED, "EXR next to the JSON"),
+            "mapping": Field("choice", "equirect", choices=("equirect",))}
 _SIDE_MAP = re.compile(r"\.[0-9a-f]{8}\.hdr\.exr")
-
-
-def _check_keys(d: dict, layout: str) -> None:
-    """Unknown keys are errors (a typo must not silently drop a field)."""
-    allowed = _KEYS.get(layout)
-    if allowed is None:
-        return
-    for key in d:
-        if key not in allowed:
-            raise ValueError(f"{key}: unknown key for the {layout} layout (expected one of "
-                             f"{', '.join(sorted(allowed))})")
-    for key, sub in _SUB_KEYS.items():
-        if layout == "arlight" and key in d:
-            if not isinstance(d[key], dict):
-                raise ValueError(f"{key}: expected a table, got {type(d[key]).__name__}")
-            for k in d[key]:
-                if k not in sub:
-                    raise ValueError(f"{key}.{k}: unknown key (expected one of "
-                                     f"{', '.join(sorted(sub))})")
-    lights = d.get("lights", []) if layout == "arlight" else []
-    if not isinstance(lights, list):
-        raise InputError(f"expected a list of light tables, got {type(lights).__name__}",
-                         field="lights")
-    if len(lights) > MAX_LIGHTS:
-        raise InputError(f"{len(lights)} lights; at most {MAX_LIGHTS}", field="lights")
-    for i, lt in enumerate(lights):
-        if not isinstance(lt, dict):
-            raise InputError("expected a table", field=f"lights[{i}]")
-        for k in lt:
-            if k not in ("direction", "irradiance", "solid_angle", "spread"):
-                raise InputError("unknown key", field=f"lights[{i}].{k}")
-    for key in ("confidence", "timestamp"):
-        if key in d and (isinstance(d[key], bool) or not isinstance(d[key], int | float)):
-            raise InputError("expected a number", field=key)
-
-
-def _check_arlight_values(d: dict) -> None:
-    """The numbers of an ``arlight`` layout light: irradiances finite, >= 0 and below
-    :data:`MAX_VALUE`, at most :data:`~arlight.bounds.MAX_SH_ORDER` SH bands."""
-    coeffs = d["sh"]["coefficients"] if isinstance(d.get("sh"), dict) else None
-    if isinstance(coeffs, list) and len(coeffs) > (MAX_SH_ORDER + 1) ** 2:
-        raise InputError(f"{len(coeffs)} coefficients: more than SH order {MAX_SH_ORDER} "
-                         f"({(MAX_SH_ORDER + 1) ** 2})", field="sh.coefficients")
-    ml = d["main_light"]
-    named = [("main_light.irradiance", ml.get("irradiance"))]
-    named += [(f"lights[{i}].irradiance", lt.get("irradiance"))
-              for i, lt in enumerate(d.get("lights", []))]
-    for fld, v in named:
-        a = _vec3(v, fld)
-        if np.any(a < 0) or np.any(a > MAX_VALUE):
-            raise InputError(f"expected 3 numbers in [0, {MAX_VALUE:g}], got {v!r}", field=fld)
-    for i, lt in enumerate(d.get("lights", [])):
-        _vec3(lt.get("direction"), f"lights[{i}].direction")
 
 
 def hdr_map_path(d: dict, base_dir: str | Path) -> Path:
@@ -702,8 +704,8 @@ def _same(a: Path, b: Path) -> bool:
 def _refuse_clash(target: Path, protected: list[Path]) -> None:
     for p in protected:
         if _same(target, p) or Path(target).resolve() == Path(p).resolve():
-            raise ValueError(f"{target}: would overwrite the input {p}; choose another "
-                             "--output")
+            raise InputError(f"would overwrite the input {p}; choose another --output",
+                             file=str(target), field="--output")
 
 
 def _referenced_map(path: Path) -> str | None:
@@ -724,17 +726,14 @@ def _side_maps(path: Path) -> list[Path]:
             and p.name.endswith(".hdr.exr") and p.is_file()]
 
 
-def _floats(v, n: int) -> np.ndarray:
-    a = np.asarray(v, dtype=np.float64).reshape(-1)
-    if a.size != n or not np.all(np.isfinite(a)):
-        raise ValueError(f"expected {n} finite numbers, got {a.size}")
-    return a
-
-
-def _point(p) -> np.ndarray:
+def _point(v: Validator, p, field: str) -> list[float]:
+    """A WebXR ``{x, y, z, w}`` point (or a list of 3 or 4 numbers) -> ``[x, y, z]``."""
     if isinstance(p, dict):
-        return _vec3([p["x"], p["y"], p["z"]], "point")
-    return _vec3(list(p)[:3], "point")
+        xyzw = {k: Field("float", REQUIRED if k != "w" else None) for k in "xyzw"}
+        q = v.fields(p, xyzw, field)
+        return [q["x"], q["y"], q["z"]]
+    n = 4 if isinstance(p, list | tuple) and len(p) == 4 else 3
+    return v.vector(p, n, field)[:3]
 
 
 __all__ = ["ARKIT_NEUTRAL_LUMENS", "LAYOUTS", "METHODS", "SH_CONVENTIONS", "LightEstimate",
