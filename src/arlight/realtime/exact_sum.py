@@ -29,26 +29,31 @@ def fixed_point_scale(max_abs: float, lanes: int) -> float:
 
 
 def scatter_sum_exact(values: Sequence[mi.Float], index: mi.UInt32, active: mi.Bool,
-                      size: int) -> list[mi.Float]:
+                      size: int, max_abs: float | None = None) -> list[mi.Float]:
     """Per value array, the float array of ``size`` whose entry ``i`` is the sum of the active
     lanes with ``index == i`` — the same bits whatever order the lanes are added in (all
-    ``values`` share one fixed-point scale)."""
+    ``values`` share one fixed-point scale).
+
+    ``max_abs``: a bound on ``|value|`` over the active lanes when the caller knows one
+    (saves a reduction per array); it sets the scale, so a loose bound costs precision.
+    """
     dr.eval(values, index, active)
     lanes = dr.width(index)
     if lanes == 0:
         return [dr.zeros(mi.Float, size) for _ in values]
-    peaks = [dr.max(dr.select(active, dr.abs(v), 0.0)) for v in values]
-    dr.eval(peaks)  # one launch, one wait
-    max_abs = max(float(p[0]) for p in peaks)
+    if max_abs is None:
+        peaks = [dr.max(dr.select(active, dr.abs(v), 0.0)) for v in values]
+        dr.eval(peaks)  # one launch, one wait
+        max_abs = max(float(p[0]) for p in peaks)
     if not math.isfinite(max_abs):
         raise ValueError("scatter_sum_exact: non-finite values")
     scale = fixed_point_scale(max_abs, lanes)
     sums = []
     for v in values:
         acc = dr.zeros(mi.Int64, size)
-        dr.scatter_reduce(dr.ReduceOp.Add, acc, mi.Int64(dr.round(mi.Float64(v) * scale)),
-                          index, active)
-        sums.append(mi.Float(mi.Float64(acc) * (1.0 / scale)))
+        # ``v * scale`` is exact (a power of two) and so is its rounding to an integer
+        dr.scatter_reduce(dr.ReduceOp.Add, acc, mi.Int64(dr.round(v * scale)), index, active)
+        sums.append(mi.Float(acc) * (1.0 / scale))  # one rounding, then exact scaling
     return sums
 
 

@@ -204,8 +204,12 @@ def inject(vol: SHVolume, position: mi.Point3f, direction: mi.Vector3f, flux: mi
     vals = [c0, scale * (-f1 * direction.x), scale * (f1 * direction.y),
             scale * (f1 * direction.z)]
     # an ordered (fixed-point) sum: float atomics made the volume depend on thread timing
+    # |each coefficient| <= max|flux| / π · max(COS_LOBE_0, COS_LOBE_1): one reduction
+    peak = dr.max(dr.select(act, dr.maximum(dr.maximum(dr.abs(flux.x), dr.abs(flux.y)),
+                                            dr.abs(flux.z)), 0.0))
+    bound = float(peak[0]) / math.pi * max(COS_LOBE_0, COS_LOBE_1)
     sums = scatter_sum_exact([ch for v in vals for ch in (v.x, v.y, v.z)], idx, act,
-                             vol.grid.n ** 3)
+                             vol.grid.n ** 3, max_abs=bound)
     for k in range(4):
         vol.coeffs[k] = vol.coeffs[k] + mi.Color3f(*sums[3 * k:3 * k + 3])
     dr.eval(vol.coeffs, act)
