@@ -209,9 +209,9 @@ def panorama_table() -> tuple[list[str], bool]:
 # rusage of a child (wait4's ru_maxrss) also counts the parent's memory at fork time.
 _PEAK_WRAPPER = """
 import runpy, sys
-out, sys.argv = sys.argv[1], ["arlight.light.cli", *sys.argv[2:]]
-try:
-    runpy.run_module("arlight.light.cli", run_name="__main__")
+out, sys.argv = sys.argv[1], ["arlight", "light", *sys.argv[2:]]
+try:  # `arlight light ...` through arlight.cli's one error path (old checkouts too)
+    runpy.run_module("arlight.cli", run_name="__main__")
 finally:
     hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
     open(out, "w").write(hwm)
@@ -219,8 +219,8 @@ finally:
 
 
 def _run_cli(src: Path | None, image: Path, out: Path) -> tuple[float, float]:
-    """``python -m arlight.light.cli estimate image`` from ``src`` (None: this checkout's
-    installed package) -> (wall seconds, peak RSS MiB of that process)."""
+    """``arlight light estimate image`` (``python -m arlight.cli``) from ``src`` (None: this
+    checkout's installed package) -> (wall seconds, peak RSS MiB of that process)."""
     env = dict(os.environ)
     if src is not None:
         env["PYTHONPATH"] = str(src)
