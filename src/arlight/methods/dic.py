@@ -242,7 +242,9 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
     with timer.stage("splat"):
         e_mixed, e_delta = buf.irradiance()
     with timer.stage("setup"):
-        walk = CameraWalk(views, SplatLookup(camera, e_mixed, e_delta), settings.max_depth)
+        # the walk samples lights through the record tracer's selection: one set of rules
+        walk = CameraWalk(views, SplatLookup(camera, e_mixed, e_delta), settings.max_depth,
+                          tracer.light_selection)
         background = frame_gather(frame)
     cam_counts: dict[str, int] = {}
 

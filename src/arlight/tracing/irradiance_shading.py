@@ -38,26 +38,23 @@ import numpy as np
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.backend.rays import np3
 from arlight.realtime.gbuffer import facing, surface_albedo
+from arlight.sampling.stream import LaneSampler
 from arlight.scene.camera import Camera
 from arlight.tracing.irradiance_cache import SplatGeometry
-from arlight.tracing.onepass import mis_weight
+from arlight.tracing.onepass import (
+    HitRules,
+    LightSelection,
+    as_sampler,
+    mis_weight,
+    rand_bsdf,
+    rand_lobe,
+    rand_nee,
+)
 
-_DIMS_PER_DEPTH = 8
-_DIM_NEE, _DIM_BSDF1, _DIM_BSDF2 = 0, 2, 3
 UNLIMITED_SPECULAR = 16
 """Longest delta-specular chain when ``max_depth = -1``."""
 WALK_COUNTERS = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
                  "rays_real_shadow", "rays_mixed_radiance_direct", "rays_real_radiance_direct")
-
-
-def _rand1(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Float:
-    """Uniform number for (lane, depth, dimension): a TEA hash, order independent, so the
-    real continuation retraces the shared prefix with the same numbers."""
-    return mi.sample_tea_float32(key, depth * _DIMS_PER_DEPTH + dim, 6)
-
-
-def _rand2(key: mi.UInt32, depth: mi.UInt32, dim: int) -> mi.Point2f:
-    return mi.Point2f(_rand1(key, depth, dim), _rand1(key, depth, dim + 1))
 
 
 class SplatLookup:
@@ -106,11 +103,22 @@ class WalkResult:
 
 
 class CameraWalk:
-    """The camera side of DIC over the mixed (ρ) and real (µ) views."""
+    """The camera side of DIC over the mixed (ρ) and real (µ) views.
 
-    def __init__(self, views: SceneViews, lookup: SplatLookup, max_depth: int):
+    Follows the one-pass tracer's rules: its :class:`~arlight.tracing.onepass.HitRules`
+    (forks, shadow rays, real continuations), a
+    :class:`~arlight.tracing.onepass.LightSelection` (``selection``; default: Mitsuba's
+    uniform selection, the records' — pass the record tracer's ``light_selection`` to share
+    the very object) and its random dimensions (``rand_nee``, ``rand_lobe``, ``rand_bsdf`` of
+    a :class:`~arlight.sampling.stream.LaneSampler`).
+    """
+
+    def __init__(self, views: SceneViews, lookup: SplatLookup, max_depth: int,
+                 selection: LightSelection | None = None):
         self.mixed, self.real = views.mixed, views.real
         self.same_views = views.mixed is views.real
+        self.rules = HitRules(views.mixed, views.real)
+        self.light_selection = selection or LightSelection(views.mixed, views.real)
         self.lookup = lookup
         self.max_depth = max_depth
         self.ctx = mi.BSDFContext()
@@ -121,7 +129,9 @@ class CameraWalk:
             return depth + extra < UNLIMITED_SPECULAR + extra
         return depth + extra < self.max_depth
 
-    def trace(self, rays: mi.Ray3f, key: mi.UInt32) -> WalkResult:
+    def trace(self, rays: mi.Ray3f, key: mi.UInt32 | LaneSampler) -> WalkResult:
+        """Walk the camera rays; ``key``: per-lane keys (independent numbers) or a sampler."""
+        key = as_sampler(key)
         n = dr.width(rays.d)
         fork_enabled = not self.same_views
         zero_u = dr.zeros(mi.UInt32, n)
@@ -140,10 +150,8 @@ class CameraWalk:
             role = self.mixed.hit_role(si)
             mask = dr.select((depth == 0) & (role == ROLE_VIRTUAL), 1.0, mask)
             if fork_enabled:
-                forks = active & ~forked & (role == ROLE_VIRTUAL)
-                fork_depth = dr.select(forks, depth, fork_depth)
-                forked = forked | forks
-                to_real = ~forked
+                forked, fork_depth, to_real = self.rules.fork(active, role, depth, forked,
+                                                              fork_depth)
             else:
                 to_real = mi.Bool(True)
             ray, beta, active, lm, lr = self._vertex(self.mixed, si, ray, beta, active, key,
@@ -162,16 +170,14 @@ class CameraWalk:
         return WalkResult(lm, lr, mask, counts)
 
     def _trace_forks(self, rays: mi.Ray3f, forked: mi.Bool, fork_depth: mi.UInt32,
-                     key: mi.UInt32, lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
+                     key: LaneSampler, lr: mi.Color3f, counts: dict[str, int]) -> mi.Color3f:
         """The real continuations of the forked lanes, retraced in µ from the camera."""
-        idx = dr.compress(forked)
+        idx, rays_b, key_b, start = self.rules.continuations(rays, forked, fork_depth, key)
         m = dr.width(idx)
         if m == 0:
             return lr
         zero_u = dr.zeros(mi.UInt32, m)
-        key_b = dr.gather(mi.UInt32, key, idx)
-        start = dr.gather(mi.UInt32, fork_depth, idx)
-        state = (dr.gather(mi.Ray3f, rays, idx), dr.full(mi.Color3f, 1.0, m),
+        state = (rays_b, dr.full(mi.Color3f, 1.0, m),
                  dr.full(mi.Bool, True, m), dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u),
                  mi.UInt32(zero_u), mi.UInt32(zero_u))
 
@@ -206,12 +212,12 @@ class CameraWalk:
         scene = view.scene
         si_b = scene.ray_intersect(ray, mi.RayFlags.All, False, active)
         ds = mi.DirectionSample3f(scene, si=si_b, ref=si)
-        em_pdf = scene.pdf_emitter_direction(si, ds, active)
+        em_pdf = self.light_selection.pdf(view, si, ds, active)
         le = throughput * mis_weight(bs.pdf, em_pdf) * si_b.emitter(scene).eval(si_b, active)
         return dr.select(active, le, 0.0), view.hit_role(si_b)
 
     def _vertex(self, view: SceneView, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
-                beta: mi.Color3f, active: mi.Bool, key: mi.UInt32, depth: mi.UInt32,
+                beta: mi.Color3f, active: mi.Bool, key: LaneSampler, depth: mi.UInt32,
                 lm: mi.Color3f | None, lr: mi.Color3f, to_real: mi.Bool, to_mixed: bool,
                 c: dict[str, mi.UInt32]):
         """Shade one walk vertex in ``view``; returns the advanced walk and the radiances."""
@@ -226,27 +232,16 @@ class CameraWalk:
         smooth = act & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         # direct light (1): one light sample, MIS against the BSDF, one-pass shadow rays
         nee = smooth & self._limit(depth, 1)
-        ds, em_w = scene.sample_emitter_direction(si, _rand2(key, depth, _DIM_NEE), False, nee)
+        ds, em_w = self.light_selection.sample(view, si, rand_nee(key, depth), nee)
         nee &= ds.pdf != 0.0
         f, pdf_b = bsdf.eval_pdf(self.ctx, si, si.to_local(ds.d), nee)
         contrib = beta * f * em_w * dr.select(ds.delta, 1.0, mis_weight(ds.pdf, pdf_b))
         nee &= dr.max(contrib) > 0
-        shadow = si.spawn_ray_to(ds.p)
+        vis_m, vis_r = self.rules.shadow(si.spawn_ray_to(ds.p), nee, to_mixed=to_mixed,
+                                         to_real=to_real, c=c)
         if to_mixed:
-            c["rays_mixed_shadow"] += dr.select(nee, 1, 0)
-            vis_m = nee & ~self.mixed.scene.ray_test(shadow, nee)
-            if self.same_views:
-                vis_r = vis_m
-            else:
-                need_r = nee & ~vis_m & to_real
-                c["rays_real_shadow"] += dr.select(need_r, 1, 0)
-                vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
             lm = lm + dr.select(vis_m, contrib, 0.0)
-        else:
-            need_r = nee & to_real
-            c["rays_real_shadow"] += dr.select(need_r, 1, 0)
-            vis_r = need_r & ~self.real.scene.ray_test(shadow, need_r)
-        lr = lr + dr.select(vis_r & to_real, contrib, 0.0)
+        lr = lr + dr.select(vis_r, contrib, 0.0)
         # indirect light: albedo/π × the splat buffer at the reprojected pixel (§4.2.5)
         gather = smooth & self._limit(depth, 2)
         alb = surface_albedo(si, gather)
@@ -259,8 +254,8 @@ class CameraWalk:
         lr = lr + dr.select(gather & to_real, ind_r, 0.0)
         # direct light (2): the BSDF sample's ray, emission MIS-weighted against the light
         #   sample (a mixed ray; a real one where it hits a virtual object on a shared walk)
-        bs, weight = bsdf.sample(self.ctx, si, _rand1(key, depth, _DIM_BSDF1),
-                                 _rand2(key, depth, _DIM_BSDF2), act)
+        bs, weight = bsdf.sample(self.ctx, si, rand_lobe(key, depth), rand_bsdf(key, depth),
+                                 act)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         lit = smooth & ~delta & self._limit(depth, 1) & (dr.max(weight) > 0)
         if not to_mixed:

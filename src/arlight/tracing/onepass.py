@@ -63,8 +63,8 @@ from arlight.scene.camera import Camera
 
 RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
              "rays_real_shadow", "rays_reprojection")
-_DIMS_PER_DEPTH = 8  # random dimensions reserved per path depth
-_DIM_NEE, _DIM_BSDF1, _DIM_BSDF2, _DIM_RR = 0, 2, 3, 5
+DIMS_PER_DEPTH = 8  # random dimensions reserved per path depth
+DIM_NEE, DIM_BSDF1, DIM_BSDF2, DIM_RR = 0, 2, 3, 5
 
 
 @dataclass
@@ -136,30 +136,153 @@ def as_sampler(key: mi.UInt32 | LaneSampler) -> LaneSampler:
     return key if isinstance(key, LaneSampler) else LaneSampler.independent(key)
 
 
-def _rand1(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Float:
+def rand1(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Float:
     """Uniform number for (lane, depth, dimension): order independent (hash or Sobol)."""
-    return key.next_1d(depth * _DIMS_PER_DEPTH + dim)
+    return key.next_1d(depth * DIMS_PER_DEPTH + dim)
 
 
-def _rand2(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Point2f:
-    return key.next_2d(depth * _DIMS_PER_DEPTH + dim)
+def rand2(key: LaneSampler, depth: mi.UInt32, dim: int) -> mi.Point2f:
+    return key.next_2d(depth * DIMS_PER_DEPTH + dim)
 
 
-def _rand_bsdf(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
+def rand_lobe(key: LaneSampler, depth: mi.UInt32) -> mi.Float:
+    """BSDF lobe choice (1D) at ``depth``."""
+    return rand1(key, depth, DIM_BSDF1)
+
+
+def rand_bsdf(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
     """BSDF direction sample at ``depth``: with joint 4D sets (``sobol``) the first half of
     the set it shares with the next vertex's light sample (otherwise the 2D set itself)."""
-    return key.next_2d_of_4d(depth * _DIMS_PER_DEPTH + _DIM_BSDF2, 0)
+    return key.next_2d_of_4d(depth * DIMS_PER_DEPTH + DIM_BSDF2, 0)
 
 
-def _rand_nee(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
+def rand_nee(key: LaneSampler, depth: mi.UInt32) -> mi.Point2f:
     """Light sample at ``depth``: with joint 4D sets the second half of the set of the
     previous vertex's BSDF direction (at depth 0: of the camera's pixel sample), so the
     light reached through a bounce is stratified over both (Burley's 4D padding)."""
     if key.joint_4d:
         prev = dr.select(depth == 0, mi.UInt32(CAMERA_PIXEL),
-                         (depth - 1) * _DIMS_PER_DEPTH + _DIM_BSDF2)
+                         (depth - 1) * DIMS_PER_DEPTH + DIM_BSDF2)
         return key.next_2d_of_4d(prev, 1)
-    return _rand2(key, depth, _DIM_NEE)
+    return rand2(key, depth, DIM_NEE)
+
+
+def rand_rr(key: LaneSampler, depth: mi.UInt32) -> mi.Float:
+    """Russian roulette at ``depth``."""
+    return rand1(key, depth, DIM_RR)
+
+
+LIGHT_SAMPLING = ("mitsuba", "solid_angle")
+
+
+class LightSelection:
+    """Next-event light selection of the mixed (ρ) and real (µ) views — the one place that
+    chooses an emitter and a point on it, and gives the matching pdf for MIS. The one-pass
+    tracer and dic's camera walk (:mod:`arlight.tracing.irradiance_shading`) both sample
+    through it.
+
+    ``mode``: ``"mitsuba"`` (the scene's ``sample_emitter_direction`` /
+    ``pdf_emitter_direction``: uniform emitter choice, rectangles by area) or
+    ``"solid_angle"`` (:class:`~arlight.sampling.lights.LightSampler`: emitters by estimated
+    power, rectangles by solid angle), with one set of selection probabilities for both
+    views (the real view's), so the two views sample their identical lights with identical
+    numbers.
+    """
+
+    def __init__(self, mixed: SceneView, real: SceneView, mode: str = "mitsuba"):
+        if mode not in LIGHT_SAMPLING:
+            raise ValueError(f"unknown light sampling {mode!r} (expected one of "
+                             f"{LIGHT_SAMPLING})")
+        self.mode = mode
+        self.lights: dict[int, LightSampler] = {}
+        if mode == "solid_angle":
+            real_ls = LightSampler(real.scene)
+            self.lights[id(real)] = real_ls
+            if mixed is not real:
+                self.lights[id(mixed)] = LightSampler(mixed.scene, pmf=real_ls.pmf_np)
+
+    def sample(self, view: SceneView, it: mi.Interaction3f, u: mi.Point2f,
+               active: mi.Bool) -> tuple[mi.DirectionSample3f, mi.Color3f]:
+        """Next-event light sample in ``view`` (no visibility test): the direction sample
+        (solid-angle pdf, selection included) and the weight ``L / pdf``."""
+        ls = self.lights.get(id(view))
+        if ls is None:
+            return view.scene.sample_emitter_direction(it, u, False, active)
+        return ls.sample(it, u, active)
+
+    def pdf(self, view: SceneView, it: mi.Interaction3f, ds: mi.DirectionSample3f,
+            active: mi.Bool) -> mi.Float:
+        """Solid-angle pdf of :meth:`sample` producing ``ds`` (for MIS)."""
+        ls = self.lights.get(id(view))
+        if ls is None:
+            return view.scene.pdf_emitter_direction(it, ds, active)
+        return ls.pdf(it, ds, active)
+
+
+class HitRules:
+    """Kán's ray types over the mixed (ρ) and real (µ) views (thesis §3.3, Fig. 3.5): which
+    solution a vertex feeds, which shadow rays it traces, where a lane forks and where its
+    real continuation starts. The one-pass tracer and dic's camera walk both follow them.
+
+    * rule 1: a vertex on a *shared* path (no virtual object touched yet) feeds both
+      solutions: one mixed shadow ray and, only where it is blocked, a real one (µ ⊂ ρ);
+    * rule 2: a shared path that hits a virtual object *forks*: the mixed path goes on
+      mixed-only, the real continuation passes through the object (traced later, in µ,
+      from the camera ray, for the forked lanes only);
+    * rule 3: a real path's vertices trace real shadow rays only;
+    * rule 4 (a real ray hitting a virtual object) cannot happen: µ holds no virtual shape.
+
+    Ray counters are per-lane ``UInt32`` in a dict keyed by :data:`RAY_TYPES` names.
+    """
+
+    def __init__(self, mixed: SceneView, real: SceneView):
+        self.mixed, self.real = mixed, real
+        self.same_views = mixed is real
+
+    def fork(self, active: mi.Bool, role: mi.Int32, depth: mi.UInt32, forked: mi.Bool,
+             fork_depth: mi.UInt32) -> tuple[mi.Bool, mi.UInt32, mi.Bool]:
+        """Rule 2 at a mixed-path hit: ``(forked, fork_depth, to_real)`` after it —
+        ``to_real``: the lanes whose vertex still feeds the real solution (shared)."""
+        forks = active & ~forked & (role == ROLE_VIRTUAL)
+        fork_depth = dr.select(forks, depth, fork_depth)
+        forked = forked | forks
+        return forked, fork_depth, ~forked
+
+    def shadow(self, ray: mi.Ray3f, active: mi.Bool, *, to_mixed: bool,
+               to_real: mi.Bool | bool, c: dict[str, mi.UInt32],
+               no_real: mi.Bool | None = None) -> tuple[mi.Bool | None, mi.Bool]:
+        """Visibility of a light sample along ``ray`` (rules 1 and 3) for the lanes
+        ``active``: ``(vis_m, vis_r)``, ``vis_m`` None on a real path (``to_mixed`` off),
+        ``vis_r`` only where the vertex feeds the real solution (``to_real``). ``no_real``:
+        lanes that need no real shadow ray (a reprojected point). Counts the rays in ``c``."""
+        if not to_mixed:  # rule 3 (none on a retraced prefix, where to_real is off)
+            need_r = active if to_real is True else active & to_real
+            c["rays_real_shadow"] += dr.select(need_r, 1, 0)
+            return None, need_r & ~self.real.scene.ray_test(ray, need_r)
+        c["rays_mixed_shadow"] += dr.select(active, 1, 0)
+        vis_m = active & ~self.mixed.scene.ray_test(ray, active)
+        if self.same_views:
+            vis_r = vis_m
+        else:  # rule 1: the real ray only where the mixed one is blocked
+            need_r = active & ~vis_m
+            if no_real is not None:
+                need_r &= ~no_real
+            if to_real is not True:
+                need_r &= to_real
+            c["rays_real_shadow"] += dr.select(need_r, 1, 0)
+            vis_r = vis_m | (need_r & ~self.real.scene.ray_test(ray, need_r))
+        return vis_m, (vis_r if to_real is True else vis_r & to_real)
+
+    @staticmethod
+    def continuations(rays: mi.Ray3f, forked: mi.Bool, fork_depth: mi.UInt32,
+                      key: LaneSampler) -> tuple[mi.UInt32, mi.Ray3f, LaneSampler, mi.UInt32]:
+        """Rule 2's real continuations, compacted: ``(idx, camera rays, samplers, start
+        depth)`` of the forked lanes. Traced in µ from the camera ray with the lane's own
+        numbers, a continuation retraces the shared prefix bit for bit (it met only real
+        surfaces) and feeds the real solution from its fork depth on (``depth >= start``)."""
+        idx = dr.compress(forked)
+        return (idx, dr.gather(mi.Ray3f, rays, idx), key.gather(idx),
+                dr.gather(mi.UInt32, fork_depth, idx))
 
 
 @dataclass
@@ -222,14 +345,8 @@ class OnePassTracer:
         self.same_views = mixed is real
         self.ctx = mi.BSDFContext()
         self.miss_only = opts.env_mode == "miss_only"
-        self.lights: dict[int, LightSampler] = {}
-        if opts.light_sampling == "solid_angle":
-            # one set of selection probabilities for both views (the real view's): the two
-            # views then sample their (identical) lights with identical numbers
-            real_ls = LightSampler(real.scene)
-            self.lights[id(real)] = real_ls
-            if not self.same_views:
-                self.lights[id(mixed)] = LightSampler(mixed.scene, pmf=real_ls.pmf_np)
+        self.rules = HitRules(mixed, real)
+        self.light_selection = LightSelection(mixed, real, opts.light_sampling)
         self.reproj = (_Reprojector(camera, frame, real)
                        if opts.reproject and camera is not None and frame is not None
                        and not self.same_views else None)
@@ -275,10 +392,8 @@ class OnePassTracer:
             mask = dr.select((depth == 0) & (role_a == ROLE_VIRTUAL), 1.0, mask)
             if fork_enabled:
                 # hit rule 2: the lane forks here; phase 2 continues its real path
-                forks = a.active & ~forked & (role_a == ROLE_VIRTUAL)
-                fork_depth = dr.select(forks, depth, fork_depth)
-                forked = forked | forks
-                to_real = ~forked
+                forked, fork_depth, to_real = self.rules.fork(a.active, role_a, depth, forked,
+                                                              fork_depth)
             else:
                 to_real = to_real_const
             lm, lr = self._vertex(view, a, si_a, role_a, key, depth, lm, lr, to_real=to_real,
@@ -315,15 +430,14 @@ class OnePassTracer:
         state in phase 1 keeps its loop as lean as a plain mixed path. ``counts`` gains the
         rays traced here.
         """
-        idx = dr.compress(forked)
+        idx, rays_b, key_b, start_depth = self.rules.continuations(rays, forked, fork_depth,
+                                                                   key)
         m = dr.width(idx)
         self.profile["forked_lanes"] += m
         if m == 0:
             return lr
         zero_u = dr.zeros(mi.UInt32, m)
-        key_b = key.gather(idx)
-        start_depth = dr.gather(mi.UInt32, fork_depth, idx)
-        state = (_Path.start(dr.gather(mi.Ray3f, rays, idx), True),
+        state = (_Path.start(rays_b, True),
                  dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u), mi.UInt32(zero_u),
                  mi.UInt32(zero_u))
 
@@ -347,22 +461,6 @@ class OnePassTracer:
         counts["rays_real_radiance"] += int(dr.sum(n_rad)[0])
         counts["rays_real_shadow"] += int(dr.sum(n_shadow)[0])
         return lr
-
-    def _sample_emitter(self, view: SceneView, it: mi.Interaction3f, u: mi.Point2f,
-                        active: mi.Bool) -> tuple[mi.DirectionSample3f, mi.Color3f]:
-        """Next-event light sample (no visibility test): Mitsuba's or ours."""
-        ls = self.lights.get(id(view))
-        if ls is None:
-            return view.scene.sample_emitter_direction(it, u, False, active)
-        return ls.sample(it, u, active)
-
-    def _pdf_emitter(self, view: SceneView, it: mi.Interaction3f, ds: mi.DirectionSample3f,
-                     active: mi.Bool) -> mi.Float:
-        """Solid-angle pdf of :meth:`_sample_emitter` producing ``ds`` (for MIS)."""
-        ls = self.lights.get(id(view))
-        if ls is None:
-            return view.scene.pdf_emitter_direction(it, ds, active)
-        return ls.pdf(it, ds, active)
 
     def _is_env(self, emitter: mi.EmitterPtr) -> mi.Bool:
         flags = emitter.flags()
@@ -418,7 +516,7 @@ class OnePassTracer:
         if self.opts.mirror_lower_hemisphere:
             si.wi = dr.select(valid, si.wi, mi.Vector3f(si.wi.x, -dr.abs(si.wi.y), si.wi.z))
         ds = mi.DirectionSample3f(scene, si=si, ref=st.prev_si)
-        em_pdf = self._pdf_emitter(view, st.prev_si, ds, active & ~st.prev_delta)
+        em_pdf = self.light_selection.pdf(view, st.prev_si, ds, active & ~st.prev_delta)
         mis = mis_weight(st.prev_pdf, em_pdf)
         if self.miss_only:
             mis = dr.select(self._is_env(ds.emitter), 1.0, mis)
@@ -435,14 +533,15 @@ class OnePassTracer:
             reproj &= depth + 1 < self.opts.max_depth
         bsdf = si.bsdf()
         active_em = (active_next | reproj) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds, em_weight = self._sample_emitter(view, si, _rand_nee(key, depth), active_em)
+        ds, em_weight = self.light_selection.sample(view, si, rand_nee(key, depth),
+                                                     active_em)
         active_em &= ds.pdf != 0.0
         if self.miss_only:
             active_em &= ~self._is_env(ds.emitter)
         wo = si.to_local(ds.d)
         # one BSDF call for the NEE evaluation and the bounce sample (as Mitsuba's ``path``)
         f_em, pdf_em, bs, weight = bsdf.eval_pdf_sample(
-            self.ctx, si, wo, _rand1(key, depth, _DIM_BSDF1), _rand_bsdf(key, depth),
+            self.ctx, si, wo, rand_lobe(key, depth), rand_bsdf(key, depth),
             active_next | reproj)
         # a reprojected path ends here: its NEE is the only strategy (weight 1)
         mis_em = dr.select(ds.delta | reproj, 1.0, mis_weight(ds.pdf, pdf_em))
@@ -455,27 +554,17 @@ class OnePassTracer:
             lm = add(lm, contrib, vis & ~reproj)
             if self.reproj is not None and to_mixed:
                 lm = self._reprojected_shadow(lm, contrib, shadow, reproj & active_em & ~vis, c)
-        elif to_mixed:  # slot A: mixed shadow ray; real one only where needed
-            c["rays_mixed_shadow"] += dr.select(active_em, 1, 0)
-            vis_m = active_em & ~self.mixed.scene.ray_test(shadow, active_em)
-            if self.same_views:
-                vis_r = vis_m
+        else:  # hit rules 1 (mixed shadow ray, real one only where needed) and 3
+            vis_m, vis_r = self.rules.shadow(shadow, active_em, to_mixed=to_mixed,
+                                             to_real=to_real, c=c, no_real=reproj)
+            if to_mixed:
+                lm = add(lm, contrib, vis_m & ~reproj)
+                lr = add(lr, contrib, vis_r & ~reproj)
+                if self.reproj is not None:
+                    lm = self._reprojected_shadow(lm, contrib, shadow,
+                                                  reproj & active_em & ~vis_m, c)
             else:
-                need_r = active_em & ~vis_m & ~reproj
-                if to_real is not True:
-                    need_r &= to_real
-                c["rays_real_shadow"] += dr.select(need_r, 1, 0)
-                vis_r = vis_m | (need_r & ~self.real.scene.ray_test(shadow, need_r))
-            lm = add(lm, contrib, vis_m & ~reproj)
-            lr = add(lr, contrib, (vis_r if to_real is True else vis_r & to_real) & ~reproj)
-            if self.reproj is not None:
-                lm = self._reprojected_shadow(lm, contrib, shadow, reproj & active_em & ~vis_m, c)
-        else:  # slot B: real shadow ray (none on a retraced prefix, where to_real is off)
-            if to_real is not True:
-                active_em &= to_real
-            c["rays_real_shadow"] += dr.select(active_em, 1, 0)
-            vis_r = active_em & ~self.real.scene.ray_test(shadow, active_em)
-            lr = add(lr, contrib, vis_r)
+                lr = add(lr, contrib, vis_r)
 
         # -- BSDF sampling, path update, Russian roulette
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
@@ -492,6 +581,6 @@ class OnePassTracer:
         rr = active_next & (depth >= self.opts.rr_depth)
         q = dr.minimum(beta_max * dr.square(st.eta), 0.95)
         st.beta = dr.select(rr, st.beta / q, st.beta)
-        active_next &= ~rr | (_rand1(key, depth, _DIM_RR) < q)
+        active_next &= ~rr | (rand_rr(key, depth) < q)
         st.active = active_next
         return lm, lr
