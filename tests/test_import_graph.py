@@ -185,13 +185,7 @@ def _graph() -> dict[str, set[str]]:
     return scan(SRC)
 
 
-KNOWN: dict[str, str] = {
-    "plug-in imports a plug-in: arlight.methods.nearfield imports arlight.methods.prt":
-        "issue 29, left: PRT's virtual-object shading (prt.shade_virtual) still to move to "
-        "realtime/",
-    "plug-in imports a plug-in: arlight.methods.prt imports arlight.methods.ibl":
-        "issue 29, left: ibl.render_layers / specular_tables still to move to realtime/",
-}
+KNOWN: dict[str, str] = {}
 """Violations that are known and scheduled (prefix -> why); each must still occur, so the
 entry goes when the import does."""
 

@@ -16,9 +16,14 @@ Per frame:
      (Eqs. 4.11–4.23, ``samples`` = 40), for ``phong`` (``α = √(2/(n+2))``),
      ``roughconductor`` and ``mirror`` materials; point, spot and area lights give diffuse
      light only;
-3. **real pixels**: ``B · f`` with the multiplicative shadow factor of
-   :func:`arlight.realtime.oof.shadow_factor` — shadow rays for the reduced lights, the AR
-   object occlusion field for the ambient part; ``delta = B (f − 1) ≤ 0``.
+3. **real pixels** (:func:`arlight.realtime.oof.shade_real`): ``B · f`` with the
+   multiplicative shadow factor of :func:`arlight.realtime.oof.shadow_factor` — shadow rays
+   for the reduced lights, the AR object occlusion field for the ambient part;
+   ``delta = B (f − 1) ≤ 0``.
+
+The frame (G-buffer, both shadings, assembly) is :func:`arlight.realtime.oof.render_layers`,
+shared with ``prt``; the GGX tables per shape are
+:func:`arlight.realtime.ibl_shading.specular_tables`.
 
 Layers: ``mixed`` is the shaded virtual object on virtual pixels and ``B + delta``
 elsewhere; ``delta`` the darkening; ``mask`` the G-buffer coverage. Without virtual objects
@@ -41,19 +46,20 @@ from arlight.backend.rays import np3
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
+from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
     MipEnvironment,
     ambient_occlusion,
     environment_map,
     specular_fis,
+    specular_tables,
 )
 from arlight.realtime.light_reduction import LightSet, reduce_lights
 from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
     field_from_options,
-    shadow_factor,
+    render_layers,
     virtual_scene,
 )
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, virtual_bounds
@@ -78,9 +84,6 @@ OPTIONS: dict[str, Field] = {
 }
 
 MATERIALS = frozenset({"diffuse", "phong", "roughconductor", "mirror"})
-MIRROR_ALPHA = 1e-3
-"""GGX roughness standing in for a perfect mirror."""
-
 SPEC = MethodSpec(
     name="ibl",
     description="Dynamic pipeline (Franke §4.2): SH irradiance, GGX filtered importance "
@@ -88,24 +91,6 @@ SPEC = MethodSpec(
     options=OPTIONS,
     capabilities=Capabilities(interactive=True, materials=MATERIALS),
 )
-
-
-def specular_tables(world: World) -> tuple[mi.Float, mi.Color3f, bool]:
-    """Per world shape: GGX ``α`` and specular reflectance ``k_s`` (Dr.Jit tables indexed
-    by the G-buffer's shape index), and whether any virtual shape is glossy."""
-    alpha = np.ones(max(len(world.shapes), 1), np.float32)
-    ks = np.zeros((max(len(world.shapes), 1), 3), np.float32)
-    for i, s in enumerate(world.shapes):
-        p = s.material.params
-        if s.material.type == "phong":
-            alpha[i] = math.sqrt(2.0 / (float(p["exponent"]) + 2.0))
-            ks[i] = p["ks"]
-        elif s.material.type == "roughconductor":
-            alpha[i], ks[i] = float(p["alpha"]), p["reflectance"]
-        elif s.material.type == "mirror":
-            alpha[i], ks[i] = MIRROR_ALPHA, p["reflectance"]
-    glossy = any(np.any(ks[i]) for i, s in enumerate(world.shapes) if s.is_virtual)
-    return mi.Float(alpha), mi.Color3f(ks[:, 0], ks[:, 1], ks[:, 2]), glossy
 
 
 def ambient_sh(world: World, lights: LightSet, order: int, env: np.ndarray | None
@@ -197,43 +182,6 @@ def shade_virtual(data: IBLData, gb: GBuffer, view: FrameView, options: Options,
     return out, idx
 
 
-def shade_real(data, gb: GBuffer, frame: np.ndarray) -> mi.Color3f:
-    """Delta ``B (f − 1)`` on the real lanes (zero elsewhere), ``f`` from
-    :func:`arlight.realtime.oof.shadow_factor`."""
-    real = gb.valid & ~gb.virtual
-    f = shadow_factor(data.views.mixed, data.views.real, data.occluder, data.lights,
-                      data.field, gb.position, gb.normal, real)
-    b = dr.gather(mi.Color3f, mi.Float(np.asarray(frame, np.float32).reshape(-1)), gb.pixel)
-    delta = dr.select(real, b * (f - 1.0), mi.Color3f(0.0))
-    dr.eval(delta)
-    return delta
-
-
-def render_layers(data, view: FrameView, options: Options, settings: RenderSettings,
-                  timer: StageTimer, shade) -> Layers:
-    """G-buffer, ``shade(data, gb, view, options, seed) -> (radiance, lanes)`` on the virtual
-    lanes, the AR-OOF darkening on the real ones, assembly (shared by ``ibl`` and ``prt``;
-    ``data`` needs ``views``, ``lights``, ``occluder``, ``field`` and ``world``)."""
-    with timer.stage("gbuffer"):
-        gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp, settings.seed)
-    with timer.stage("shade_virtual"):
-        rad, lanes = shade(data, gb, view, options, settings.seed)
-    with timer.stage("shade_real"):
-        width = dr.width(gb.position)
-        delta = (shade_real(data, gb, view.frame) if data.occluder is not None
-                 else dr.zeros(mi.Color3f, width))
-    with timer.stage("assemble"):
-        mixed = dr.zeros(mi.Color3f, width)
-        if dr.width(lanes):
-            dr.scatter(mixed, rad, lanes)
-        stats = {"lights": float(len(data.lights.lights)),
-                 "virtual_lanes": float(dr.width(lanes))}
-        layers = assemble(gb, view.frame, mixed, delta, stats)
-    if not data.world.has_virtual:
-        assert not np.any(layers.delta), "delta must vanish without virtual objects"
-    return layers
-
-
 class IBLMethod(BaseMethod):
     """Dynamic IBL pipeline with AR object occlusion fields (Franke §4.2, §5.2)."""
 
@@ -245,9 +193,8 @@ class IBLMethod(BaseMethod):
 
     def render_view(self, data: IBLData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
-        return render_layers(data, view, options, settings, timer, shade_virtual)
+        return render_layers(data, view, options, settings.seed, timer, shade_virtual)
 
 
 __all__ = ["IBLData", "IBLMethod", "OPTIONS", "SPEC", "ambient_irradiance", "ambient_sh",
-           "prepare", "render_layers",
-           "shade_real", "shade_virtual", "specular_tables"]
+           "prepare", "shade_virtual"]

@@ -3,16 +3,17 @@ area lights (VALs) plus 9 SH coefficients per virtual object, rendered with per-
 two visibilities per VAL and the differential composite of Eq. 14.
 
 * **prepare** (once per world): the G-buffer scenes, the proxy and virtual-object occluder
-  scenes, the per-vertex PRT transfer of every virtual mesh (``arlight.methods.prt``'s,
-  cached on disk), the material table and the light state: read from ``light`` (a
-  ``NearFieldLight`` JSON, ``arlight light atlas -o vals.json``) or, without it, made by the
-  server pipeline (:class:`~arlight.nearfield.pipeline.NearFieldServer`) from a synthetic
-  capture of the world's real part by the rig in ``cameras`` (default: an automatic rig of
-  six fisheyes, :func:`~arlight.nearfield.cameras.auto_rig`).
+  scenes, the per-vertex PRT transfer of every virtual mesh (``prt``'s,
+  :func:`arlight.realtime.prt_shading.prt_meshes`, cached on disk), the material table and
+  the light state: read from ``light`` (a ``NearFieldLight`` JSON, ``arlight light atlas -o
+  vals.json``) or, without it, made by the server pipeline
+  (:class:`~arlight.nearfield.pipeline.NearFieldServer`) from a synthetic capture of the
+  world's real part by the rig in ``cameras`` (default: an automatic rig of six fisheyes,
+  :func:`~arlight.nearfield.cameras.auto_rig`).
 * **render** (per frame, :mod:`arlight.nearfield.client`): G-buffer; PRT indirect light on
-  virtual samples (Eq. 8); shadow maps (two per VAL); direct light of the VALs with both
-  visibilities; Eq. 14. Stages ``gbuffer``, ``indirect``, ``shadow_maps``, ``cull`` (8×8
-  tiles), ``direct``, ``assemble``.
+  virtual samples (Eq. 8, :func:`arlight.realtime.prt_shading.shade_virtual`); shadow maps
+  (two per VAL); direct light of the VALs with both visibilities; Eq. 14. Stages
+  ``gbuffer``, ``indirect``, ``shadow_maps``, ``cull`` (8×8 tiles), ``direct``, ``assemble``.
 
 A client with its own light state (e.g. from the light server) renders with
 :func:`render_with_light` (or :class:`~arlight.nearfield.NearFieldClient`). See
@@ -133,10 +134,11 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
     """Everything but the frame (module docstring); ``light`` overrides the options
     (``server``: the server that made it, kept for ``pose``)."""
     from arlight.backend.mitsuba_scene import build_views
-    from arlight.methods import prt
+    from arlight.cache import default_cache_dir
     from arlight.nearfield.atlas import proxy_mesh
     from arlight.nearfield.raytrace import mesh_scene
     from arlight.realtime.oof import virtual_scene
+    from arlight.realtime.prt_shading import prt_meshes
 
     views = build_views(world)
     mesh = proxy_mesh(world)
@@ -149,9 +151,8 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
     pdata = None
     sphere = None
     if occluder is not None:
-        popts = prt.SPEC.parse_options({"order": 2, "directions": options.directions,
-                                        "oof": False, "glossy": False, "bounces": 0})
-        d = prt.prepare(world, popts)
+        d = prt_meshes(world, views, default_cache_dir(), order=2,
+                       directions=options.directions, bounces=0, shadowed=True)
         pdata = PerObjectSH(views=views, objects=d.objects, face_offset=d.face_offset,
                             faces=d.faces, sog=None, env=None, sh=np.zeros((len(names), 9, 3)))
         b = occluder.bbox()
@@ -189,7 +190,7 @@ def render_with_light(data: NearFieldData, view: FrameView, options: Options,
     mixed = dr.zeros(mi.Color3f, width)
     with timer.stage("indirect"):
         if options.indirect and data.prt is not None and light.n_objects:
-            from arlight.methods.prt import shade_virtual
+            from arlight.realtime.prt_shading import shade_virtual
 
             pd = PerObjectSH(**{**vars(data.prt), "sh": light.sh})
             rad, lanes = shade_virtual(pd, gb, view, SimpleNamespace(order=2, glossy=False),

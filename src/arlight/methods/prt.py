@@ -22,7 +22,11 @@
   unshadowed SH irradiance ``u = E(n)/π`` of the same light at its normal. The glossy term
   reflects the distant (environment) light only, as in ``ibl``.
 
-Moving the object
+The transfer and face tables of the meshes (:func:`arlight.realtime.prt_shading.prt_meshes`)
+and the per-frame shading of the virtual pixels
+(:func:`arlight.realtime.prt_shading.shade_virtual`) are shared with ``nearfield``; the frame
+(G-buffer, shading, AR-OOF relighting, assembly) with ``ibl``
+(:func:`arlight.realtime.oof.render_layers`). Moving the object
 (``view.object_transforms``) re-uses the cached transfer: only the light rotation changes.
 Stats: ``time_gbuffer``, ``time_shade_virtual`` (the per-frame PRT shading),
 ``time_shade_real``, ``time_assemble``; ``prt_vertices``, ``prt_seconds_per_vertex`` (the
@@ -35,39 +39,38 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import SceneViews, build_views
-from arlight.backend.rays import np3
-from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
-from arlight.methods.ibl import render_layers, specular_tables
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.realtime.gbuffer import GBuffer
-from arlight.realtime.ibl_shading import MipEnvironment, environment_map, rot_y
+from arlight.realtime.ibl_shading import (
+    MipEnvironment,
+    environment_map,
+    rot_y,
+    specular_tables,
+)
 from arlight.realtime.light_reduction import LightSet, reduce_lights
-from arlight.realtime.oof import OOF_OPTIONS, OcclusionField, field_from_options, virtual_scene
-from arlight.realtime.prt_transfer import (
-    PRTTransfer,
-    cached_transfer,
-    progress_bar,
-    rotation_part,
-    vertex_values,
+from arlight.realtime.oof import (
+    OOF_OPTIONS,
+    OcclusionField,
+    field_from_options,
+    render_layers,
+    virtual_scene,
 )
-from arlight.realtime.shading import ambient_irradiance_dr, emitted_intensity
+from arlight.realtime.prt_shading import (  # noqa: F401 - object_mesh: benchmarks/bench_shading
+    PRTObject,
+    object_mesh,
+    prt_meshes,
+    shade_virtual,
+)
+from arlight.realtime.prt_transfer import vertex_values
+from arlight.realtime.shading import emitted_intensity
 from arlight.realtime.sog import SoGTables
-from arlight.scene.model import FrameView, MeshData, Shape, World
-from arlight.sphere.sh import (
-    directional_light_coeffs,
-    irradiance,
-    n_coeffs,
-    project_equirect,
-    rotate,
-)
+from arlight.scene.model import FrameView, World
+from arlight.sphere.sh import directional_light_coeffs, n_coeffs, project_equirect, rotate
 from arlight.timing import StageTimer
 
 OPTIONS: dict[str, Field] = {
@@ -128,17 +131,6 @@ def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1) -
 
 
 @dataclass
-class PRTObject:
-    """One virtual mesh: its world shape index, transfer, world rotation and the face table
-    as the Mitsuba mesh holds it."""
-
-    shape: int
-    transfer: PRTTransfer
-    rotation: np.ndarray
-    faces: np.ndarray
-
-
-@dataclass
 class PRTData:
     """What ``prepare_world`` keeps (see the module docstring)."""
 
@@ -160,33 +152,6 @@ class PRTData:
         return [vertex_values(o.transfer, self.light, o.rotation, order) for o in self.objects]
 
 
-def object_mesh(shape: Shape, loaded: mi.Shape | None) -> tuple[MeshData, np.ndarray]:
-    """The object-space mesh of a virtual shape and the faces ``(F, 3)`` of the Mitsuba mesh
-    it was loaded as (the hits' ``prim_index`` and barycentrics refer to those). Mesh files
-    keep their object-space data; ``box`` and ``rectangle`` primitives (Mitsuba meshes) are
-    read back from the loaded mesh and taken into object space by ``to_world⁻¹``; analytic
-    spheres and disks have no vertices: InputError."""
-    if not isinstance(loaded, mi.Mesh):
-        raise InputError(f"prt needs triangle meshes; virtual shape {shape.name!r} is an "
-                         f"analytic {shape.type} (use a mesh file, or the ibl method)",
-                         field=f"shapes.{shape.name}")
-    params = mi.traverse(loaded)
-    faces = np.asarray(params["faces"], np.int64).reshape(-1, 3)
-    if shape.mesh is not None:
-        return shape.mesh, faces
-    m = np.asarray(shape.to_world, np.float64)
-    inv = np.linalg.inv(m)
-    v = np.asarray(params["vertex_positions"], np.float64).reshape(-1, 3)
-    v = v @ inv[:3, :3].T + inv[:3, 3]
-    n = np.asarray(params["vertex_normals"], np.float64).reshape(-1, 3)
-    normals = None
-    if len(n) == len(v):
-        n = n @ m[:3, :3]  # normals transform with the inverse transpose of to_world⁻¹
-        normals = (n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
-    return MeshData(v.astype(np.float32), faces.astype(np.uint32), None,
-                    None if normals is None else normals.astype(np.float32)), faces
-
-
 def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PRTData:
     """Transfer (cached), light SH, reduced lights and occlusion field of ``world``; with
     ``glossy`` the mip-mapped environment and the SoG tables (:func:`glossy_tables`)."""
@@ -194,34 +159,11 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
 
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
-    objects = []
     cache = (cache_dir or default_cache_dir()) if options.cache else None
-    loaded = {sh.id(): sh for sh in views.mixed.scene.shapes()}
-    for i, s in enumerate(world.shapes):
-        if not s.is_virtual:
-            continue
-        mesh, faces = object_mesh(s, loaded.get(str(i)))
-        try:
-            rot = rotation_part(s.to_world)
-            tr = cached_transfer(mesh, cache, options.order, options.directions,
-                                 options.bounces, s.material.params.get(
-                                     "albedo", s.material.params.get("kd", [0.5] * 3)),
-                                 s.name, progress_bar(f"prt {s.name}"),
-                                 shadowed=options.shadowed)
-        except ValueError as exc:
-            raise InputError(str(exc), field=f"shapes.{s.name}") from exc
-        objects.append(PRTObject(i, tr, rot, faces))
+    meshes = prt_meshes(world, views, cache, options.order, options.directions,
+                        options.bounces, options.shadowed)
     occluder = virtual_scene(world)
     field = field_from_options(world, options) if occluder is not None else None
-    offs = np.zeros(max(len(world.shapes), 1), np.uint32)
-    base_v, base_f, all_f = 0, 0, []
-    for o in objects:
-        offs[o.shape] = base_f
-        all_f.append(o.faces + base_v)
-        base_v += o.transfer.vertices
-        base_f += len(o.faces)
-    faces = np.concatenate(all_f).astype(np.uint32).reshape(-1) if all_f else np.zeros(3,
-                                                                                        np.uint32)
     centre = np.zeros(3)
     if occluder is not None:
         b = occluder.bbox()
@@ -230,13 +172,15 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
     env, sog, ks = glossy_tables(world) if options.glossy else (None, None, None)
     return PRTData(world, views, lights, light_sh(world, options.order, centre,
                                                   options.area_grid),
-                   objects, occluder, field, mi.UInt32(offs), mi.UInt32(faces), env, sog, ks)
+                   meshes.objects, occluder, field, meshes.face_offset, meshes.faces, env, sog,
+                   ks)
 
 
 def glossy_tables(world: World) -> tuple[MipEnvironment | None, SoGTables | None,
                                          mi.Color3f | None]:
     """The mip-mapped environment (as ``ibl`` builds it), the per-shape SoG tables and the
-    specular reflectance ``F0`` per shape (``ibl.specular_tables``: phong ``α = √(2/(n+2))``,
+    specular reflectance ``F0`` per shape
+    (:func:`arlight.realtime.ibl_shading.specular_tables`: phong ``α = √(2/(n+2))``,
     ``ks``; roughconductor ``alpha``, ``reflectance``); all None without a distant light or
     a glossy virtual shape."""
     env_img = environment_map(world)
@@ -247,63 +191,6 @@ def glossy_tables(world: World) -> tuple[MipEnvironment | None, SoGTables | None
     alphas = [float(a[i]) if s.is_virtual and np.any(k[i]) else None
               for i, s in enumerate(world.shapes)]
     return MipEnvironment.build(env_img), SoGTables.build(alphas), ks
-
-
-def unshadowed(light: np.ndarray, n: mi.Vector3f, order: int) -> mi.Color3f:
-    """``E(n)/π``: the unshadowed diffuse transfer of radiance SH ``light`` (truncated to
-    ``order``) at unit world normals ``n`` (W/(sr·m²) per unit albedo)."""
-    if order <= 2:
-        sh9 = np.zeros((9, 3))
-        sh9[:min(9, len(light))] = light[:9]
-        return ambient_irradiance_dr(LightSet([], sh9), n) * (1.0 / math.pi)
-    e = irradiance(light, np3(n),
-                   max_order=order) / math.pi
-    return mi.Color3f(*[mi.Float(e[:, c].astype(np.float32)) for c in range(3)])
-
-
-def self_shadowing(shadowed: mi.Color3f, free: mi.Color3f) -> mi.Float:
-    """Low-frequency self-shadowing factor of the glossy term: the ratio of the shadowed
-    (PRT) to the unshadowed diffuse transfer at the pixel, summed over RGB, clamped to
-    [0, 1] (1 where the unshadowed value vanishes)."""
-    num = shadowed.x + shadowed.y + shadowed.z
-    den = free.x + free.y + free.z
-    return dr.select(den > 1e-8, dr.clip(num / dr.maximum(den, 1e-8), 0.0, 1.0), 1.0)
-
-
-def shade_virtual(data: PRTData, gb: GBuffer, view: FrameView, options: Options,
-                  seed: int = 0) -> tuple[mi.Color3f, mi.UInt32]:
-    """Radiance (W/(sr·m²)) of the virtual lanes: vertex values (light rotated into each
-    object's frame) interpolated with the barycentrics of the lanes' primary hits, times the
-    albedo; plus, with ``glossy``, the SoG specular term times the self-shadowing factor
-    (module docstring)."""
-    idx = dr.compress(gb.virtual)
-    if dr.width(idx) == 0 or not data.objects:
-        return dr.zeros(mi.Color3f, 0), dr.zeros(mi.UInt32, 0)
-    vals = np.concatenate(data.vertex_values(options.order)).astype(np.float32)
-    table = mi.Float(vals.reshape(-1))
-    k = idx % gb.spp
-    ray = mi.Ray3f(generate_rays(view.camera, dr.gather(mi.UInt32, gb.pixel, idx), k,
-                                 gb.spp, mi.UInt32(seed)))
-    pi = data.views.mixed.scene.ray_intersect_preliminary(ray)
-    reg = dr.reinterpret_array(mi.UInt32, pi.shape)
-    shape = dr.gather(mi.Int32, data.views.mixed.shape_index, reg)
-    tri = dr.gather(mi.UInt32, data.face_offset, mi.UInt32(shape)) + pi.prim_index
-    b1, b2 = pi.prim_uv.x, pi.prim_uv.y
-    out = mi.Color3f(0.0)
-    for c, w in enumerate((1.0 - b1 - b2, b1, b2)):
-        vid = dr.gather(mi.UInt32, data.faces, tri * 3 + c)
-        out += w * dr.gather(mi.Color3f, table, vid)
-    rad = dr.maximum(out, 0.0) * dr.gather(mi.Color3f, gb.albedo, idx)
-    if data.sog is not None and data.env is not None and options.glossy:
-        n = dr.gather(mi.Vector3f, gb.normal, idx)
-        shape_idx = dr.gather(mi.Int32, gb.shape, idx)
-        vis = self_shadowing(out, unshadowed(data.light, n, options.order))
-        spec = data.sog.radiance(data.env, shape_idx, n, dr.gather(mi.Vector3f, gb.to_camera,
-                                                                   idx))
-        rad += spec * dr.gather(mi.Color3f, data.ks, shape_idx) * vis
-    out = rad
-    dr.eval(out)
-    return out, idx
 
 
 class PRTMethod(BaseMethod):
@@ -317,7 +204,7 @@ class PRTMethod(BaseMethod):
 
     def render_view(self, data: PRTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
-        layers = render_layers(data, view, options, settings, timer, shade_virtual)
+        layers = render_layers(data, view, options, settings.seed, timer, shade_virtual)
         n_v = sum(o.transfer.vertices for o in data.objects)
         secs = sum(o.transfer.seconds for o in data.objects)
         layers.stats["prt_vertices"] = float(n_v)
@@ -325,5 +212,4 @@ class PRTMethod(BaseMethod):
         return layers
 
 
-__all__ = ["OPTIONS", "PRTData", "PRTMethod", "PRTObject", "SPEC", "glossy_tables", "light_sh",
-           "object_mesh", "prepare", "self_shadowing", "shade_virtual", "unshadowed"]
+__all__ = ["OPTIONS", "PRTData", "PRTMethod", "SPEC", "glossy_tables", "light_sh", "prepare"]

@@ -17,6 +17,11 @@
   place of ``1/(wh)``; the estimator of ``∫ f_s L <n,l> dω`` for the microfacet BRDF
   ``f_s = F D G / (4 <n,l> <n,v>)`` is ``(1/N) Σ L(l) F G <v,h> / (<n,h> <n,v>)`` with
   Smith's separable GGX ``G = G1(v) G1(l)`` and ``F`` the specular reflectance.
+* :func:`specular_tables` — per world shape the GGX ``α`` and specular reflectance of its
+  material (``phong``: ``α = √(2/(n+2))``; ``roughconductor``; ``mirror`` as
+  :data:`MIRROR_ALPHA`), the tables :func:`specular_fis` and the SoG lobes look up.
+* :func:`ggx_d`, :func:`smith_g1` — the GGX normal distribution and Smith masking (the one
+  copy; ``dvct``'s direct GGX specular uses them too).
 * :func:`ambient_occlusion` — ray-traced ambient occlusion of the virtual object (thesis
   Eq. 2.29, ``A = (1/π) ∫ V <n,ω>+ dω``, cosine-weighted rays against the virtual shapes;
   the thesis uses SSAO, a screen-space estimate of the same integral).
@@ -39,6 +44,9 @@ from arlight.sphere.envmap import resize_equirect, rotate_equirect
 
 ENV_HEIGHT = 128
 """Rows of the equirect map the mip chain starts from (width twice that)."""
+
+MIRROR_ALPHA = 1e-3
+"""GGX roughness standing in for a perfect mirror."""
 
 
 def rot_y(deg: float) -> np.ndarray:
@@ -222,6 +230,24 @@ def specular_fis(env: MipEnvironment, n: mi.Vector3f, v: mi.Vector3f, alpha: mi.
     return out * (1.0 / samples)
 
 
+def specular_tables(world: World) -> tuple[mi.Float, mi.Color3f, bool]:
+    """Per world shape: GGX ``α`` and specular reflectance ``k_s`` (Dr.Jit tables indexed
+    by the G-buffer's shape index), and whether any virtual shape is glossy."""
+    alpha = np.ones(max(len(world.shapes), 1), np.float32)
+    ks = np.zeros((max(len(world.shapes), 1), 3), np.float32)
+    for i, s in enumerate(world.shapes):
+        p = s.material.params
+        if s.material.type == "phong":
+            alpha[i] = math.sqrt(2.0 / (float(p["exponent"]) + 2.0))
+            ks[i] = p["ks"]
+        elif s.material.type == "roughconductor":
+            alpha[i], ks[i] = float(p["alpha"]), p["reflectance"]
+        elif s.material.type == "mirror":
+            alpha[i], ks[i] = MIRROR_ALPHA, p["reflectance"]
+    glossy = any(np.any(ks[i]) for i, s in enumerate(world.shapes) if s.is_virtual)
+    return mi.Float(alpha), mi.Color3f(ks[:, 0], ks[:, 1], ks[:, 2]), glossy
+
+
 def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, rays: int,
                       max_distance: float, seed: int = 0, eps: float = 1e-4) -> mi.Float:
     """Ambient occlusion (Eq. 2.29: the visible fraction of the cosine-weighted hemisphere,
@@ -251,5 +277,6 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
     return dr.block_sum(open_, rays) * (1.0 / rays)
 
 
-__all__ = ["ENV_HEIGHT", "MipEnvironment", "ambient_occlusion", "environment_map",
-           "ggx_d", "hammersley", "local_frame", "rot_y", "smith_g1", "specular_fis"]
+__all__ = ["ENV_HEIGHT", "MIRROR_ALPHA", "MipEnvironment", "ambient_occlusion",
+           "environment_map", "ggx_d", "hammersley", "local_frame", "rot_y", "smith_g1",
+           "specular_fis", "specular_tables"]

@@ -1,5 +1,6 @@
 """AR Object Occlusion Fields (Franke thesis §5.2, [FKOJ11]; after Zhou et al. 2005's object
-occlusion fields) and the real-surface relighting that the ``ibl`` and ``prt`` methods share.
+occlusion fields) and the real-surface relighting that the ``ibl`` and ``prt`` methods share
+(:func:`shade_real`; their whole frame: :func:`render_layers`).
 
 **Precomputation** (:func:`build_field`). Around the virtual object (centre ``c``, bounding
 radius ``R``) lie ``shells`` concentric spheres of radii ``r_s = r_min · g^s`` from
@@ -35,18 +36,22 @@ Units: positions and radii metres; SH coefficients of radiance in W/(sr·m²); i
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import Any, Protocol
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import SceneView, describe_shape, load_scene
+from arlight.backend.mitsuba_scene import SceneView, SceneViews, describe_shape, load_scene
 from arlight.backend.rays import np3
+from arlight.layers import Layers
+from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import LightSet
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, on_active
-from arlight.scene.model import World
+from arlight.scene.model import FrameView, World
 from arlight.scene.schema import Field
 from arlight.sphere.points import fibonacci_sphere
 from arlight.sphere.sh import (
@@ -392,7 +397,72 @@ def shadow_factor(mixed: SceneView, real: SceneView, occluder: mi.Scene | None,
     return f
 
 
-__all__ = ["OOF_OPTIONS", "OcclusionField", "RAY_CHUNK", "build_field", "cosine_transfer",
-           "field_for_world", "field_from_options", "occlusion_rays", "octahedral_index",
-           "octahedral_normals", "shadow_factor",
-           "shell_samples", "virtual_scene"]
+# --------------------------------------------------------------------------------------------
+# The frame of the OOF-relit methods (ibl, prt)
+# --------------------------------------------------------------------------------------------
+
+class RelitState(Protocol):
+    """What :func:`shade_real` and :func:`render_layers` read of a prepared world: the world,
+    its Mitsuba views, the reduced lights, the virtual occluder (None: no virtual shape) and
+    its occlusion field (None: off)."""
+
+    world: World
+    views: SceneViews
+    lights: LightSet
+    occluder: mi.Scene | None
+    field: OcclusionField | None
+
+
+class GBufferOptions(Protocol):
+    """The option :func:`render_layers` reads (``arlight.methods.fragments.GBUFFER_OPTIONS``)."""
+
+    gbuffer_spp: int
+
+
+ShadeVirtual = Callable[[Any, GBuffer, FrameView, Any, int], tuple[mi.Color3f, mi.UInt32]]
+"""``shade(data, gb, view, options, seed) -> (radiance, lanes)`` of the virtual lanes."""
+
+
+def shade_real(data: RelitState, gb: GBuffer, frame: np.ndarray) -> mi.Color3f:
+    """Delta ``B (f − 1)`` on the real lanes (zero elsewhere), ``f`` from
+    :func:`shadow_factor`."""
+    real = gb.valid & ~gb.virtual
+    f = shadow_factor(data.views.mixed, data.views.real, data.occluder, data.lights,
+                      data.field, gb.position, gb.normal, real)
+    b = dr.gather(mi.Color3f, mi.Float(np.asarray(frame, np.float32).reshape(-1)), gb.pixel)
+    delta = dr.select(real, b * (f - 1.0), mi.Color3f(0.0))
+    dr.eval(delta)
+    return delta
+
+
+def render_layers(data: RelitState, view: FrameView, options: GBufferOptions, seed: int,
+                  timer, shade: ShadeVirtual) -> Layers:
+    """One frame of ``ibl`` and ``prt``: the G-buffer (``options.gbuffer_spp`` samples per
+    pixel), ``shade(data, gb, view, options, seed) -> (radiance, lanes)`` on the virtual
+    lanes, the AR-OOF darkening on the real ones (:func:`shade_real`), assembly. ``timer``:
+    an :class:`arlight.timing.StageTimer` (stages ``gbuffer``, ``shade_virtual``,
+    ``shade_real``, ``assemble``)."""
+    with timer.stage("gbuffer"):
+        gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp, seed)
+    with timer.stage("shade_virtual"):
+        rad, lanes = shade(data, gb, view, options, seed)
+    with timer.stage("shade_real"):
+        width = dr.width(gb.position)
+        delta = (shade_real(data, gb, view.frame) if data.occluder is not None
+                 else dr.zeros(mi.Color3f, width))
+    with timer.stage("assemble"):
+        mixed = dr.zeros(mi.Color3f, width)
+        if dr.width(lanes):
+            dr.scatter(mixed, rad, lanes)
+        stats = {"lights": float(len(data.lights.lights)),
+                 "virtual_lanes": float(dr.width(lanes))}
+        layers = assemble(gb, view.frame, mixed, delta, stats)
+    if not data.world.has_virtual:
+        assert not np.any(layers.delta), "delta must vanish without virtual objects"
+    return layers
+
+
+__all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "RAY_CHUNK", "RelitState",
+           "ShadeVirtual", "build_field", "cosine_transfer", "field_for_world",
+           "field_from_options", "occlusion_rays", "octahedral_index", "octahedral_normals",
+           "render_layers", "shade_real", "shadow_factor", "shell_samples", "virtual_scene"]
