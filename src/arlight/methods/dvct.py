@@ -24,7 +24,8 @@ Per frame (stages of thesis Table 5.6):
 
 6. **shading and composition** (§5.4.4): real pixels ``B + ρ/π · ΔE + k_s C_Δ,spec −
    h α_spec B``; virtual pixels ``ρ/π (E_direct + E_cones + E_ambient (1 − AO_virtual)) +`` GGX
-   specular (Eq. 5.23, direct from the reduced lights with shadow rays) ``+ F C_ρ,spec``.
+   specular (Eq. 5.23, direct from the reduced lights with shadow rays; ``D`` and ``G1`` of
+   :mod:`arlight.realtime.ibl_shading`) ``+ F C_ρ,spec``.
 
 **The real-occluder question** (the thesis leaves it open): ``V_η`` holds the real proxy,
 whose shadows are already in the photograph. Cones accumulate, besides ``α_all`` and
@@ -69,6 +70,7 @@ from arlight.methods.fragments import REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
+from arlight.realtime.ibl_shading import ggx_d, smith_g1
 from arlight.realtime.light_reduction import LightSet, ReducedLight, reduce_lights
 from arlight.realtime.rsm import RealMaps, RSMPair, real_maps, rsm_pair
 from arlight.realtime.rsm import check_memory as check_rsm_memory
@@ -630,21 +632,17 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
 def ggx_specular(n: mi.Vector3f, wo: mi.Vector3f, wi: mi.Vector3f, f0: mi.Color3f,
                  alpha: mi.Float) -> mi.Color3f:
     """GGX microfacet BRDF ``D G F / (4 <n,wi> <n,wo>)`` (Walter et al. 2007 [WMLT07], thesis
-    Eq. 4.11ff), Smith separable masking, Schlick Fresnel from ``f0`` (sr⁻¹)."""
+    Eq. 4.11ff): ``D`` and Smith's separable masking ``G1`` from
+    :mod:`arlight.realtime.ibl_shading` (:func:`~arlight.realtime.ibl_shading.ggx_d`,
+    :func:`~arlight.realtime.ibl_shading.smith_g1`), Schlick Fresnel from ``f0`` (sr⁻¹)."""
     a = dr.maximum(alpha, 1e-3)
-    a2 = a * a
     h = dr.normalize(wi + wo)
     cos_h = dr.maximum(dr.dot(n, h), 0.0)
     cos_i = dr.maximum(dr.dot(n, wi), 1e-6)
     cos_o = dr.maximum(dr.dot(n, wo), 1e-6)
-    den = cos_h * cos_h * (a2 - 1.0) + 1.0
-    d = a2 / (math.pi * den * den)
-
-    def g1(c):
-        return 2.0 * c / (c + dr.sqrt(a2 + (1.0 - a2) * c * c))
-
+    d = ggx_d(a, cos_h)
     f = f0 + (1.0 - f0) * dr.power(1.0 - dr.maximum(dr.dot(wi, h), 0.0), 5.0)
-    return f * (d * g1(cos_i) * g1(cos_o) / (4.0 * cos_i * cos_o))
+    return f * (d * smith_g1(a, cos_i) * smith_g1(a, cos_o) / (4.0 * cos_i * cos_o))
 
 
 def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None
