@@ -17,7 +17,7 @@ LIGHT = {"format": "arlight.light_estimate", "version": 1,
 
 
 @pytest.mark.parametrize("key,value,field", [
-    ("sh", {"coefficients": [[float("nan"), 0, 0]] * 4}, "sh.coefficients[0][0]"),
+    ("sh", {"coefficients": [[float("nan"), 0, 0]] * 4}, "sh.coefficients"),
     ("lights", 5, "lights"),
     ("main_light", {"direction_to_light": [0, 1, 0], "irradiance": [-1, 0, 0]},
      "main_light.irradiance"),

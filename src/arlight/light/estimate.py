@@ -496,21 +496,20 @@ class LightEstimate:
                    ) -> LightEstimate:
         """``d``: the top-level fields, validated; the nested tables are validated here."""
         if layout == "arlight":
-            ml = v.fields(v.table(d["main_light"], "main_light"), _MAIN_LIGHT, "main_light")
+            ml = _fields(v, d["main_light"], _MAIN_LIGHT, "main_light")
             sh = v.table(d["sh"], "sh")
             coeffs = sh.get("coefficients")
             if isinstance(coeffs, list) and len(coeffs) > (MAX_SH_ORDER + 1) ** 2:
                 raise v.fail("sh.coefficients", f"{len(coeffs)} coefficients: more than SH "
                              f"order {MAX_SH_ORDER} ({(MAX_SH_ORDER + 1) ** 2})")
-            sh = v.fields(sh, _SH_TABLE, "sh")
+            sh = _fields(v, sh, _SH_TABLE, "sh")
             lights = d["lights"]
             if not isinstance(lights, list):
                 raise v.fail("lights", "expected a list of light tables, got "
                              f"{type(lights).__name__}")
             if len(lights) > MAX_LIGHTS:
                 raise v.fail("lights", f"{len(lights)} lights; at most {MAX_LIGHTS}")
-            lights = [v.fields(v.table(lt, f"lights[{i}]"), _LIGHT, f"lights[{i}]")
-                      for i, lt in enumerate(lights)]
+            lights = [_fields(v, lt, _LIGHT, f"lights[{i}]") for i, lt in enumerate(lights)]
             hdr = None
             if d["hdr_map"] is not None:
                 fields = v.fields(v.table(d["hdr_map"], "hdr_map"), _HDR_MAP, "hdr_map")
@@ -724,6 +723,23 @@ def _side_maps(path: Path) -> list[Path]:
         return []
     return [p for p in parent.iterdir() if p.name.startswith(f"{path.stem}.")
             and p.name.endswith(".hdr.exr") and p.is_file()]
+
+
+_ELEMENT = re.compile(r"(.*?)((?:\[\d+\])+)")
+
+
+def _fields(v: Validator, table, specs: dict[str, Field], field: str) -> dict:
+    """``v.fields`` of a nested table; an error inside a vector or a coefficient list names
+    the vector's field (``sh.coefficients``, ``main_light.irradiance``) and the element in the
+    message, as the light files' errors always have."""
+    try:
+        return v.fields(v.table(table, field), specs, field)
+    except InputError as exc:
+        m = _ELEMENT.fullmatch(exc.field or "")
+        if m is None or not m.group(1).startswith(f"{field}."):
+            raise
+        raise InputError(f"{exc.message} (element {m.group(2)})", file=exc.file,
+                         field=m.group(1)) from exc
 
 
 def _point(v: Validator, p, field: str) -> list[float]:
