@@ -16,7 +16,9 @@ Cost control: with ``interleave = k`` (Segovia et al. 2006's interleaved samplin
 choice in place of Knecht's imperfect shadow maps) pixel ``(x, y)`` gathers only the VPLs
 ``j ≡ (x mod k) + k (y mod k) (mod k²)`` at ``k²`` × their flux, and a ``k × k``
 geometry-aware box filter (depth within 5 %, normals within 37°) recombines the subsets.
-``interleave = 1`` gathers every VPL at every pixel (exact instant radiosity).
+``interleave = 1`` gathers every VPL at every pixel (exact instant radiosity). With
+``gbuffer_spp = n > 1`` every sample of a pixel gathers the pixel's subset and the filter
+averages the same sample ``k`` of the neighbouring pixels.
 A VPL pair seen identically in both maps needs the real-scene ray only where the mixed one is
 blocked (the mixed scene contains the real one).
 
@@ -35,7 +37,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
-from arlight.methods.fragments import REDUCTION_OPTIONS
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import LightSet, reduce_lights
@@ -58,6 +60,7 @@ OPTIONS: dict[str, Field] = {
     "interleave": Field("int", 4, "interleaved sampling block k (k² VPL subsets; 1: every "
                         "VPL at every pixel)", "pixels", min=1, max=16),
     **REDUCTION_OPTIONS,
+    **GBUFFER_OPTIONS,
 }
 
 
@@ -201,6 +204,7 @@ def _filter_pass(gb: GBuffer, values: list, k: int, axis: int) -> list:
     w, h = gb.width, gb.height
     col = mi.Int32(gb.pixel % w)
     row = mi.Int32(gb.pixel // w)
+    sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % gb.spp if gb.spp > 1 else None
     lo = -(k // 2)
     acc = [mi.Color3f(0.0) for _ in values]
     wsum = mi.Float(0.0)
@@ -208,6 +212,8 @@ def _filter_pass(gb: GBuffer, values: list, k: int, axis: int) -> list:
         cx, cy = (col + off, row) if axis == 0 else (col, row + off)
         inside = (cx >= 0) & (cy >= 0) & (cx < w) & (cy < h)
         j = mi.UInt32(dr.select(inside, cx + w * cy, 0))
+        if sample is not None:  # lane p·spp + k: the same sample k of the neighbour pixel
+            j = j * gb.spp + sample
         dj = dr.gather(mi.Float, gb.depth, j, inside)
         nj = dr.gather(mi.Vector3f, gb.normal, j, inside)
         rj = dr.gather(mi.Int32, gb.role, j, inside)
@@ -224,15 +230,16 @@ def _filter_pass(gb: GBuffer, values: list, k: int, axis: int) -> list:
 
 
 def interleave_filter(gb: GBuffer, values: list, k: int) -> list:
-    """``k × k`` geometry-aware box filter over the pixel grid (Dr.Jit, one lane per pixel),
-    applied separably: a ``k``-tap pass along rows, then one along columns. In each pass,
-    neighbours of the same role whose depth is within 5 % and whose normal is within 37°
-    (cos > 0.8) of the pixel's are averaged; ``values`` are per-lane ``mi.Color3f``. Every
-    ``k × k`` window holds each of the ``k²`` VPL subsets once (Segovia et al. 2006): the row
-    pass mixes the ``k`` subsets of ``x mod k``, the column pass those of ``y mod k``. On
-    continuous surfaces this equals the 2-D box filter; at geometric edges the column pass
-    weighs the row averages by the centre pixels only (the usual separable approximation of a
-    cross-bilateral filter), for ``2k`` instead of ``k²`` taps."""
+    """``k × k`` geometry-aware box filter over the pixel grid (Dr.Jit; with several G-buffer
+    samples per pixel, over the same sample of each pixel), applied separably: a ``k``-tap
+    pass along rows, then one along columns. In each pass, neighbours of the same role whose
+    depth is within 5 % and whose normal is within 37° (cos > 0.8) of the pixel's are
+    averaged; ``values`` are per-lane ``mi.Color3f``. Every ``k × k`` window holds each of
+    the ``k²`` VPL subsets once (Segovia et al. 2006): the row pass mixes the ``k`` subsets
+    of ``x mod k``, the column pass those of ``y mod k``. On continuous surfaces this equals
+    the 2-D box filter; at geometric edges the column pass weighs the row averages by the
+    centre pixels only (the usual separable approximation of a cross-bilateral filter), for
+    ``2k`` instead of ``k²`` taps."""
     if k == 1:
         return values
     return _filter_pass(gb, _filter_pass(gb, values, k, 0), k, 1)
@@ -253,7 +260,8 @@ class DIRMethod(BaseMethod):
     def render_view(self, data: DIRData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         with timer.stage("gbuffer"):
-            gb = render_gbuffer(data.views.mixed, view.camera, 1, settings.seed)
+            gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp,
+                                settings.seed)
         virt = gb.virtual
         real = gb.valid & ~virt
         with timer.stage("direct"):

@@ -14,8 +14,9 @@ Per frame (stages of thesis Table 5.6):
    along their normal before their cell is chosen (as ``dlpv``);
 4. **filtering**: mip chains of ``V_η`` (α included), ``V_Δ`` and ``V_ρ``;
 5. **cone tracing** (:func:`arlight.realtime.voxels.trace_cones`, Eq. 5.18–5.19 in the
-   standard front-to-back form) at full or reduced resolution (``cone_scale``), then
-   edge-aware upsampling:
+   standard front-to-back form) at full or reduced resolution (``cone_scale``; reduced: from
+   the first G-buffer sample of every ``k``-th pixel), then edge-aware upsampling to every
+   G-buffer sample (``gbuffer_spp`` per pixel):
 
    * real pixels: one shadow cone per light (Eq. 5.20, aperture from the light's size), nine
      diffuse cones into ``V_Δ`` (Eq. 5.21) and, on specular materials, one cone along the
@@ -66,7 +67,7 @@ import numpy as np
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
 from arlight.methods.base import BaseMethod, Layers, RenderSettings
-from arlight.methods.fragments import REDUCTION_OPTIONS
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
@@ -125,6 +126,7 @@ OPTIONS: dict[str, Field] = {
     "specular_cones": Field("bool", True, "trace the specular cone on specular materials "
                             "(Eq. 5.22, 5.25)"),
     **REDUCTION_OPTIONS,
+    **GBUFFER_OPTIONS,
 }
 
 
@@ -696,7 +698,8 @@ class DVCTMethod(BaseMethod):
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         with timer.stage("gbuffer"):
-            gb = render_gbuffer(data.views.mixed, view.camera, 1, settings.seed)
+            gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp,
+                                settings.seed)
         vols = build_volumes(data, options, timer)
         stats: dict[str, float] = {"lights": float(len(data.lights.lights)),
                                    "volume_cell": data.grid.cell if data.grid else 0.0}
@@ -718,6 +721,10 @@ class DVCTMethod(BaseMethod):
         with timer.stage("assemble"):
             if terms is not None:
                 h = resolve_scalar(gb, hidden)
+                if gb.spp > 1:  # mean over the pixel's non-virtual samples, as delta's
+                    n_r = gb.spp - resolve_scalar(gb, mi.Float(gb.virtual)) * gb.spp
+                    h = np.where(n_r > 0.5, h * gb.spp / np.maximum(n_r, 1.0),
+                                 0.0).astype(np.float32)
                 rows = h > 0
                 layers_delta = delta
                 layers = assemble(gb, view.frame, mixed, layers_delta, stats)
