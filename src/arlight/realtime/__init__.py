@@ -14,10 +14,14 @@ class (see ``docs/architecture.md``).
 * :mod:`~arlight.realtime.voxels` — voxelisation and mip-mapped cone-tracing volumes (dvct).
 * :mod:`~arlight.realtime.exact_sum` — order-independent fixed-point scatter sums.
 * :mod:`~arlight.realtime.shading` — direct shading from reduced lights, spot falloff, bounds.
-* :mod:`~arlight.realtime.ibl_shading` — image-based lighting: mip-mapped environments, GGX.
+* :mod:`~arlight.realtime.ibl_shading` — image-based lighting: mip-mapped environments, GGX
+  (the one ``D``/``G1``, also ``dvct``'s), per-shape specular tables.
 * :mod:`~arlight.realtime.sog` — spherical-Gaussian fits of GGX lobes.
-* :mod:`~arlight.realtime.oof` — AR object occlusion fields (Franke §5.2).
+* :mod:`~arlight.realtime.oof` — AR object occlusion fields (Franke §5.2), the real-pixel
+  relighting and the frame of ``ibl`` and ``prt`` (``render_layers``).
 * :mod:`~arlight.realtime.prt_transfer` — precomputed radiance transfer (PRT, nearfield).
+* :mod:`~arlight.realtime.prt_shading` — the virtual meshes' transfer and their per-frame
+  PRT shading (``prt``, ``nearfield``).
 
 The path-tracing engines (one-pass tracer, photons, dic's irradiance cache) live in
 :mod:`arlight.tracing`.
