@@ -438,13 +438,7 @@ def test_unsupported_scenes_are_refused_before_any_work(name):
 
 
 # ------------------------------------------------------------------------ stats, seeds
-PROBELESS_NESTED = pytest.mark.xfail(
-    strict=True, reason="probeless reports its pipeline's time_rt and time_estimate, which "
-    "run inside its stage `trace`: counted twice (sum of stages > seconds)")
-
-
-@pytest.mark.parametrize("name", [pytest.param(n, marks=PROBELESS_NESTED) if n == "probeless"
-                                  else n for n in NAMES])
+@pytest.mark.parametrize("name", NAMES)
 def test_stage_timings_are_reported_and_add_up(name):
     """Rejects: no stage timings (the CLI and ``arlight eval`` tabulate ``time_<stage>``),
     a missing ``time_prepare``, negative or NaN times, nested or double-counted stages (their

@@ -88,8 +88,9 @@ class ProbelessMethod(BaseMethod):
         with timer.stage("assemble"):
             layers = Layers.assemble(frame, res.mixed, res.delta, res.mask, stats={
                 "rays": s["rays"], "samples": s["samples"],
-                "dense_samples": s["dense_samples"], "time_rt": s["time_rt"],
-                "time_estimate": s["time_estimate"],
+                # parts of the stage `trace` (not stages: ``time_*`` keys add up to the total)
+                "dense_samples": s["dense_samples"], "trace_rt_seconds": s["time_rt"],
+                "trace_estimate_seconds": s["time_estimate"],
                 "light_condition": float(min(fit.condition, 1e300)),
                 "light_rank": float(fit.rank), "light_confidence": fit.confidence,
                 "light_dir_x": float(fit.direction[0]), "light_dir_y": float(fit.direction[1]),
