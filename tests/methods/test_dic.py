@@ -137,11 +137,14 @@ def test_indirect_term_converges_to_the_one_pass_path_tracer():
 
 
 # ---------------------------------------------------------------- direct light rules
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["area", "env_mirror"])
 def test_direct_light_agrees_with_onepass(kind):
     """With paths of two vertices (direct light only; the records are then zero) the camera
     walk — one light sample, one-pass shadow rays, real continuation at virtual hits,
-    delta-specular continuation — is an unbiased estimate of what onepass computes."""
+    delta-specular continuation — is an unbiased estimate of what onepass computes. (Slow
+    tier: the fast tier checks the stronger sample-by-sample identity of the walk and the
+    tracer, ``tests/tracing/test_shared_rules.py``.)"""
     d = area_light_scene(20, 15) if kind == "area" else env_mirror_scene(20, 15)
     scene = scene_of(d)
     s = RenderSettings(spp=256, max_depth=2, seed=4, options=options(rays=4))

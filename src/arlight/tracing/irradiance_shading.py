@@ -5,7 +5,7 @@ splat buffer (Kán thesis §4.2, §4.2.5, §3.3).
 Each camera sample follows a *Whitted* walk: at every vertex it collects emission (seen by
 the camera or through delta-specular bounces), and at a vertex with a smooth BSDF it adds
 
-* direct light: one light sample (``scene.sample_emitter_direction``, environment maps
+* direct light: one light sample (the tracer's :class:`LightSelection`, environment maps
   importance-sampled) and one BSDF sample whose ray only collects emission, combined by the
   power heuristic as the one-pass tracer's first vertex, with the one-pass rules: a mixed
   shadow ray and, on a walk that has not touched a virtual object, a real one where the
@@ -18,12 +18,17 @@ the camera or through delta-specular bounces), and at a vertex with a smooth BSD
   they actually see; ``E_m`` for the mixed solution, ``E_m − E_d`` for the real one.
 
 and ends there; delta-specular vertices (mirrors, glass, Mitsuba's stochastic
-reflect/refract choice) continue the walk. As in the one-pass tracer
-(:mod:`arlight.tracing.onepass`) a mixed walk that hits a virtual object forks: it goes
-on mixed-only, and its *real continuation* (the ray passing through the virtual object) is
-traced afterwards for the forked lanes only, in µ from their camera rays; random numbers are
-hashes of (lane key, depth, dimension), so the retraced shared prefix is bit for bit the same.
-Without a virtual object every walk is shared and ``L_m == L_r`` exactly.
+reflect/refract choice) continue the walk. The walk has no rules of its own: it follows the
+one-pass tracer's (:mod:`arlight.tracing.onepass`) — :class:`HitRules` (a mixed walk that
+hits a virtual object forks: it goes on mixed-only, and its *real continuation*, the ray
+passing through the virtual object, is traced afterwards for the forked lanes only, in µ
+from their camera rays; the shadow rays of rules 1 and 3), :class:`LightSelection` (dic hands
+it the record tracer's) and the tracer's random dimensions of a
+:class:`~arlight.sampling.stream.LaneSampler` (``rand_nee``, ``rand_lobe``, ``rand_bsdf``:
+functions of (lane, depth, dimension), so the retraced shared prefix is bit for bit the
+same). With paths of two vertices the walk *is* the tracer's direct-light estimator, sample
+by sample (``tests/tracing/test_shared_rules.py``). Without a virtual object every walk is
+shared and ``L_m == L_r`` exactly.
 """
 
 from __future__ import annotations
