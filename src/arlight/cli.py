@@ -396,7 +396,10 @@ def main(argv: list[str] | None = None) -> int:
     committed = len(outputs_atomic.COMMITTED)
     _SIGNALS.clear()
     try:
-        rv = app(args=args, standalone_mode=False, prog_name="arlight")
+        from arlight.cli_progress import terminal_bars
+
+        with terminal_bars():  # engines' progress tasks show as bars on stderr
+            rv = app(args=args, standalone_mode=False, prog_name="arlight")
         if _SIGNALS:
             return _interrupted(_SIGNALS[0], committed)
         return rv if isinstance(rv, int) else 0

@@ -20,6 +20,12 @@ class RichSink:
     """A :data:`arlight.progress.Sink` drawing one ``rich`` bar per open task."""
 
     def __init__(self, console=None) -> None:
+        self._console = console
+        self._bars = None  # made at the first event: rich is imported only when a bar shows
+        self._tasks: dict[int, int] = {}
+        self._lock = threading.Lock()
+
+    def _start(self):
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -33,31 +39,29 @@ class RichSink:
         self._bars = Progress(TextColumn("{task.description}"), BarColumn(),
                               MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
                               TimeElapsedColumn(), TimeRemainingColumn(),
-                              console=console or Console(stderr=True), transient=True)
-        self._tasks: dict[int, int] = {}
-        self._lock = threading.Lock()
-        self._started = False
+                              console=self._console or Console(stderr=True), transient=True)
+        self._bars.start()
+        return self._bars
 
     def __call__(self, event: progress.Event) -> None:
         with self._lock:
-            if not self._started:
-                self._bars.start()
-                self._started = True
+            bars = self._bars or self._start()
             tid = self._tasks.get(event.task)
             if tid is None:
-                tid = self._tasks[event.task] = self._bars.add_task(
+                tid = self._tasks[event.task] = bars.add_task(
                     event.label, total=event.total, completed=event.done, info=event.info)
-            self._bars.update(tid, completed=event.done, total=event.total, info=event.info)
+            bars.update(tid, completed=event.done, total=event.total, info=event.info)
             if event.finished:
-                self._bars.remove_task(tid)
+                bars.remove_task(tid)
                 del self._tasks[event.task]
 
     def stop(self) -> None:
         """Remove the bars (at the end of the command)."""
         with self._lock:
-            if self._started:
+            if self._bars is not None:
                 self._bars.stop()
-                self._started = False
+                self._bars = None
+                self._tasks.clear()
 
 
 @contextlib.contextmanager

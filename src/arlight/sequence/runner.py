@@ -4,7 +4,7 @@
 reachability), opens the output folder (:class:`arlight.sequence.store.SequenceStore`),
 renders only the frames not done yet — in a plain loop in this process, or as Ray tasks
 (:mod:`arlight.sequence.distributed`) — writing each as it completes, then encodes the video
-and writes ``summary.json``. A rich progress bar shows frames done, frames per second and the
+and writes ``summary.json``. A progress task reports frames done, frames per second and the
 ETA.
 """
 
@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from arlight.errors import InputError
+from arlight.progress import task
 from arlight.sequence.frames import FrameSource, InputFrame
 from arlight.sequence.job import FrameResult, SequenceJob, merge_parts, render_frame
 from arlight.sequence.store import SequenceStore
@@ -93,40 +94,21 @@ def _frames_with_depth(source: FrameSource, wanted: set[int],
 
 
 class _Bar:
-    """A rich progress bar over frames with ETA (no-op when disabled)."""
+    """Frames done, as a progress task with the frame rate as its status (silent when
+    disabled; the CLI draws it, see :mod:`arlight.progress`)."""
 
     def __init__(self, total: int, done: int, enabled: bool, label: str):
-        self.bar = None
-        if enabled:
-            from rich.console import Console
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self.bar = Progress(TextColumn("{task.description}"), BarColumn(),
-                                MofNCompleteColumn(), TextColumn("{task.fields[rate]}"),
-                                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                                console=Console(stderr=True), transient=False)
-            self.bar.start()
-            self.task = self.bar.add_task(label, total=total, completed=done, rate="")
+        self.task = task(label, total, done=done, enabled=enabled)
         self.t0 = time.perf_counter()
         self.n = 0
 
     def advance(self) -> None:
         self.n += 1
-        if self.bar is not None:
-            rate = self.n / max(time.perf_counter() - self.t0, 1e-9)
-            self.bar.update(self.task, advance=1, rate=f"{rate:.2f} frames/s")
+        rate = self.n / max(time.perf_counter() - self.t0, 1e-9)
+        self.task.advance(info=f"{rate:.2f} frames/s")
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-            self.bar = None
+        self.task.close()
 
 
 def validate_depths(depths: Sequence[Any], size: tuple[int, int]) -> None:
