@@ -29,6 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from results import cpu_pressure, publish  # noqa: E402
 
+from arlight.cache import default_cache_dir  # noqa: E402
 from arlight.evaluate.metrics import changed_region, image_metrics, temporal_flicker  # noqa: E402
 from arlight.evaluate.suite import get_scene  # noqa: E402
 from arlight.methods.nearfield import NearFieldClient  # noqa: E402
@@ -38,7 +39,7 @@ from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings  # noq
 from arlight.nearfield.state import NearFieldLight  # noqa: E402
 from arlight.nearfield.vals import vpl_lights  # noqa: E402
 from arlight.sphere.fisheye import FisheyeCamera  # noqa: E402
-from arlight.synthetic import content_key, default_cache_dir  # noqa: E402
+from arlight.synthetic import content_key  # noqa: E402
 
 RIG = [  # name, position, look, up: four 180° fisheyes in the 2 m room (Table 1: 4 cameras)
     ("floor", (0.0, 0.3, 0.8), (0.0, 1.0, 0.0), (0.0, 0.0, -1.0)),

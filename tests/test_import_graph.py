@@ -44,7 +44,7 @@ TIER_NAMES = ("core", "backend", "engines", "method contract", "method plug-ins"
 TIERS: dict[str, int] = {
     "arlight": CORE, "arlight.errors": CORE, "arlight.interrupts": CORE, "arlight.jit": CORE,
     "arlight.cache": CORE, "arlight.timing": CORE, "arlight.stats": CORE,
-    "arlight.transfer": CORE, "arlight.layers": CORE, "arlight.composite": CORE,
+    "arlight.transfer": CORE, "arlight.layers": CORE, "arlight.progress": CORE,
     "arlight.bounds": CORE, "arlight.output_guard": CORE, "arlight.outputs_atomic": CORE,
     "arlight.scene": CORE, "arlight.io": CORE, "arlight.sampling": CORE,
     "arlight.sphere": CORE, "arlight.data": CORE,
@@ -53,7 +53,8 @@ TIERS: dict[str, int] = {
     "arlight.probeless": ENGINES, "arlight.nearfield": ENGINES, "arlight.synthetic": ENGINES,
     "arlight.methods": CONTRACT, "arlight.methods.spec": CONTRACT,
     "arlight.methods.base": CONTRACT, "arlight.methods.fragments": CONTRACT,
-    "arlight.cli": APPS, "arlight.entry": APPS, "arlight.demo": APPS, "arlight.evaluate": APPS,
+    "arlight.cli": APPS, "arlight.cli_progress": APPS, "arlight.entry": APPS,
+    "arlight.demo": APPS, "arlight.evaluate": APPS,
     "arlight.output": APPS, "arlight.progressive": APPS, "arlight.insert": APPS,
     "arlight.sequence": APPS, "arlight.studio": APPS, "arlight.lightserver": APPS,
     "arlight.importers": APPS, "arlight.light.cli": APPS, "arlight.probeless.cli": APPS,

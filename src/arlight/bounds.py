@@ -21,6 +21,7 @@ import os
 from dataclasses import dataclass
 
 from arlight.errors import InputError
+from arlight.jit import MAX_LANES  # the pass engine's wavefront cap
 
 MAX_SPP = 1 << 20
 MAX_FRAMES = 1_000_000
@@ -31,7 +32,6 @@ MAX_SH_ORDER = 16
 MAX_LIGHTS = 4096
 MAX_REPEATS = 1000
 
-MAX_LANES = 2_000_000
 BYTES_PER_LANE = 1024
 BYTES_PER_PIXEL = 512
 SAMPLES_PER_SECOND_PER_CORE = 250_000.0

@@ -103,7 +103,7 @@ from arlight.backend.mitsuba_scene import (
     sampler_count,
     virtual_names,
 )
-from arlight.cache import default_cache_dir  # re-exported: callers import it from here
+from arlight.cache import default_cache_dir
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
 from arlight.io.images import atomic_write
@@ -439,5 +439,5 @@ def _render(spec: dict[str, Any], progress: bool = False) -> dict[str, np.ndarra
 
 
 __all__ = ["DEFAULT_SAMPLER", "FORMAT_VERSION", "SAMPLERS", "SyntheticPhoto", "batch_plan",
-           "check_sampler", "content_key", "default_cache_dir", "mask_count", "render_spec",
+           "check_sampler", "content_key", "mask_count", "render_spec",
            "spec_key", "synthesize"]

@@ -392,9 +392,9 @@ def import_mitsuba(xml: str | Path, out: str | Path, virtual: Sequence[str] = ()
     import shutil
     import tempfile
 
-    from arlight.backend.variant import ensure_variant
     from arlight.bounds import check_estimate
     from arlight.io.images import write_exr
+    from arlight.jit import ensure_variant
     from arlight.output_guard import check_outputs, record_written
     from arlight.scene.load import load_scene
     from arlight.scene.save import to_toml

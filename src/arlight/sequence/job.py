@@ -195,7 +195,7 @@ def configure_threads(threads: int | None) -> None:
     if threads:
         import drjit as dr
 
-        from arlight.backend.variant import ensure_variant
+        from arlight.jit import ensure_variant
 
         ensure_variant()
         if dr.thread_count() != threads:
