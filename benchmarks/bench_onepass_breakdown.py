@@ -21,6 +21,7 @@ import argparse
 import os
 
 import mitsuba as mi
+from arlight.methods.onepass_tracer import OnePassTracer, lane_keys
 from results import publish
 
 from arlight.backend.mitsuba_scene import build_views
@@ -29,7 +30,6 @@ from arlight.demo import demo_world_path
 from arlight.evaluate.suite import get_scene
 from arlight.methods.base import RenderSettings
 from arlight.methods.onepass import tracer_options
-from arlight.methods.onepass_tracer import OnePassTracer, lane_keys
 from arlight.methods.reference import path_integrator, trace_radiance
 from arlight.scene.load import load_scene
 

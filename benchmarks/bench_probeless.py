@@ -36,7 +36,7 @@ from arlight.backend.mitsuba_scene import build_views
 from arlight.probeless.experiment import table1
 from arlight.probeless.pipeline import VARIANTS, Pipeline
 from arlight.probeless.reconstruct import reconstruct
-from arlight.probeless.synthetic import ALBEDO, render_sequence, virtual_objects
+from arlight.probeless.synthetic_rgbd import ALBEDO, render_sequence, virtual_objects
 from arlight.scene.model import World
 
 HEADING = "## Probeless light estimation: Gruber Table 1 and RM vs ART4 time (issue 16)"

@@ -1,6 +1,6 @@
 """Benchmark: AR video sequences — quality and flicker per method, and scaling on Ray.
 
-**Quality** (``--quality``): the synthetic sequence of :mod:`arlight.sequence.synthetic`
+**Quality** (``--quality``): the synthetic sequence of :mod:`arlight.sequence.synthetic_video`
 (bunny-box, 96×72, 32 frames: the camera orbits 30° about the box while the virtual bunny
 slides 6 cm and turns 60°; ground truth by Mitsuba's own path tracer, 128 spp, cached). Every
 registered method renders the proxy with the frames, poses and object transforms through
@@ -39,7 +39,7 @@ from arlight.methods import RenderSettings, methods
 from arlight.sequence.frames import FrameSource
 from arlight.sequence.job import _PREPARED, prepared
 from arlight.sequence.runner import RunOptions, run_sequence
-from arlight.sequence.synthetic import (
+from arlight.sequence.synthetic_video import (
     ground_truth_flicker_floor,
     sequence_job,
     sequence_metrics,

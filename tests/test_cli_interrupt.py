@@ -9,7 +9,7 @@ an interrupt must behave the same on a loaded machine. Nothing depends on wall t
   starts, ``scene`` at scene construction, ``kernel`` at the first render kernel's launch) are
   reached through :func:`arlight.interrupts.test_point` (``ARLIGHT_TEST_SIGNAL_AT``: the
   process sends itself the signal exactly there);
-* the swap points through the test hook of :mod:`arlight.outputs_atomic`
+* the swap points through the test hook of :mod:`arlight.staged_output`
   (``ARLIGHT_TEST_SWAP_HOOK``: a marker file is created and the process sleeps there).
 """
 

@@ -6,17 +6,18 @@ Two kinds of checks:
   functions — are read with :mod:`ast` and checked against the tiers of
   ``docs/architecture.md``::
 
-      core      errors, interrupts, jit, cache, timing, stats, transfer, layers, bounds,
-                output_guard, outputs_atomic, scene, io, sampling, sphere
+      core      errors, interrupts, jit, cache, timing, stats, camera_response, layers, bounds,
+                output_guard, staged_output, scene, io, sampling, sphere
       backend   backend
       engines   tracing, realtime, light, probeless, nearfield, synthetic (ground truth)
       contract  methods (package), methods.spec, methods.base, methods.fragments
       plug-ins  methods.<name>
-      apps      cli, entry, demo, evaluate, output, progressive, insert, sequence, studio,
+      apps      cli, entry, demo, evaluate, layer_files, progressive, insert, sequence, studio,
                 lightserver, importers, and the CLIs of the engine packages
 
   No module imports a higher tier; no plug-in imports another plug-in; only the ground
-  truth itself, ``*.synthetic`` modules, ``evaluate`` and the CLI import ``arlight.synthetic``;
+  truth itself, the synthetic data makers (:data:`GROUND_TRUTH_USERS`), ``evaluate`` and the CLI
+  import ``arlight.synthetic``;
   ``sphere``, ``io`` and ``sampling`` never import ``backend``; no circle of imports between
   modules (a submodule importing its own package is not a circle).
 * **Runtime** (:data:`RULES`): a module imported in a fresh interpreter, optionally after
@@ -44,8 +45,8 @@ TIER_NAMES = ("core", "backend", "engines", "method contract", "method plug-ins"
 TIERS: dict[str, int] = {
     "arlight": CORE, "arlight.errors": CORE, "arlight.interrupts": CORE, "arlight.jit": CORE,
     "arlight.cache": CORE, "arlight.timing": CORE, "arlight.stats": CORE,
-    "arlight.transfer": CORE, "arlight.layers": CORE, "arlight.progress": CORE,
-    "arlight.bounds": CORE, "arlight.output_guard": CORE, "arlight.outputs_atomic": CORE,
+    "arlight.camera_response": CORE, "arlight.layers": CORE, "arlight.progress": CORE,
+    "arlight.bounds": CORE, "arlight.output_guard": CORE, "arlight.staged_output": CORE,
     "arlight.scene": CORE, "arlight.io": CORE, "arlight.sampling": CORE,
     "arlight.sphere": CORE, "arlight.data": CORE,
     "arlight.backend": BACKEND,
@@ -55,7 +56,7 @@ TIERS: dict[str, int] = {
     "arlight.methods.base": CONTRACT, "arlight.methods.fragments": CONTRACT,
     "arlight.cli": APPS, "arlight.cli_progress": APPS, "arlight.entry": APPS,
     "arlight.demo": APPS, "arlight.evaluate": APPS,
-    "arlight.output": APPS, "arlight.progressive": APPS, "arlight.insert": APPS,
+    "arlight.layer_files": APPS, "arlight.progressive": APPS, "arlight.insert": APPS,
     "arlight.sequence": APPS, "arlight.studio": APPS, "arlight.lightserver": APPS,
     "arlight.importers": APPS, "arlight.light.cli": APPS, "arlight.probeless.cli": APPS,
     "arlight.nearfield.cli": APPS, "arlight.probeless.experiment": APPS,
@@ -64,6 +65,10 @@ TIERS: dict[str, int] = {
 :data:`PLUGINS`)."""
 
 GROUND_TRUTH = "arlight.synthetic"
+GROUND_TRUTH_USERS = frozenset({"arlight.probeless.synthetic_rgbd",
+                                "arlight.sequence.synthetic_video"})
+"""Besides ``evaluate`` and the CLI, the makers of synthetic test data (RGB-D sequences,
+videos with ground truth) render through the ground truth."""
 NO_BACKEND = ("arlight.sphere", "arlight.io", "arlight.sampling")
 
 
@@ -133,7 +138,7 @@ def violations(graph: dict[str, set[str]]) -> list[str]:
                 out.append(f"plug-in imports a plug-in: {module} imports {dep} (move what "
                            "they share to realtime/, tracing/ or methods/fragments.py)")
             if (_within(dep, GROUND_TRUTH) and not _within(module, GROUND_TRUTH)
-                    and not module.endswith(".synthetic")
+                    and module not in GROUND_TRUTH_USERS
                     and not _within(module, "arlight.evaluate") and module != "arlight.cli"):
                 out.append(f"{module} imports the ground truth {dep}: {_GROUND_TRUTH}")
             if any(_within(module, p) for p in NO_BACKEND) and _within(dep, "arlight.backend"):

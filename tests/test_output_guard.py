@@ -99,8 +99,8 @@ def test_referenced_files_lists_the_files_a_scene_names(tmp_path):
 
 def test_output_folder_under_a_dangling_symlink_or_mkdir_refused_is_input_error(
         tmp_path, monkeypatch):
-    """Old behaviour: exit 1 (FileExistsError / OSError in mkdir) for outputs_atomic."""
-    from arlight.outputs_atomic import StagedOutput, check_output_dir
+    """Old behaviour: exit 1 (FileExistsError / OSError in mkdir) for staged_output."""
+    from arlight.staged_output import StagedOutput, check_output_dir
 
     os.symlink(tmp_path / "nowhere", tmp_path / "dangling")
     with pytest.raises(InputError, match="dangling"):

@@ -79,9 +79,9 @@ def _check_before_work(cam, spp: int, what: str, force: bool, out: Path,
     """The checks every rendering command makes before any work: the cost estimate of a
     differential render of the camera ``cam`` at ``spp`` (refused beyond the limits unless
     ``force``), then the output folder ``out`` (room for ``snapshots`` sets of ``layers``
-    images; see :func:`arlight.outputs_atomic.check_output_dir`)."""
+    images; see :func:`arlight.staged_output.check_output_dir`)."""
     from arlight.bounds import check_estimate, estimate
-    from arlight.outputs_atomic import check_output_dir
+    from arlight.staged_output import check_output_dir
 
     est = estimate(cam.width, cam.height, spp, paths=2, layers=layers, renders=renders)
     check_estimate(est, what, force)
@@ -122,9 +122,9 @@ def render(
     import numpy as np
 
     from arlight.bounds import check_range
+    from arlight.layer_files import LAYER_FILES, write_layers
     from arlight.methods import RenderSettings, get_method
     from arlight.methods.spec import parse_option_pairs
-    from arlight.output import LAYER_FILES, write_layers
     from arlight.scene.load import load_scene, render_settings_for
 
     given = render_settings_for(scene, method, spp, max_depth, seed,
@@ -185,8 +185,8 @@ def synth(
     """Synthesise a camera frame (world without virtual objects) and its ground truth with
     Mitsuba's own path tracer (independent of every method it grades)."""
     from arlight.io.images import write_exr, write_png
-    from arlight.outputs_atomic import StagedOutput
     from arlight.scene.load import load_scene
+    from arlight.staged_output import StagedOutput
     from arlight.synthetic import batch_plan, synthesize
 
     batch_plan(spp, batches, sampler)  # spp/batches/sampler errors before the scene loads
@@ -263,8 +263,8 @@ def demo(
 ) -> None:
     """Render the bundled demo scene (a virtual bunny on a real table) and print the paths."""
     from arlight.demo import demo_scene_path, run_demo
+    from arlight.layer_files import LAYER_FILES
     from arlight.methods import get_method
-    from arlight.output import LAYER_FILES
     from arlight.scene.load import load_scene
 
     get_method(method)
@@ -359,9 +359,9 @@ def _interrupted(signum: int, committed: int) -> int:
     """The one line after SIGINT/SIGTERM; returns 128 + the signal number."""
     import signal
 
-    from arlight import outputs_atomic
+    from arlight import staged_output
 
-    done = outputs_atomic.COMMITTED[committed:]
+    done = staged_output.COMMITTED[committed:]
     name = "SIGTERM" if signum == signal.SIGTERM else "interrupt (SIGINT)"
     if done:
         _error(f"{name}: stopped after writing {', '.join(map(str, done))}")
@@ -384,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     import threading
     import traceback
 
-    from arlight import outputs_atomic
+    from arlight import staged_output
 
     args = list(sys.argv[1:] if argv is None else argv)
     debug = _debug_requested(args)
@@ -393,7 +393,7 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, _on_signal)
-    committed = len(outputs_atomic.COMMITTED)
+    committed = len(staged_output.COMMITTED)
     _SIGNALS.clear()
     try:
         from arlight.cli_progress import terminal_bars

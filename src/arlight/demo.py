@@ -25,8 +25,8 @@ def run_demo(out: Path, spp: int = 36, method: str = "reference",
 
     Returns the written paths (``composite_png`` is the picture to look at).
     """
+    from arlight.layer_files import write_layers
     from arlight.methods import RenderSettings, get_method
-    from arlight.output import write_layers
     from arlight.scene.load import load_scene
     from arlight.timing import format_stages
 

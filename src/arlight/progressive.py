@@ -206,13 +206,13 @@ def run_cli(scene: ARScene, method_name: str, settings: RenderSettings, out_dir:
     Writes ``progressive_<n>.exr/.png`` snapshots (n = 1, 2, 4, … and the last frame) and,
     with a ground truth, ``error.csv`` (frame, seconds, rmse) and ``error.png``. The files are
     staged and swapped in as one set when the run ends
-    (:class:`arlight.outputs_atomic.StagedOutput`): an error or an interrupt leaves the
+    (:class:`arlight.staged_output.StagedOutput`): an error or an interrupt leaves the
     previous output folder as it was (and creates none).
     """
 
     from arlight.io.images import read_hdr
-    from arlight.output import LAYER_FILES
-    from arlight.outputs_atomic import StagedOutput
+    from arlight.layer_files import LAYER_FILES
+    from arlight.staged_output import StagedOutput
 
     progressive_method(method_name)  # refuse before reading anything
 

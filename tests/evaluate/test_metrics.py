@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from arlight.camera_response import Transfer
 from arlight.evaluate import metrics as M
-from arlight.transfer import Transfer
 
 RNG = np.random.default_rng(3)
 

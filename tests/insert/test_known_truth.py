@@ -12,13 +12,13 @@ import cv2
 import numpy as np
 import pytest
 
+from arlight.camera_response import Transfer
 from arlight.insert import InsertRequest, build_scene, run_insert
 from arlight.io.images import write_exr, write_png
 from arlight.methods import RenderSettings
 from arlight.scene.load import load_scene, parse_scene
 from arlight.stats import agreement_fraction
 from arlight.synthetic import synthesize
-from arlight.transfer import Transfer
 from tests.insert import world as W
 
 ORIGIN, TARGET = (0.3, 0.42, 0.62), (0.08, 0.0, 0.17)

@@ -14,10 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from arlight.camera_response import srgb_decode
 from arlight.insert.proxy import plane_shape
 from arlight.io.images import write_png
 from arlight.scene.camera import look_at
-from arlight.transfer import srgb_decode
 
 SQUARES = (5, 7)
 SQUARE = 0.05

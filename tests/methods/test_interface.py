@@ -11,6 +11,7 @@ import pytest
 
 import arlight.methods as registry
 from arlight.errors import InputError
+from arlight.layer_files import write_layers
 from arlight.methods import (
     BaseMethod,
     Capabilities,
@@ -23,7 +24,6 @@ from arlight.methods import (
     register,
     unregister,
 )
-from arlight.output import write_layers
 from arlight.scene.model import ARScene
 from arlight.timing import StageTimer, stage_times
 from tests.conftest import area_light_scene, env_mirror_scene, load, with_constant_frame

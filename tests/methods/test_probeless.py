@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from arlight.methods import RenderSettings, get_method
-from arlight.probeless import synthetic as S
+from arlight.probeless import synthetic_rgbd as S
 from arlight.probeless.pipeline import Pipeline, Settings, primary_hits
 from arlight.scene.model import ARScene, Material, Shape
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from arlight.io.images import write_png
+from arlight.layer_files import write_layers
 from arlight.methods import RenderSettings, get_method
-from arlight.output import write_layers
 from arlight.scene.load import parse_scene
 from arlight.stats import agreement_fraction
 from arlight.synthetic import synthesize

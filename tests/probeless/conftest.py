@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from arlight.backend.mitsuba_scene import build_views
-from arlight.probeless import synthetic as S
+from arlight.probeless import synthetic_rgbd as S
 from arlight.scene.model import ARScene, Material, Shape
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arlight.probeless import synthetic as S
+from arlight.probeless import synthetic_rgbd as S
 from arlight.probeless.directions import DirectionSet, unoccluded_transfer
 from arlight.probeless.estimate import estimate_light
 from arlight.probeless.pipeline import primary_hits

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from arlight.probeless import synthetic as S
+from arlight.probeless import synthetic_rgbd as S
 from arlight.probeless.directions import DirectionSet
 from arlight.probeless.pipeline import (
     Pipeline,

@@ -12,7 +12,7 @@ import pytest
 
 from arlight.errors import InputError
 from arlight.light.estimate import LightEstimate
-from arlight.probeless import synthetic as S
+from arlight.probeless import synthetic_rgbd as S
 from arlight.probeless.reconstruct import reconstruct
 from arlight.probeless.rgbd_io import read_sequence
 from tests.cli_invoke import MainRunner

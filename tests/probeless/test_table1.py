@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from arlight.probeless.experiment import score_sequence
-from arlight.probeless.synthetic import render_sequence
+from arlight.probeless.synthetic_rgbd import render_sequence
 
 STUDIO = (Path(__file__).resolve().parents[2] / "src" / "arlight" / "data" / "light"
           / "panoramas" / "studio_small_03_512x256.hdr")

@@ -16,7 +16,7 @@ import pytest
 from arlight.io.images import write_png
 from arlight.scene.load import parse_scene
 from arlight.sequence.poses import write_poses
-from arlight.sequence.synthetic import object_path, orbit_poses
+from arlight.sequence.synthetic_video import object_path, orbit_poses
 from tests.conftest import area_light_scene
 
 ARLIGHT = shutil.which("arlight", path=str(Path(sys.executable).parent))

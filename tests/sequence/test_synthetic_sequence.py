@@ -12,7 +12,7 @@ import pytest
 
 from arlight.methods import RenderSettings
 from arlight.sequence.job import render_frame
-from arlight.sequence.synthetic import (
+from arlight.sequence.synthetic_video import (
     ground_truth_flicker_floor,
     sequence_job,
     sequence_metrics,

@@ -83,7 +83,7 @@ def eval_command(
     from arlight.evaluate.suite import get_scene, list_scenes
     from arlight.methods import available_methods
     from arlight.methods.spec import parse_option_pairs
-    from arlight.outputs_atomic import check_output_dir
+    from arlight.staged_output import check_output_dir
 
     console = Console(stderr=True)
     if list_only:

@@ -7,7 +7,7 @@ Conventions (all functions take NumPy ``(H, W, 3)`` images; ``test`` is the meth
   reference's peak, HDR-FLIP).
 * **Display** metrics work on the display image ``encode(clip(radiance · 2^exposure))`` in
   [0, 1] — what a viewer sees through the camera's transfer function
-  (:class:`arlight.transfer.Transfer`): PSNR with R = 1, SSIM, LDR-FLIP, error heat maps.
+  (:class:`arlight.camera_response.Transfer`): PSNR with R = 1, SSIM, LDR-FLIP, error heat maps.
 * A ``region`` is a boolean ``(H, W)`` mask; a metric "on the region" averages only over its
   pixels (see :func:`changed_region`).
 
@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from arlight.transfer import Transfer
+from arlight.camera_response import Transfer
 
 PSNR_CAP = 100.0  # dB, returned for identical images (MSE = 0)
 

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from arlight.camera_response import Transfer
 from arlight.evaluate import metrics as M
 from arlight.evaluate.harness import CellResult, EvalResults
 from arlight.io.images import atomic_write
-from arlight.transfer import Transfer
 
 ERROR_GAIN = 4.0
 SUMMARY_KEYS = ("seconds", "psnr", "flip", "ssim", "hdr_flip", "rmse", "changed_psnr",
@@ -313,10 +313,10 @@ def write_report(results: EvalResults, out: str | Path) -> dict[str, Path]:
     """Write the report folder; returns the paths of ``report.md``, ``index.html``, ....
 
     The report is staged next to ``out`` and swapped in as one set
-    (:class:`arlight.outputs_atomic.StagedOutput`): ``out`` holds the whole previous report
+    (:class:`arlight.staged_output.StagedOutput`): ``out`` holds the whole previous report
     or the whole new one; a folder holding other files is refused.
     """
-    from arlight.outputs_atomic import StagedOutput
+    from arlight.staged_output import StagedOutput
 
     out = Path(out)
     with StagedOutput(out, "eval", REPORT_FILES) as tmp:

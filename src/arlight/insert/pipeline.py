@@ -7,7 +7,7 @@ light (:mod:`arlight.insert.lighting`); estimate the plane's albedo
 (:mod:`arlight.insert.albedo`); place the virtual object; validate the whole scene with the
 scene loader; render with any registered method; write the scene file
 (:func:`arlight.scene.save.save_scene`), the layers and the composite
-(:func:`arlight.output.write_layers`) as one output set.
+(:func:`arlight.layer_files.write_layers`) as one output set.
 """
 
 from __future__ import annotations
@@ -109,8 +109,8 @@ class InsertResult:
 def _read_photo(path: Path, transfer: str) -> tuple[np.ndarray, np.ndarray | None,
                                                     np.ndarray]:
     """(linear radiance, code values or None for HDR, 8-bit image for the detector)."""
+    from arlight.camera_response import Transfer
     from arlight.io.images import is_hdr_path, read_hdr, read_ldr
-    from arlight.transfer import Transfer
 
     t = Transfer(kind=transfer)  # type: ignore[arg-type]
     if is_hdr_path(path):
@@ -209,11 +209,11 @@ def insert_inputs(req: InsertRequest, lights: Sequence[dict] = ()) -> list[Path]
 def check_insert_output(out: str | Path, inputs: Sequence[Path],
                         expected_bytes: int = 0) -> Path:
     """Refuse, before any work, an output folder that is an input, holds one, or cannot be
-    written as a new set (:func:`arlight.outputs_atomic.check_output_dir`); the message names
+    written as a new set (:func:`arlight.staged_output.check_output_dir`); the message names
     the output and the input."""
     import os
 
-    from arlight.outputs_atomic import check_output_dir
+    from arlight.staged_output import check_output_dir
 
     real = Path(os.path.realpath(out))
     for p in inputs:
@@ -241,10 +241,10 @@ def build_scene(req: InsertRequest, folder: str | Path) -> InsertResult:
     ``folder`` receives the albedo texture (``albedo.png``, 8-bit sRGB) when
     ``albedo_mode == "texture"``; the scene refers to it. Raises :class:`InputError` naming
     the file and field for any bad input."""
+    from arlight.camera_response import Transfer
     from arlight.io.images import write_png
     from arlight.scene.load import parse_scene
     from arlight.scene.model import Light
-    from arlight.transfer import Transfer
 
     folder = Path(folder)
     marker, calib, light_tabs = prepare_inputs(req)
@@ -298,7 +298,7 @@ def build_scene(req: InsertRequest, folder: str | Path) -> InsertResult:
 def write_insert(result: InsertResult, layers, out: str | Path, staging: Path) -> None:
     """Write the scene file, the registration report and the layers into ``staging`` (the
     staging folder of ``out``'s output set)."""
-    from arlight.output import write_layers
+    from arlight.layer_files import write_layers
     from arlight.scene.save import save_scene
 
     save_scene(result.scene, staging / "scene.toml")
@@ -316,7 +316,7 @@ def run_insert(req: InsertRequest, out: str | Path, method: str = "reference",
     ``arlight render OUT/scene.toml`` renders it the same way. Returns the
     :class:`InsertResult` and the method's layers."""
     from arlight.methods import RenderSettings, get_method
-    from arlight.outputs_atomic import StagedOutput
+    from arlight.staged_output import StagedOutput
 
     settings = settings or RenderSettings()
     fn = get_method(method)

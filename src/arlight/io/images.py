@@ -1,7 +1,7 @@
 """Reading and writing images.
 
 LDR images (PNG/JPEG/PPM/PGM) are returned as raw integer code values; converting them to
-linear radiance is the job of :mod:`arlight.transfer`, because it depends on the camera's
+linear radiance is the job of :mod:`arlight.camera_response`, because it depends on the camera's
 declared transfer function. HDR images (OpenEXR, Radiance ``.hdr``) are read as linear
 float32 through Mitsuba's ``Bitmap`` (which also reads tiled and mip-mapped EXR, level 0).
 
@@ -97,11 +97,11 @@ def read_linear(path: str | Path) -> np.ndarray:
     HDR files are returned as stored. LDR files are sRGB-decoded (IEC 61966-2-1) to [0, 1]:
     *relative* radiance of a display-referred picture, clipped where the sensor saturated.
     For camera frames with a declared transfer function and exposure use
-    :meth:`arlight.transfer.Transfer.to_radiance` on :func:`read_ldr` instead.
+    :meth:`arlight.camera_response.Transfer.to_radiance` on :func:`read_ldr` instead.
     """
     if is_hdr_path(path):
         return read_hdr(path)
-    from arlight.transfer import srgb_decode
+    from arlight.camera_response import srgb_decode
 
     codes = read_ldr(path)
     return srgb_decode(codes / float(np.iinfo(codes.dtype).max)).astype(np.float32)

@@ -7,7 +7,7 @@ and renders with that complete state (an update arriving mid-frame is used by th
 frame). The camera orbits the scene's vertical axis; the background is the scene's frame.
 A lost server does not stop the loop: the last state keeps lighting the frames while the
 client reconnects. The frames (``frame_NNNN.png``) and ``client.json`` (per-frame sequence
-and epoch, update latencies, counters) are written as one set (:mod:`arlight.outputs_atomic`).
+and epoch, update latencies, counters) are written as one set (:mod:`arlight.staged_output`).
 """
 
 from __future__ import annotations
@@ -60,8 +60,8 @@ def run_client(scene_path: Path, out: Path, *, connect: str, snapshot: str | Non
     from arlight.bounds import check_estimate, estimate
     from arlight.io.images import write_png
     from arlight.lightserver.nearfield_render import NearFieldRenderer
-    from arlight.outputs_atomic import StagedOutput, check_output_dir
     from arlight.scene.load import load_scene
+    from arlight.staged_output import StagedOutput, check_output_dir
 
     client = LightClient(connect, snapshot, heartbeat_timeout=heartbeat_timeout,
                          server_public_key=server_public_key, client_key=client_key,

@@ -7,7 +7,7 @@
   SH differential shading (E7)
 * :mod:`~arlight.probeless.reconstruct` — Open3D TSDF reconstruction of RGB-D frames
 * :mod:`~arlight.probeless.rgbd_io` — reading RGB-D folders and poses
-* :mod:`~arlight.probeless.synthetic` — synthetic sequences with known light
+* :mod:`~arlight.probeless.synthetic_rgbd` — synthetic sequences with known light
 * :mod:`~arlight.probeless.cli` — ``arlight light probeless``
 
 The method ``probeless`` (:mod:`arlight.methods.probeless`) renders single frames with it.

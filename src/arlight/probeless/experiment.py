@@ -1,7 +1,7 @@
 """Gruber's Table 1 experiment on synthetic sequences: dominant-direction accuracy, SH error
 and time per frame of the variants RM, REG4, REG8, ART1, ART4, ART8.
 
-Each sequence (:func:`arlight.probeless.synthetic.render_sequence`) is reconstructed from its
+Each sequence (:func:`arlight.probeless.synthetic_rgbd.render_sequence`) is reconstructed from its
 own RGB-D frames with the TSDF (2 m, 268³), and every variant runs the whole sequence on that
 reconstruction with the rendered frames as observations, as Gruber et al. replaced the RGB
 input by renderings under a known light. Per frame: ``dot(d_est, d_true)`` (their measure),
@@ -22,7 +22,7 @@ from arlight.layers import composite
 from arlight.probeless.directions import SH_ORDER, fibonacci_sphere
 from arlight.probeless.pipeline import VARIANTS, Pipeline, Settings
 from arlight.probeless.reconstruct import reconstruct
-from arlight.probeless.synthetic import ALBEDO, SyntheticFrame, render_sequence
+from arlight.probeless.synthetic_rgbd import ALBEDO, SyntheticFrame, render_sequence
 from arlight.scene.model import Shape, World
 from arlight.sphere import sh as SH
 

@@ -15,7 +15,7 @@ from typing import Literal
 
 import numpy as np
 
-from arlight.transfer import Transfer
+from arlight.camera_response import Transfer
 
 ApertureShape = Literal["disk", "square"]
 

@@ -17,12 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from arlight.camera_response import Transfer
 from arlight.errors import InputError
 from arlight.scene import schema
 from arlight.scene.camera import Camera, look_at
 from arlight.scene.model import ARScene, FrameView, Light, Material, MeshData, Shape, World
 from arlight.scene.schema import Validator
-from arlight.transfer import Transfer
 
 FORMAT = "arlight-scene/1"
 TOP_LEVEL = {"format", "camera", "frame", "materials", "shapes", "lights", "description",

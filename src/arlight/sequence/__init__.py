@@ -7,7 +7,7 @@
 * :mod:`arlight.sequence.store` — the output folder, written frame by frame (resume);
 * :mod:`arlight.sequence.runner` — the sequential loop or Ray, progress, video, summary;
 * :mod:`arlight.sequence.distributed` — Ray (imported only when a run asks for it);
-* :mod:`arlight.sequence.synthetic` — a synthetic sequence with per-frame ground truth.
+* :mod:`arlight.sequence.synthetic_video` — a synthetic sequence with per-frame ground truth.
 
 ``arlight sequence SCENE --frames DIR --poses poses.txt -m METHOD -o OUT``; see
 ``docs/sequence.md``.

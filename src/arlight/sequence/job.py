@@ -255,7 +255,7 @@ def render_frame(job: SequenceJob, frame: InputFrame, depth: np.ndarray | None =
     view = job.view(frame, depth)
     layers = method.render(state, view, job.frame_settings(frame.index, part))
     cam = view.camera
-    # the bit depth of the input frame (as arlight.output.display_dtype)
+    # the bit depth of the input frame (as arlight.layer_files.display_dtype)
     dtype = np.uint16 if view.frame_codes is not None and \
         view.frame_codes.dtype == np.uint16 else np.uint8
     display = cam.transfer.to_display(layers.composite, dtype)

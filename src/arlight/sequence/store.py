@@ -151,7 +151,7 @@ class SequenceStore:
         """The checks of :meth:`check` that need no job (the command makes them before it
         builds one): ``out`` against the inputs, its layout, the video and summary paths."""
         from arlight.output_guard import check_outputs
-        from arlight.outputs_atomic import check_output_dir
+        from arlight.staged_output import check_output_dir
 
         out = Path(os.path.abspath(Path(out).expanduser()))
         inputs = [Path(p) for p in inputs]

@@ -1,7 +1,7 @@
 """What the studio shows: a layer of the current frame as display code values, encoded.
 
 Radiance layers go through the camera's own transfer function
-(:meth:`arlight.transfer.Transfer.to_display`) with the user's exposure offset added, so at
+(:meth:`arlight.camera_response.Transfer.to_display`) with the user's exposure offset added, so at
 0 EV a composite with no virtual object shows the camera frame's own code values.
 """
 
@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from arlight.transfer import Transfer
+from arlight.camera_response import Transfer
 
 FORMATS = {"jpeg": ("JPEG", "image/jpeg"), "png": ("PNG", "image/png"),
            "webp": ("WEBP", "image/webp")}

@@ -68,7 +68,7 @@ def write_texture(name: str, albedo: np.ndarray) -> None:
     decodes (the flat albedo the proxy's material must carry)."""
     import imageio.v3 as iio
 
-    from arlight.transfer import srgb_decode, srgb_encode
+    from arlight.camera_response import srgb_decode, srgb_encode
 
     codes = np.round(srgb_encode(np.clip(albedo, 0.0, 1.0)) * 255).astype(np.uint8)
     path = HERE / "textures" / name

@@ -193,7 +193,7 @@ def write_suite_depth(folder: str | Path) -> Path:
     return write_exr(folder / "depth.exr", sensor_depth(load_scene(folder / "world.toml")))
 
 
-if __name__ == "__main__":  # python -m arlight.probeless.synthetic SCENE_FOLDER
+if __name__ == "__main__":  # python -m arlight.probeless.synthetic_rgbd SCENE_FOLDER
     import sys
 
     print(write_suite_depth(sys.argv[1]))

@@ -1,6 +1,6 @@
 """Writing a method's layers: EXR for every HDR layer, PNG for display.
 
-The display PNG uses the scene's transfer function (:class:`arlight.transfer.Transfer`), the
+The display PNG uses the scene's transfer function (:class:`arlight.camera_response.Transfer`), the
 exact inverse of the decoding applied to the input frame, so an unchanged frame comes out
 byte-identical. The bit depth follows the input frame (8 or 16 bits; 8 for HDR frames).
 """
@@ -37,14 +37,14 @@ def write_layers(layers: Layers, scene: ARScene, out_dir: str | Path) -> dict[st
     (``seconds``, ``time_<stage>`` seconds, counters).
 
     The files are staged next to ``out_dir`` and swapped in as one set
-    (:class:`arlight.outputs_atomic.StagedOutput`): the folder holds the whole previous
+    (:class:`arlight.staged_output.StagedOutput`): the folder holds the whole previous
     output or the whole new one, never a mix. A folder holding other files is refused.
 
     Raises ValueError, before writing anything, when a layer is not a finite float32 array
     of the scene camera's ``(H, W, 3)`` (``(H, W)`` for the mask; standard errors may be
     +inf but not NaN); the message names the layer and the expected shape.
     """
-    from arlight.outputs_atomic import StagedOutput
+    from arlight.staged_output import StagedOutput
 
     layers.check(scene.camera.height, scene.camera.width, where="write_layers")
     out = Path(out_dir)

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from arlight.transfer import Transfer, srgb_decode, srgb_encode
+from arlight.camera_response import Transfer, srgb_decode, srgb_encode
 
 
 @pytest.mark.parametrize("kind", ["srgb", "gamma", "linear"])
