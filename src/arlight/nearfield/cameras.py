@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from arlight.errors import InputError, read_text
-from arlight.scene.schema import MAX_LENGTH
+from arlight.scene.schema import MAX_LENGTH, REQUIRED, Field, Validator
 from arlight.sphere.fisheye import FisheyeCamera, OcamCamera, load_camera
 
 Model = FisheyeCamera | OcamCamera
@@ -83,96 +83,91 @@ def look_rotation(look, up) -> np.ndarray:
     return np.stack([np.cross(y, z), y, z], axis=1)
 
 
-def _vec3(entry: dict, key: str, where: str, file: str) -> np.ndarray:
-    v = entry.get(key)
-    try:
-        a = np.asarray(v, np.float64)
-    except (TypeError, ValueError):
-        a = np.zeros(0)
-    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.abs(a).max() > MAX_LENGTH:
-        raise InputError(f"expected 3 finite numbers of magnitude <= {MAX_LENGTH:g}, got "
-                         f"{v!r}", file=file, field=f"{where}.{key}")
-    if key != "position" and not np.any(a):
-        raise InputError("a direction must not be zero", file=file, field=f"{where}.{key}")
-    return a
+RIG_FIELDS: dict[str, Field] = {
+    "cameras": Field("table", REQUIRED, "`[[cameras]]` tables, one per fisheye camera"),
+}
+RIG_CAMERA_FIELDS: dict[str, Field] = {
+    "name": Field("str", None, "unique name (default `cam<k>`)"),
+    "position": Field("vec3", REQUIRED, "the camera's centre, world", "m",
+                      min=-MAX_LENGTH, max=MAX_LENGTH),
+    "look": Field("vec3", REQUIRED, "optical axis, world (not zero)",
+                  min=-MAX_LENGTH, max=MAX_LENGTH),
+    "up": Field("vec3", [0.0, 1.0, 0.0], "image up, world (not zero, not along look)",
+                min=-MAX_LENGTH, max=MAX_LENGTH),
+    "calibration": Field("path", None, "OCamCalib calib_results.txt, OpenCV .yml/.xml or "
+                         "JSON, relative to the rig file"),
+    "fov_deg": Field("float", None, "field of view for a `calibration` that lacks one",
+                     "deg", min=0.0, max=360.0, exclusive_min=True),
+    "equidistant": Field("table", None, "an ideal lens: `{ size = [w, h], fov_deg = 180 }`"),
+    "image": Field("str", None, "the camera's HDR image, relative to the rig file "
+                   "(`arlight light atlas`)"),
+}
+EQUIDISTANT_FIELDS: dict[str, Field] = {
+    "size": Field("vec2", REQUIRED, "image width and height", "px",
+                  min=MIN_IMAGE_SIDE, max=MAX_IMAGE_SIDE),
+    "fov_deg": Field("float", 180.0, "field of view", "deg", min=0.0, max=360.0,
+                     exclusive_min=True),
+}
+"""The fields of ``cams.toml`` (module docstring), read by the scene schema's ``Validator``."""
+
+
+def _model(v: Validator, cam: dict, where: str) -> Model:
+    """The lens model of one ``[[cameras]]`` table (already validated field by field)."""
+    if cam["calibration"] is not None:
+        model = load_camera(Path(cam["calibration"]), cam["fov_deg"])
+        if not all(MIN_IMAGE_SIDE <= x <= MAX_IMAGE_SIDE for x in model.size):
+            raise v.fail(f"{where}.calibration", f"the calibration's image sides must be "
+                         f"{MIN_IMAGE_SIDE} to {MAX_IMAGE_SIDE} px, got {list(model.size)}")
+        return model
+    if cam["equidistant"] is not None:
+        q = v.fields(v.table(cam["equidistant"], f"{where}.equidistant"), EQUIDISTANT_FIELDS,
+                     f"{where}.equidistant")
+        size = q["size"]
+        if any(x != int(x) for x in size):
+            raise v.fail(f"{where}.equidistant.size", f"expected two integers, got {size}")
+        return FisheyeCamera.equidistant((int(size[0]), int(size[1])), q["fov_deg"])
+    raise v.fail(f"{where}.calibration", "uncalibrated fisheye: give `calibration = \"file\"` "
+                 "(OCamCalib / OpenCV / JSON) or `equidistant = { size = [w, h], fov_deg = "
+                 "180 }`")
 
 
 def load_rig(path: str | Path) -> list[RigCamera]:
-    """Read ``cams.toml`` (module docstring); relative paths are relative to the file.
+    """Read ``cams.toml`` (module docstring; fields :data:`RIG_CAMERA_FIELDS`) through the
+    scene schema's ``Validator``; relative paths are relative to the file.
 
     Raises:
-        InputError: unreadable file, no cameras, a camera without calibration (neither
-            ``calibration`` nor ``equidistant``), bad vectors, a calibration that fails to
-            load; each names the file and field.
+        InputError: unreadable file, no cameras, an unknown field, a camera without
+            calibration (neither ``calibration`` nor ``equidistant``), bad vectors, a
+            calibration that fails to load; each names the file and field.
     """
     path = Path(path)
-    file = str(path)
+    v = Validator(str(path), path.parent)
     try:
         data = tomllib.loads(read_text(path, "camera rig file"))
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"cannot read the camera rig file ({exc})", file=file) from exc
-    entries = data.get("cameras")
+        raise InputError(f"cannot read the camera rig file ({exc})", file=str(path)) from exc
+    entries = v.fields(data, RIG_FIELDS, "")["cameras"]
     if not isinstance(entries, list) or not entries:
-        raise InputError("expected at least one [[cameras]] table", file=file,
-                         field="cameras")
+        raise v.fail("cameras", "expected at least one [[cameras]] table")
     rig, names = [], set()
     for k, e in enumerate(entries):
         where = f"cameras[{k}]"
-        if not isinstance(e, dict):
-            raise InputError("expected a table", file=file, field=where)
-        name = str(e.get("name", f"cam{k}"))
+        cam = v.fields(v.table(e, where), RIG_CAMERA_FIELDS, where)
+        name = cam["name"] or f"cam{k}"
         if name in names:
-            raise InputError(f"duplicate camera name {name!r}", file=file,
-                             field=f"{where}.name")
+            raise v.fail(f"{where}.name", f"duplicate camera name {name!r}")
         names.add(name)
-        pos = _vec3(e, "position", where, file)
-        look = _vec3(e, "look", where, file)
-        up = _vec3(e, "up", where, file) if "up" in e else np.array([0.0, 1.0, 0.0])
+        for key in ("look", "up"):
+            if not any(cam[key]):
+                raise v.fail(f"{where}.{key}", "a direction must not be zero")
         try:
-            rot = look_rotation(look, up)
+            rot = look_rotation(cam["look"], cam["up"])
         except ValueError as exc:
-            raise InputError(str(exc), file=file, field=f"{where}.up") from exc
-        model: Model
-        if "calibration" in e:
-            calib = (path.parent / str(e["calibration"])).resolve()
-            fov_deg = e.get("fov_deg")
-            if fov_deg is not None and (isinstance(fov_deg, bool)
-                                        or not isinstance(fov_deg, int | float)
-                                        or not 0 < fov_deg <= 360):
-                raise InputError(f"expected a field of view in (0, 360] degrees, got "
-                                 f"{fov_deg!r}", file=file, field=f"{where}.fov_deg")
-            model = load_camera(calib, fov_deg)
-            if not all(MIN_IMAGE_SIDE <= x <= MAX_IMAGE_SIDE for x in model.size):
-                raise InputError(f"the calibration's image sides must be {MIN_IMAGE_SIDE} to "
-                                 f"{MAX_IMAGE_SIDE} px, got {list(model.size)}", file=file,
-                                 field=f"{where}.calibration")
-        elif "equidistant" in e:
-            q = e["equidistant"]
-            try:
-                if not isinstance(q, dict) or len(q["size"]) != 2 or not all(
-                        isinstance(x, int) and not isinstance(x, bool) for x in q["size"]):
-                    raise ValueError(f"size must be two integers, got {q.get('size')!r}"
-                                     if isinstance(q, dict) else "not a table")
-                size = (int(q["size"][0]), int(q["size"][1]))
-                fov = float(q.get("fov_deg", 180.0))
-            except (KeyError, TypeError, ValueError, IndexError) as exc:
-                raise InputError(f"expected {{ size = [w, h], fov_deg = … }} ({exc})",
-                                 file=file, field=f"{where}.equidistant") from exc
-            if not all(MIN_IMAGE_SIDE <= x <= MAX_IMAGE_SIDE for x in size):
-                raise InputError(f"image sides must be {MIN_IMAGE_SIDE} to {MAX_IMAGE_SIDE} "
-                                 f"px, got {list(size)}", file=file,
-                                 field=f"{where}.equidistant.size")
-            if not (np.isfinite(fov) and 0 < fov <= 360):
-                raise InputError(f"expected a field of view in (0, 360] degrees, got {fov}",
-                                 file=file, field=f"{where}.equidistant.fov_deg")
-            model = FisheyeCamera.equidistant(size, fov)
-        else:
-            raise InputError("uncalibrated fisheye: give `calibration = \"file\"` "
-                             "(OCamCalib / OpenCV / JSON) or `equidistant = { size = [w, h],"
-                             " fov_deg = 180 }`", file=file, field=f"{where}.calibration")
+            raise v.fail(f"{where}.up", str(exc)) from exc
+        model = _model(v, cam, where)
         model.world_from_camera = rot
-        image = (path.parent / str(e["image"])).resolve() if "image" in e else None
-        rig.append(RigCamera(name, model, pos, image))
+        image = (path.parent / cam["image"]).resolve() if cam["image"] else None
+        rig.append(RigCamera(name, model, np.asarray(cam["position"], np.float64), image))
     return rig
 
 
