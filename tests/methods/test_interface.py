@@ -24,7 +24,6 @@ from arlight.methods import (
     register,
     unregister,
 )
-from arlight.scene.model import ARScene
 from arlight.timing import StageTimer, stage_times
 from tests.conftest import area_light_scene, env_mirror_scene, load, with_constant_frame
 
@@ -46,44 +45,6 @@ def assert_same(a: Layers, b: Layers) -> None:
 
 
 # ----------------------------------------------------------------- prepare / render
-@pytest.mark.parametrize("name", BUILTINS)
-def test_one_shot_equals_prepare_then_render_bitwise(name):
-    """``method(scene)`` == ``render(prepare(scene.world), scene.view)``, and one state
-    rendered twice gives the same layers. Bugs caught: render mutating the prepared state
-    (e.g. an integrator, sampler or counters kept in it), or prepare depending on the view
-    or the seed."""
-    scene = small("env")
-    s = RenderSettings(spp=4, seed=3)
-    m = get_method(name)
-    one_shot = m(scene, s)
-    state = m.prepare(scene.world, s)
-    first = m.render(state, scene.view, s)
-    second = m.render(state, scene.view, s)
-    assert_same(one_shot, first)
-    assert_same(first, second)
-    assert first.method == one_shot.method == name
-
-
-@pytest.mark.parametrize("name", BUILTINS)
-def test_posed_view_renders_the_composed_scene(name):
-    """A view with object transforms renders the posed world, bitwise equal to composing
-    the scene first. Bug caught: render ignores ``view.object_transforms`` (the object
-    stays at rest) or applies them twice."""
-    scene = small("area")
-    world = scene.world
-    move = np.eye(4)
-    move[:3, 3] = [-0.3, 0.0, 0.1]  # metres
-    view = replace(scene.view, object_transforms={"ball": move})
-    s = RenderSettings(spp=4, seed=1)
-    m = get_method(name)
-    posed = m.render(m.prepare(world, s), view, s)
-    composed = m(ARScene.compose(world, view), s)
-    assert_same(posed, composed)
-    assert "time_pose" in posed.stats
-    rest = m(scene, s)
-    assert not np.array_equal(posed.mask, rest.mask)
-
-
 def test_state_of_another_method_or_other_options_is_refused():
     """Bug caught: a state rendered by the wrong method or with options it was not prepared
     with (silently rendering something else than asked)."""
@@ -110,21 +71,6 @@ def test_frame_options_must_be_options():
 
 
 # -------------------------------------------------------------------------- options
-def test_unknown_option_lists_the_known_ones_for_every_method():
-    """Bug caught: a method (reference used to) ignoring options it does not have, so a
-    typo silently renders with defaults."""
-    with pytest.raises(InputError, match=r"options\.reprojct: unknown option; known "
-                                         r"options: caustics, env_mode, "
-                                         r"light_sampling, mirror_lower_hemisphere, mode, "
-                                         r"photon_radius, photons, ppm_alpha, "
-                                         r"ppm_iterations, replica_mode, replicas, "
-                                         r"reproject, sample_offset, sampler"):
-        get_method("onepass").spec.parse_options({"reprojct": False})
-    with pytest.raises(InputError, match=r"options\.spp: unknown option; known options: "
-                                         r"replicas, sampler"):
-        get_method("reference")(small(), RenderSettings(spp=1, options={"spp": 4}))
-
-
 def test_option_types_defaults_and_command_line_strings():
     """Defaults fill missing options; ``"false"`` from the command line is False; a value of
     the wrong kind fails naming ``options.<key>``. Bugs caught: the string "false" read as

@@ -246,13 +246,6 @@ def test_bad_options_name_the_field():
         render(scene, options={"bogus": 1})
 
 
-def test_seed_determinism():
-    scene = make(table_scene(16, 12))
-    a = render(scene, spp=4, seed=3)
-    b = render(scene, spp=4, seed=3)
-    np.testing.assert_array_equal(a.composite, b.composite)
-
-
 @pytest.mark.parametrize("sampler", ["sobol", "independent"])
 def test_passes_do_not_change_the_render(sampler):
     """Samples are hashed per (pixel, sample, dimension): splitting the render into other

@@ -40,15 +40,6 @@ def test_virtual_pixels_show_mixed_and_shadow_darkens():
     assert np.sum((z < -5).any(axis=2) & (layers.mask == 0)) >= 5  # a real shadow
 
 
-def test_same_seed_bitwise_identical():
-    scene = with_constant_frame(parse_scene(area_light_scene(16, 12)))
-    a = reference(scene, RenderSettings(spp=4, seed=11))
-    b = reference(scene, RenderSettings(spp=4, seed=11))
-    c = reference(scene, RenderSettings(spp=4, seed=12))
-    assert np.array_equal(a.composite, b.composite)
-    assert not np.array_equal(a.composite, c.composite)
-
-
 def _card_scene(n_px: int):
     """A virtual square card facing a camera that looks down −Z, edges at fractional pixels."""
     f = 20.0
