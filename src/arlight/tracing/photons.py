@@ -326,6 +326,8 @@ class StoredPhotons:
 
     def without(self, cls: int) -> StoredPhotons:
         """The photons not of class ``cls`` (same order)."""
+        if self.count == 0:  # Dr.Jit rejects comparing a zero-width array with a scalar
+            return self
         keep = dr.compress(self.cls != cls)
         return StoredPhotons(dr.gather(mi.Point3f, self.p, keep),
                              dr.gather(mi.Vector3f, self.wi, keep),
@@ -668,6 +670,8 @@ def gather_caustics(views: SceneViews, pmap: PhotonMap, rays: mi.Ray3f, key: mi.
     """
     md = 64 if max_depth < 0 else max_depth
     n = dr.width(key)
+    if pmap.stored == 0:  # no point/spot light or no generator: no caustic photons at all
+        return dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n)
     which = dr.zeros(mi.UInt32, n)
     k = len(pmap.radii)
     if k > 1:
