@@ -21,15 +21,6 @@ def run(scene, **opts):
     return get_method("dir")(scene, RenderSettings(options=opts))
 
 
-@pytest.mark.parametrize("light", ["point", "area"])
-def test_no_virtual_object_returns_the_frame_exactly(light):
-    """Rejects a delta taken from two independently noisy or differently sampled solutions."""
-    scene = make(box_scene(virtual=False, light=light))
-    layers = run(scene, vpls=16)
-    assert np.array_equal(layers.composite, scene.frame)
-    assert not layers.delta.any()
-
-
 def _np(c) -> np.ndarray:
     return np.array(c, np.float64).reshape(3, -1).T
 

@@ -37,20 +37,6 @@ def _opts(**kw):
     return SPEC.parse_options({**SMALL, **kw})
 
 
-def test_renders_are_deterministic_and_one_shot_equals_prepare_render():
-    """Rendering a prepared state twice gives bitwise identical layers, equal to the one-shot
-    call (rejects state mutated by render_view, e.g. voxels accumulated into the prepared
-    real volume)."""
-    scene = make(box_scene(w=40, h=30))
-    m = get_method("dvct")
-    s = RenderSettings(options=SMALL)
-    state = m.prepare(scene.world, s)
-    a, b = m.render(state, scene.view, s), m.render(state, scene.view, s)
-    one = m(scene, s)
-    for x in (b, one):
-        assert np.array_equal(a.composite, x.composite) and np.array_equal(a.delta, x.delta)
-
-
 def test_posed_view_reuses_the_real_voxels_and_equals_the_composed_scene():
     """Moving the virtual cube renders bitwise what preparing the posed world from scratch
     renders; by 1 cm (less than half a cell: the snapped volume stays) the real voxels of the
@@ -76,16 +62,6 @@ def test_posed_view_reuses_the_real_voxels_and_equals_the_composed_scene():
         composed = m(ARScene.compose(scene.world, view), s)
         assert np.array_equal(posed.composite, composed.composite)
         assert not np.array_equal(posed.delta, rest.delta)
-
-
-@pytest.mark.parametrize("light", ["point", "area"])
-def test_no_virtual_object_returns_the_frame_exactly(light):
-    """No virtual object → composite == frame bit for bit, delta == 0, mask == 0; rejects
-    any shading of real pixels without a virtual object (no volume is built)."""
-    scene = make(box_scene(virtual=False, light=light))
-    layers = run(scene)
-    assert np.array_equal(layers.composite, scene.frame)
-    assert not layers.delta.any() and not layers.mask.any()
 
 
 def test_rho_equals_mu_plus_delta_at_the_finest_level():

@@ -173,45 +173,6 @@ def test_lane_culling_changes_nothing(shadows, gspp):
     assert np.any(a[1] > 0)
 
 
-def test_method_contract_one_shot_equals_prepare_render(tmp_path):
-    """One-shot == prepare + render (bitwise) and a state renders twice the same. Bug
-    caught: render mutating the prepared state (e.g. a stale shadow-map cache)."""
-    sc = scene(room(virtual=[vbox("obj", at=(0.0, 0.3, 0.3))]))
-    path = save_light(_light(1, 0.4), tmp_path / "vals.json")
-    s = RenderSettings(options={"light": str(path)})
-    m = get_method("nearfield")
-    one = m(sc, s)
-    state = m.prepare(sc.world, s)
-    a, b = m.render(state, sc.view, s), m.render(state, sc.view, s)
-    for k in ("mixed", "delta", "mask", "composite"):
-        assert np.array_equal(getattr(one, k), getattr(a, k)), k
-        assert np.array_equal(getattr(a, k), getattr(b, k)), k
-
-
-@pytest.mark.slow
-def test_posed_view_equals_the_composed_scene():
-    """A posed view equals the composed scene (the server's SH probes follow the object).
-    Bug caught: the SH of the rest pose reused for a moved object."""
-    from dataclasses import replace as dc_replace
-
-    from arlight.scene.model import ARScene
-
-    sc = scene(room(virtual=[vbox("obj", at=(0.0, 0.3, 0.3))]))
-    s = RenderSettings(options={"capture_size": 16, "capture_spp": 1, "atlas_resolution": 32,
-                                "vals": 4})
-    m = get_method("nearfield")
-    state = m.prepare(sc.world, s)
-    a = m.render(state, sc.view, s)
-    move = np.eye(4)
-    move[:3, 3] = [-0.3, 0.0, 0.1]
-    view = dc_replace(sc.view, object_transforms={"obj": move})
-    posed = m.render(state, view, s)
-    composed = m(ARScene.compose(sc.world, view), s)
-    for k in ("mixed", "delta", "mask", "composite"):
-        assert np.array_equal(getattr(posed, k), getattr(composed, k)), k
-    assert not np.array_equal(posed.mask, a.mask)
-
-
 def test_glossy_adds_a_highlight_from_the_val_centre():
     """Blinn-Phong sampled at the VAL centre: a phong object is the diffuse one (kd) plus a
     non-negative specular term that is positive somewhere. Bug caught: the specular lobe
