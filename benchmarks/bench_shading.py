@@ -127,7 +127,7 @@ def main() -> None:
                             f"the whole frame, **{'met' if shading <= TARGETS[m] else 'not met'}"
                             "** for the virtual shading stage)")
             if m == "prt":
-                from arlight.methods.prt import object_mesh
+                from arlight.realtime.prt_shading import object_mesh
                 from arlight.realtime.prt_transfer import precompute
 
                 loaded = {sh.id(): sh for sh in state.data.views.mixed.scene.shapes()}

@@ -14,7 +14,6 @@ from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.nearfield import NearFieldClient, empty_light, prepare
 from arlight.nearfield.cameras import auto_rig
-from arlight.nearfield.client import direct_light, shadow_maps, tile_lanes
 from arlight.nearfield.lightfile import load_light, save_light
 from arlight.nearfield.materials import (
     beer_lambert,
@@ -23,6 +22,7 @@ from arlight.nearfield.materials import (
     schlick_complex,
 )
 from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings, payload_bytes
+from arlight.nearfield.shading import direct_light, shadow_maps, tile_lanes
 from arlight.nearfield.state import NearFieldLight
 from tests.nearfield.conftest import room, scene, vbox, world
 

@@ -10,7 +10,7 @@ two visibilities per VAL and the differential composite of Eq. 14.
   (:class:`~arlight.nearfield.pipeline.NearFieldServer`) from a synthetic capture of the
   world's real part by the rig in ``cameras`` (default: an automatic rig of six fisheyes,
   :func:`~arlight.nearfield.cameras.auto_rig`).
-* **render** (per frame, :mod:`arlight.nearfield.client`): G-buffer; PRT indirect light on
+* **render** (per frame, :mod:`arlight.nearfield.shading`): G-buffer; PRT indirect light on
   virtual samples (Eq. 8, :func:`arlight.realtime.prt_shading.shade_virtual`); shadow maps
   (two per VAL); direct light of the VALs with both visibilities; Eq. 14. Stages
   ``gbuffer``, ``indirect``, ``shadow_maps``, ``cull`` (8×8 tiles), ``direct``, ``assemble``.
@@ -33,7 +33,7 @@ from arlight.backend.mitsuba_scene import SceneViews
 from arlight.methods.base import BaseMethod, Layers, Prepared, RenderSettings
 from arlight.methods.fragments import GBUFFER_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
-from arlight.nearfield.client import (
+from arlight.nearfield.shading import (
     MaterialTable,
     PerObjectSH,
     ShadowMaps,

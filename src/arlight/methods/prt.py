@@ -60,9 +60,8 @@ from arlight.realtime.oof import (
     render_layers,
     virtual_scene,
 )
-from arlight.realtime.prt_shading import (  # noqa: F401 - object_mesh: benchmarks/bench_shading
+from arlight.realtime.prt_shading import (
     PRTObject,
-    object_mesh,
     prt_meshes,
     shade_virtual,
 )

@@ -8,7 +8,7 @@ renders with (``arlight.lightserver`` carries it over the network).
 Server: :class:`arlight.nearfield.pipeline.NearFieldServer` (``atlas``, ``projection``,
 ``split``, ``vals``, ``cubemap``, ``indirect``); rig: :mod:`arlight.nearfield.cameras`;
 synthetic fisheye images: :mod:`arlight.nearfield.capture`; client shading:
-:mod:`arlight.nearfield.client` behind the ``nearfield`` method and
+:mod:`arlight.nearfield.shading` behind the ``nearfield`` method and
 :class:`arlight.methods.nearfield.NearFieldClient`. See ``docs/methods/nearfield.md``.
 """
 

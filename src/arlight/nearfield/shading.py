@@ -1,4 +1,4 @@
-"""The client of Rohmer et al. 2015 (§5): one frame from a :class:`NearFieldLight`.
+"""Shading of the client of Rohmer et al. 2015 (§5): one frame from a :class:`NearFieldLight`.
 
 Per G-buffer sample (``arlight.realtime.gbuffer``) with position ``x``, normal ``n``, albedo
 ρ and role:
@@ -434,7 +434,7 @@ def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: m
 
 
 class PerObjectSH(SimpleNamespace):
-    """Adapter for ``arlight.methods.prt.shade_virtual``: its ``vertex_values`` uses each
+    """Adapter for ``arlight.realtime.prt_shading.shade_virtual``: its ``vertex_values`` uses each
     object's own SH block (Rohmer: one probe per virtual object) instead of one light."""
 
     def vertex_values(self, order: int | None = None) -> list[np.ndarray]:
