@@ -447,3 +447,12 @@ def test_low_discrepancy_photos_are_closer_to_the_truth_with_honest_stderr():
     for name, (e2, s2, tail) in stats.items():
         assert 0.75 < e2 / s2 < 1.35 and tail < 0.04, (name, e2 / s2, tail)
     assert ld[0] / ind[0] < 0.75 and ld[1] / ind[1] < 0.75, (ld, ind)
+
+
+def test_spec_key_is_the_content_hash_in_insertion_order():
+    """The cache key uses arlight.content_hash, keeping the order of dict items (a view's
+    objects in scene order) and the type tags (1 and 1.0, "1" and 1 differ)."""
+    from arlight.synthetic import spec_key
+    assert spec_key({"a": 1, "b": 2}) != spec_key({"b": 2, "a": 1})
+    assert spec_key({"a": 1}) != spec_key({"a": 1.0}) != spec_key({"a": "1"})
+    assert len(spec_key({"a": [1, 2]})) == 32

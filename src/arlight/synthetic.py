@@ -82,7 +82,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import struct
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -104,6 +103,7 @@ from arlight.backend.mitsuba_scene import (
     virtual_names,
 )
 from arlight.cache import default_cache_dir
+from arlight.content_hash import content_hash
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
 from arlight.io.images import atomic_write
@@ -207,7 +207,11 @@ def _chunks(n: int, pixels: int) -> list[int]:
 
 
 def _seed(seed: int, stream: str, batch: int, chunk: int) -> int:
-    """32-bit sampler seed of one render, distinct per (seed, stream, batch, chunk)."""
+    """32-bit sampler seed of one render, distinct per (seed, stream, batch, chunk).
+
+    The SHA-256 of the plain text, not :func:`~arlight.content_hash.content_hash` (whose
+    type-tagged encoding gives other numbers): the seeds, hence the ground-truth images,
+    stay as they were."""
     text = f"{seed}:{stream}:{batch}:{chunk}".encode()
     return int.from_bytes(hashlib.sha256(text).digest()[:4], "little")
 
@@ -261,44 +265,22 @@ def _module_source(module: str) -> str:
     return Path(spec.origin).read_text(encoding="utf-8")
 
 
-def _feed(h: Any, x: Any) -> None:
-    """Feed plain data to a hash, unambiguously: every value is tagged with its type and
-    length; dicts in insertion order (the order of a view's objects is the scene order);
-    arrays with dtype, shape and little-endian bytes."""
+def _ordered(x: Any) -> Any:
+    """``x`` with every dict replaced by one keyed by ``(position, key)``: the content hash
+    sorts a dict's items, but here the order counts (the order of a view's objects is the
+    scene order). Spec dicts have string keys only, so no spec dict reads like a converted
+    one."""
     if isinstance(x, dict):
-        h.update(b"d%d:" % len(x))
-        for k, v in x.items():
-            _feed(h, k)
-            _feed(h, v)
-    elif isinstance(x, list | tuple):
-        h.update(b"l%d:" % len(x))
-        for v in x:
-            _feed(h, v)
-    elif isinstance(x, str):
-        b = x.encode()
-        h.update(b"s%d:" % len(b) + b)
-    elif isinstance(x, bool):
-        h.update(b"T" if x else b"F")
-    elif isinstance(x, int):
-        h.update(b"i%d;" % x)
-    elif isinstance(x, float):
-        h.update(b"f" + struct.pack("<d", x))
-    elif x is None:
-        h.update(b"N")
-    elif isinstance(x, np.ndarray | np.generic):
-        a = np.ascontiguousarray(x)
-        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
-        h.update(b"a" + a.dtype.str.encode() + repr(a.shape).encode() + b":")
-        h.update(a.tobytes())
-    else:
-        raise TypeError(f"not plain data: {type(x).__name__}")
+        return {(i, k): _ordered(v) for i, (k, v) in enumerate(x.items())}
+    if isinstance(x, list | tuple):
+        return [_ordered(v) for v in x]
+    return x
 
 
 def spec_key(spec: dict[str, Any]) -> str:
-    """The cache key of a :func:`render_spec`: 32 hex digits of its SHA-256."""
-    h = hashlib.sha256()
-    _feed(h, spec)
-    return h.hexdigest()[:32]
+    """The cache key of a :func:`render_spec`: 32 hex digits of its
+    :func:`~arlight.content_hash.content_hash` (dicts in insertion order)."""
+    return content_hash(_ordered(spec), length=32)
 
 
 def content_key(world: ARScene, spp: int = 256, seed: int = 1, max_depth: int = 8,
