@@ -65,6 +65,7 @@ RAY_TYPES = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
              "rays_real_shadow", "rays_reprojection")
 DIMS_PER_DEPTH = 8  # random dimensions reserved per path depth
 DIM_NEE, DIM_BSDF1, DIM_BSDF2, DIM_RR = 0, 2, 3, 5
+DIM_CAUSTIC_LOBE, DIM_CAUSTIC_DIR = 6, 7  # the caustic gather walk's (arlight.tracing.photons)
 
 
 @dataclass

@@ -69,7 +69,14 @@ from arlight.backend.mitsuba_scene import (
     SceneViews,
 )
 from arlight.errors import InputError
+from arlight.sampling.stream import LaneSampler
 from arlight.scene.model import World
+from arlight.tracing.onepass import (
+    DIM_CAUSTIC_DIR,
+    DIM_CAUSTIC_LOBE,
+    DIMS_PER_DEPTH,
+    lane_keys,
+)
 
 GENERATOR_MATERIALS = ("glass", "mirror")
 """Material types whose shapes are caustic generators (delta-specular BSDFs)."""
@@ -77,7 +84,15 @@ PHOTON_LIGHTS = ("point", "spot")
 """Light types that shoot caustic photons (delta positions: a path tracer finds none of their
 caustics, so the photon estimate adds without double counting)."""
 SHARED, MIXED_ONLY, REAL_ONLY = 0, 1, 2
-_DIMS = 8
+# Random numbers come from :class:`LaneSampler` (``independent``) on the one-pass tracer's
+# layout of ``DIMS_PER_DEPTH`` dimensions per depth. Photons have keys of their own (per
+# photon), on which the light walk uses slot 0 (lobe) and 1–2 (direction) of each depth and
+# the emission jitter dimensions 0–1; the camera samples' caustic walk reads the camera
+# sample's key at the tracer's slots DIM_CAUSTIC_* (disjoint from the path tracer's), and the
+# choice of a PPM map one dimension far from every depth.
+_PHOTON_LOBE, _PHOTON_DIR = 0, 1
+_EMIT_JITTER = 0
+_MAP_CHOICE = 0x7FFF0001
 
 
 def _concat(parts: list, cls):
@@ -276,8 +291,9 @@ def emit_photons(world: World, views: SceneViews, n_photons: int, seed: int) -> 
             return dr.opaque(mi.Float, float(x))
 
         idx = dr.arange(mi.UInt32, n)
-        key = mi.sample_tea_32(idx, dr.opaque(mi.UInt32, (seed * 7919 + k) & 0xFFFFFFFF), 4)[0]
-        jit = mi.Point2f(mi.sample_tea_float32(key, 0, 6), mi.sample_tea_float32(key, 1, 6))
+        rng = LaneSampler.independent(
+            lane_keys(n, dr.opaque(mi.UInt32, (seed * 7919 + k) & 0xFFFFFFFF)))
+        jit = rng.next_2d(_EMIT_JITTER)
         mu, mf = dr.opaque(mi.UInt32, m), op(m)
         u = mi.Point2f((mi.Float(idx % mu) + jit.x) / mf, (mi.Float(idx // mu) + jit.y) / mf)
         origin = mi.Point3f(*(op(x) for x in pos))
@@ -356,12 +372,12 @@ def _specular_bounce(bsdf, ctx, si, s1: mi.Float, s2: mi.Point2f, go: mi.Bool, w
     return weight, ray, go & (dr.max(weight) > 0)
 
 
-def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt32,
+def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, rng: LaneSampler,
                  max_depth: int) -> tuple[mi.Point3f, mi.Vector3f, mi.Color3f, mi.Bool, mi.Bool]:
     """Trace photons in ``view`` through delta-specular vertices; a photon is stored at its
     first non-delta hit after ≥ 1 specular bounce. Returns (p, wi, flux, stored, touched
     virtual), one symbolic loop, no scatter inside it."""
-    n = dr.width(key)
+    n = dr.width(rng.key)
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
     state = (mi.Ray3f(rays), mi.Color3f(flux), dr.full(mi.Bool, True, n), dr.zeros(mi.UInt32, n),
              dr.zeros(mi.UInt32, n), dr.full(mi.Bool, False, n), dr.full(mi.Bool, False, n),
@@ -381,10 +397,9 @@ def _photon_walk(view: SceneView, rays: mi.Ray3f, flux: mi.Color3f, key: mi.UInt
         stored |= store
         sp = dr.select(store, si.p, sp)
         go = valid & delta & (depth + 3 <= max_depth)  # L S^(depth+1) D: depth + 3 vertices
-        base = depth * _DIMS
-        s1 = mi.sample_tea_float32(key, base, 6)
-        s2 = mi.Point2f(mi.sample_tea_float32(key, base + 1, 6),
-                        mi.sample_tea_float32(key, base + 2, 6))
+        base = depth * DIMS_PER_DEPTH
+        s1 = rng.next_1d(base + _PHOTON_LOBE)
+        s2 = rng.next_2d(base + _PHOTON_DIR)
         phi, ray, go = _specular_bounce(bsdf, ctx, si, s1, s2, go, phi, ray)
         return ray, phi, go, depth + 1, nspec + 1, stored, touched, sp
 
@@ -403,9 +418,8 @@ def trace_photons(views: SceneViews, emitted: EmittedPhotons, max_depth: int,
         z = dr.zeros(mi.Float, 0)
         return StoredPhotons(mi.Point3f(z, z, z), mi.Vector3f(z, z, z), mi.Color3f(z, z, z),
                              dr.zeros(mi.UInt32, 0))
-    key = mi.sample_tea_32(dr.arange(mi.UInt32, n),
-                           dr.opaque(mi.UInt32, (seed * 31 + 17) & 0xFFFFFFFF), 4)[0]
-    p, wi, phi, stored, touched = _photon_walk(views.mixed, emitted.rays, emitted.flux, key, md)
+    rng = LaneSampler.independent(lane_keys(n, dr.opaque(mi.UInt32, (seed * 31 + 17) & 0xFFFFFFFF)))
+    p, wi, phi, stored, touched = _photon_walk(views.mixed, emitted.rays, emitted.flux, rng, md)
     same = views.mixed is views.real  # then no shape is virtual and nothing is touched
     cls = dr.select(touched, mi.UInt32(MIXED_ONLY), mi.UInt32(SHARED))
     dr.eval(p, wi, phi, stored, cls)
@@ -418,7 +432,7 @@ def trace_photons(views: SceneViews, emitted: EmittedPhotons, max_depth: int,
             rays_b = dr.gather(mi.Ray3f, emitted.rays, fork)
             p2, wi2, phi2, st2, _ = _photon_walk(
                 views.real, rays_b, dr.gather(mi.Color3f, emitted.flux, fork),
-                dr.gather(mi.UInt32, key, fork), md)
+                rng.gather(fork), md)
             dr.eval(p2, wi2, phi2, st2)
             k2 = dr.compress(st2)
             parts.append((dr.gather(mi.Point3f, p2, k2), dr.gather(mi.Vector3f, wi2, k2),
@@ -595,7 +609,7 @@ def build_photon_maps(world: World, views: SceneViews, ps: PhotonSettings
 
 
 # ------------------------------------------------------------------------ camera gather
-def _gather_walk(view: SceneView, rays: mi.Ray3f, key: mi.UInt32, max_depth: int
+def _gather_walk(view: SceneView, rays: mi.Ray3f, rng: LaneSampler, max_depth: int
                  ) -> tuple[mi.Point3f, mi.Vector3f, mi.Color3f, mi.Bool, mi.Bool, mi.Int32,
                             mi.Bool]:
     """Follow camera rays through delta-specular vertices to the first non-delta hit.
@@ -603,7 +617,7 @@ def _gather_walk(view: SceneView, rays: mi.Ray3f, key: mi.UInt32, max_depth: int
     Returns (point, normal facing the arriving ray, throughput × diffuse BSDF value, found,
     a virtual shape was passed before the point (``wasSpecular`` of Kán §5.2), its role,
     the walk touched a virtual shape anywhere, the point included)."""
-    n = dr.width(key)
+    n = dr.width(rng.key)
     ctx = mi.BSDFContext()
     state = (mi.Ray3f(rays), dr.full(mi.Color3f, 1.0, n), dr.full(mi.Bool, True, n),
              dr.zeros(mi.UInt32, n), dr.full(mi.Bool, False, n), dr.zeros(mi.Point3f, n),
@@ -632,10 +646,13 @@ def _gather_walk(view: SceneView, rays: mi.Ray3f, key: mi.UInt32, max_depth: int
         found |= here
         touched |= valid & (role == ROLE_VIRTUAL)
         go = valid & delta & (depth + 2 <= max_depth)
-        base = depth * _DIMS + 6
-        s1 = mi.sample_tea_float32(key, base, 6)
-        s2 = mi.Point2f(mi.sample_tea_float32(key, base + 1, 6),
-                        mi.sample_tea_float32(key, base + 1, 7))
+        base = depth * DIMS_PER_DEPTH
+        s1 = rng.next_1d(base + DIM_CAUSTIC_LOBE)
+        # the direction's second coordinate cannot be the next dimension (it is the path
+        # tracer's light sample of the next depth): a 7-round TEA hash of the same one, the
+        # one number here not drawn through LaneSampler (kept: the renders are unchanged)
+        d = base + DIM_CAUSTIC_DIR
+        s2 = mi.Point2f(rng.next_1d(d), mi.sample_tea_float32(rng.key, d, 7))
         beta, ray, go = _specular_bounce(bsdf, ctx, si, s1, s2, go, beta, ray)
         return ray, beta, go, depth + 1, touched, qp, qn, qf, found, qt, qrole
 
@@ -670,14 +687,15 @@ def gather_caustics(views: SceneViews, pmap: PhotonMap, rays: mi.Ray3f, key: mi.
     """
     md = 64 if max_depth < 0 else max_depth
     n = dr.width(key)
+    rng = LaneSampler.independent(key)
     if pmap.stored == 0:  # no point/spot light or no generator: no caustic photons at all
         return dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n)
     which = dr.zeros(mi.UInt32, n)
     k = len(pmap.radii)
     if k > 1:
-        u = mi.sample_tea_float32(key, 0x7FFF0001, 6)
+        u = rng.next_1d(_MAP_CHOICE)
         which = dr.minimum(mi.UInt32(u * k), k - 1)
-    qp, qn, qf, found, qt, qrole, touched = _gather_walk(views.mixed, rays, key, md)
+    qp, qn, qf, found, qt, qrole, touched = _gather_walk(views.mixed, rays, rng, md)
     sm, sr = pmap.estimate(qp, qn, which, found)
     lm = qf * sm
     if reprojector is not None:
@@ -694,9 +712,8 @@ def gather_caustics(views: SceneViews, pmap: PhotonMap, rays: mi.Ray3f, key: mi.
         lr = mi.Color3f(lr)
         dr.scatter(lr, dr.zeros(mi.Color3f, dr.width(fork)), fork)
     elif dr.width(fork) > 0:
-        key_b = dr.gather(mi.UInt32, key, fork)
         qp2, qn2, qf2, found2, _, _, _ = _gather_walk(views.real, dr.gather(mi.Ray3f, rays, fork),
-                                                   key_b, md)
+                                                   rng.gather(fork), md)
         _, sr2 = real_map.estimate(qp2, qn2, dr.gather(mi.UInt32, which, fork), found2)
         lr = mi.Color3f(lr)
         dr.scatter(lr, qf2 * sr2, fork)
