@@ -98,9 +98,12 @@ CASES = [  # (command, where, signal, force the two-rename fallback)
     ("render", "between", signal.SIGKILL, True),
     ("synth", "between", signal.SIGKILL, True),
     *[("render", phase, signal.SIGINT, False) for phase in PHASES],
-    *[("synth", phase, signal.SIGINT, False) for phase in PHASES],
+    ("synth", "variant", signal.SIGINT, False),
+    ("synth", "kernel", signal.SIGINT, False),
     ("render", "kernel", signal.SIGTERM, False),
 ]
+SLOW_CASES = [("synth", "startup", signal.SIGINT, False), ("synth", "scene", signal.SIGINT, False)]
+"""Phases ``synth`` shares with ``render`` (same code path): run in the slow tier only."""
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -115,9 +118,10 @@ def saturated():
         p.wait()
 
 
-@pytest.mark.parametrize("cmd,where,sig,fallback", CASES,
+@pytest.mark.parametrize("cmd,where,sig,fallback",
+                         [*CASES, *[pytest.param(*c, marks=pytest.mark.slow) for c in SLOW_CASES]],
                          ids=[f"{c}-{w}-{s.name}-{'2renames' if f else 'exchange'}"
-                              for c, w, s, f in CASES])
+                              for c, w, s, f in [*CASES, *SLOW_CASES]])
 def test_killed_run_leaves_old_or_new_set(setup, cmd, where, sig, fallback):
     """Bugs caught: files moved one at a time (a mix after a kill), staging folders left
     by a kill, an interrupted run exiting 0, an empty folder after an error."""
