@@ -66,3 +66,14 @@ def test_the_rich_adapter_draws_and_removes_bars():
     assert bars._tasks == {}
     bars.stop()
     assert "demo render" in out.getvalue()
+
+
+def test_a_done_total_callback_reports_one_task():
+    """The (done, total) form the precomputations call (PRT transfer, occlusion fields)."""
+    events, sink = _collect()
+    with progress.sink(sink):
+        report = progress.reporter("prt transfer bunny")
+        for done in (10, 20, 30):
+            report(done, 30)
+    assert [e.done for e in events] == [0, 10, 20, 30, 30]
+    assert events[-1].finished and len({e.task for e in events}) == 1

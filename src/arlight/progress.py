@@ -105,4 +105,21 @@ def task(label: str, total: float | None, *, done: float = 0.0,
     return Task(label, total, done=done, enabled=enabled)
 
 
-__all__ = ["Event", "Sink", "Task", "sink", "task", "use_sink"]
+def reporter(label: str) -> Callable[[float, float], None]:
+    """A ``progress(done, total)`` callback (the form the PRT and occlusion precomputations
+    take) that reports through one task, opened at its first call and closed when
+    ``done >= total``."""
+    state: dict[str, Task] = {}
+
+    def report(done: float, total: float) -> None:
+        t = state.get("task")
+        if t is None or t.closed:
+            t = state["task"] = Task(label, total)
+        t.advance(done - t.done)
+        if done >= total:
+            t.close()
+
+    return report
+
+
+__all__ = ["Event", "Sink", "Task", "reporter", "sink", "task", "use_sink"]

@@ -33,13 +33,13 @@ from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import SceneViews
 from arlight.backend.rays import np3
 from arlight.errors import InputError
+from arlight.progress import reporter
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import MipEnvironment
 from arlight.realtime.light_reduction import LightSet
 from arlight.realtime.prt_transfer import (
     PRTTransfer,
     cached_transfer,
-    progress_bar,
     rotation_part,
 )
 from arlight.realtime.shading import ambient_irradiance_dr
@@ -144,7 +144,8 @@ def prt_meshes(world: World, views: SceneViews, cache: Path | None, order: int,
             tr = cached_transfer(mesh, cache, order, directions, bounces,
                                  s.material.params.get(
                                      "albedo", s.material.params.get("kd", [0.5] * 3)),
-                                 s.name, progress_bar(f"prt {s.name}"), shadowed=shadowed)
+                                 s.name, reporter(f"prt transfer {s.name}"),
+                                 shadowed=shadowed)
         except ValueError as exc:
             raise InputError(str(exc), field=f"shapes.{s.name}") from exc
         objects.append(PRTObject(i, tr, rot, faces))

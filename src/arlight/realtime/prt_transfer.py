@@ -27,7 +27,6 @@ object-space mesh content (vertices, faces, normals) and every setting that chan
 from __future__ import annotations
 
 import hashlib
-import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -117,24 +116,6 @@ def mesh_key(mesh: MeshData, order: int, directions: int, bounces: int,
     return h.hexdigest()
 
 
-def progress_bar(label: str, stream=None):
-    """A ``progress(done, total)`` callback that draws ``label [#####     ] 50 %`` on
-    ``stream`` (stderr) when it is a terminal."""
-    stream = stream or sys.stderr
-    tty = getattr(stream, "isatty", lambda: False)()
-
-    def show(done: int, total: int) -> None:
-        if not tty:
-            return
-        k = int(30 * done / max(total, 1))
-        stream.write(f"\r{label} [{'#' * k}{' ' * (30 - k)}] {100 * done // max(total, 1):3d} %")
-        if done >= total:
-            stream.write("\n")
-        stream.flush()
-
-    return show
-
-
 def _mesh_scene(v: np.ndarray, f: np.ndarray) -> mi.Scene:
     m = mi.Mesh("prt", len(v), len(f))
     params = mi.traverse(m)
@@ -154,7 +135,7 @@ def precompute(mesh: MeshData, order: int = 2, directions: int = 512, bounces: i
         directions: rays per vertex.
         bounces: diffuse inter-reflections (needs ``albedo``, RGB; the transfer is then
             ``(V, n)`` per luminance-weighted grey albedo).
-        progress: ``progress(done, total)`` callback (e.g. :func:`progress_bar`).
+        progress: ``progress(done, total)`` callback (e.g. :func:`arlight.progress.reporter`).
         shadowed: trace self-occlusion (False: ``V ≡ 1``, the unshadowed transfer, i.e. SH
             irradiance; no inter-reflection either).
     """
@@ -271,4 +252,4 @@ def vertex_values(transfer: PRTTransfer, light_sh: np.ndarray, world_from_object
 
 
 __all__ = ["EPS", "PRTTransfer", "VERSION", "cached_transfer", "check_mesh", "mesh_key",
-           "precompute", "progress_bar", "rotation_part", "vertex_values"]
+           "precompute", "rotation_part", "vertex_values"]
