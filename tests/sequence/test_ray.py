@@ -57,10 +57,13 @@ def test_worker_killed_mid_task_run_completes_with_all_frames(tiny, tmp_path):
     assert p.returncode == 0, stderr
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["frames"], summary["rendered"]) == (tiny.n, tiny.n)
-    assert summary["backend"] == "ray (auto)" and summary["processes"] >= 2
+    # (how many processes delivered results depends on Ray's scheduling on a loaded machine:
+    # not asserted; the retry of frame 3 in another process is, below)
+    assert summary["backend"] == "ray (auto)" and summary["processes"] >= 1
     attempts = [line.split() for line in (hook / "attempts").read_text().splitlines()]
     frame3 = [pid_ for i, pid_ in attempts if i == "3"]
     assert len(frame3) == 3 and frame3.count(str(pid)) == 1  # 2 parts + 1 retry
+    assert len(set(frame3)) >= 2  # the killed part was retried by another process
     assert sorted(int(i) for i, _ in attempts) == sorted([*range(tiny.n)] * 2 + [3])
     # the same frames as the plain sequential loop (a deterministic method)
     seq = tmp_path / "seq"
