@@ -24,6 +24,7 @@ from typing import Annotated
 import typer
 
 from arlight.bounds import MAX_FRAMES, MAX_SECONDS_BUDGET, MAX_SEED, MAX_SPP
+from arlight.cli_options import Force
 from arlight.errors import ArlightError
 from arlight.evaluate import cli as eval_cli
 from arlight.importers.cli import import_mitsuba_command
@@ -63,8 +64,6 @@ Spp = Annotated[int, typer.Option("--spp", help="samples per pixel (stratified w
                                                 "perfect square)", min=1, max=MAX_SPP)]
 Seed = Annotated[int, typer.Option("--seed", help="random seed (0 to 2^32-1); equal seeds "
                                    "give identical images", min=0, max=MAX_SEED)]
-Force = Annotated[bool, typer.Option("--force", help="run even when the estimated memory or "
-                                     "time is beyond the limits (see docs/cli.md)")]
 
 SYNTH_FILES = ("frame.exr", "frame.png", "frame_stderr.exr", "ground_truth.exr",
                "ground_truth.png", "ground_truth_stderr.exr", "mask.exr")

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from arlight.bounds import MAX_LIGHTS, MAX_SH_HEIGHT, MAX_SH_ORDER
+from arlight.cli_options import Force
 from arlight.errors import InputError
 
 if TYPE_CHECKING:
@@ -322,9 +323,7 @@ def estimate(
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="replace an existing output arlight did not write (never an "
         "input)")] = False,
-    force: Annotated[bool, typer.Option(
-        "--force", help="run even when the memory/time estimate is beyond the bounds")
-    ] = False,
+    force: Force = False,
 ) -> None:
     """Estimate a LightEstimate (main light, extra lights, SH remainder) from an image."""
     import numpy as np
@@ -490,9 +489,7 @@ def show(
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="replace an existing picture arlight did not write (never an "
         "input)")] = False,
-    force: Annotated[bool, typer.Option(
-        "--force", help="run even when the memory/time estimate is beyond the bounds")
-    ] = False,
+    force: Force = False,
 ) -> None:
     """Picture a light estimate: map with the lights, SH reconstruction, irradiance."""
     from arlight.light.estimate import LightEstimate, hdr_map_path, read_json

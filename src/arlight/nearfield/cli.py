@@ -18,6 +18,8 @@ from typing import Annotated
 
 import typer
 
+from arlight.cli_options import Force
+
 # Memory of the server per atlas texel (supersampled geometry, radiance, split, dilated
 # atlases) and per rig pixel (an HDR image, its projection: rays, depths, weights).
 BYTES_PER_TEXEL = 1024.0
@@ -70,9 +72,7 @@ def atlas(
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="replace an existing output arlight did not write (never the "
         "scene, the rig or a file they reference)")] = False,
-    force: Annotated[bool, typer.Option(
-        "--force", help="run even when the memory/time estimate is beyond the bounds")
-    ] = False,
+    force: Force = False,
 ) -> None:
     """Run one server update of the near-field pipeline and write the VALs and SH."""
     from arlight.bounds import check_estimate

@@ -27,6 +27,8 @@ from typing import Annotated
 
 import typer
 
+from arlight.cli_options import Force
+
 # Memory per TSDF voxel (Open3D's UniformTSDFVolume: tsdf, weight, colour as doubles, plus
 # the marching-cubes pass) and per pixel of a frame (colour float32 RGB, depth, the
 # pipeline's per-frame planes); time per voxel and frame of the integration.
@@ -207,9 +209,7 @@ def probeless(
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="replace existing outputs arlight did not write (never a file "
         "of the RGB-D folder or the poses)")] = False,
-    force: Annotated[bool, typer.Option(
-        "--force", help="run even when the memory/time estimate is beyond the bounds")
-    ] = False,
+    force: Force = False,
 ) -> None:
     """Probeless light estimate from an RGB-D sequence (Gruber et al. 2014): TSDF
     reconstruction, 10 cm radiance transfer, least-squares 16-coefficient SH."""
