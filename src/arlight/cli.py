@@ -7,6 +7,7 @@
     arlight methods [NAME]             list methods, or one's options and capabilities
     arlight light ...                  light estimation (SH, env maps, probes, fisheye)
     arlight eval ...                   evaluation harness (scenes × methods → report)
+    arlight worlds make --seed S -o D  a generated world (training or held-out) + renders
     arlight insert PHOTO ...           insert a virtual object into a photo with a marker
     arlight studio SCENE               live AR composite in the browser (drag, switch methods)
     arlight sequence SCENE ...         render an AR video (resumable, optionally on Ray)
@@ -27,6 +28,7 @@ from arlight.bounds import MAX_FRAMES, MAX_SECONDS_BUDGET, MAX_SEED, MAX_SPP
 from arlight.cli_options import Force
 from arlight.errors import ArlightError
 from arlight.evaluate import cli as eval_cli
+from arlight.evaluate import worlds_cli
 from arlight.importers.cli import import_mitsuba_command
 from arlight.insert.cli import insert_command
 from arlight.light import cli as light_cli
@@ -281,6 +283,7 @@ light_cli.app.command("atlas")(atlas_command)
 app.add_typer(light_cli.app, name="light", help="light estimation: SH, environment maps, "
               "probes, fisheye cameras, light extraction")
 app.command("eval")(eval_cli.eval_command)
+app.add_typer(worlds_cli.app, name="worlds")
 app.command("import-mitsuba")(import_mitsuba_command)
 app.command("insert")(insert_command)
 app.command("serve-light")(serve_light_command)

@@ -423,3 +423,32 @@ def _render(spec: dict[str, Any], progress: bool = False) -> dict[str, np.ndarra
 __all__ = ["DEFAULT_SAMPLER", "FORMAT_VERSION", "SAMPLERS", "SyntheticPhoto", "batch_plan",
            "check_sampler", "content_key", "mask_count", "render_spec",
            "spec_key", "synthesize"]
+
+
+# --------------------------------------------------------------------------------------------
+# Depth
+# --------------------------------------------------------------------------------------------
+
+def sensor_depth(world: ARScene) -> np.ndarray:
+    """What a depth sensor at the world's camera reads: ``(H, W)`` float32 camera-space
+    ``z`` (m, along the camera's +z axis) of the first *real* surface through each pixel
+    centre (virtual objects are not in the real world), NaN where nothing is hit.
+
+    Rays come from Mitsuba's own sensor for the camera (:func:`describe_sensor`; a thin
+    lens is sampled at its centre) and are intersected with Mitsuba's scene of the real
+    view, like the photographs themselves.
+    """
+    ensure_variant()
+    cam = world.camera
+    scene = load_scene(describe_views(world.without_virtual())["real"])
+    sensor = load_sensor(describe_sensor(cam, 1))
+    rows, cols = np.mgrid[0:cam.height, 0:cam.width]
+    film = mi.Point2f(((cols.ravel() + 0.5) / cam.width).astype(np.float32),
+                      ((rows.ravel() + 0.5) / cam.height).astype(np.float32))
+    ray, _ = sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
+    si = scene.ray_intersect(ray)
+    pose = np.asarray(cam.world_from_camera, dtype=np.float64)
+    p = np.stack([np.asarray(c, dtype=np.float64) for c in (si.p.x, si.p.y, si.p.z)], axis=1)
+    z = (p - pose[:3, 3]) @ pose[:3, 2]
+    z[~np.asarray(si.is_valid())] = np.nan
+    return z.reshape(cam.height, cam.width).astype(np.float32)

@@ -26,6 +26,7 @@ from arlight.probeless.reconstruct import RGBDFrame
 from arlight.scene.camera import Camera, look_at
 from arlight.scene.model import ARScene, Light, Material, Shape
 from arlight.sphere import sh as SH
+from arlight.synthetic import sensor_depth
 
 ALBEDO = 0.6
 
@@ -175,13 +176,6 @@ def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: i
     return frames
 
 
-def sensor_depth(world: ARScene) -> np.ndarray:
-    """What a depth sensor at the world's camera reads: camera-space ``z`` (m) of the first
-    *real* surface (virtual objects are not in the real world), NaN where nothing is hit."""
-    hits = primary_hits(build_views(world.without_virtual()), world.camera, mixed=False)
-    return np.where(np.isfinite(hits.z), hits.z, np.nan).astype(np.float32)
-
-
 def write_suite_depth(folder: str | Path) -> Path:
     """Write ``depth.exr`` of the suite scene in ``folder`` (full resolution, from its
     world.toml), which its proxy.toml names as ``[frame] depth`` (the RGB-D input of
@@ -200,5 +194,5 @@ if __name__ == "__main__":  # python -m arlight.probeless.synthetic_rgbd SCENE_F
 
 
 __all__ = ["ALBEDO", "SyntheticFrame", "bundled_hdr", "camera_path", "cap_light",
-           "light_directions", "render_sequence", "room_shapes", "sensor_depth", "virtual_objects",
+           "light_directions", "render_sequence", "room_shapes", "virtual_objects",
            "write_suite_depth"]

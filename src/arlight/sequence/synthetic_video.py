@@ -7,7 +7,7 @@ about the scene's look-at target (:func:`orbit_poses`) and the virtual object al
 frame with :func:`arlight.synthetic.synthesize` — the camera frame ``I_c`` (world without
 virtual objects), the ground truth (world with them) and the coverage mask, with Mitsuba's
 own path tracer, cached on disk by content hash, every frame with the same seeds. A sensor's
-depth of the real world (:func:`arlight.probeless.synthetic_rgbd.sensor_depth`) is made for the
+depth of the real world (:func:`arlight.synthetic.sensor_depth`) is made for the
 methods that need depth.
 
 A method then renders the *proxy* with these frames, poses and object transforms
@@ -136,7 +136,7 @@ def synthetic_sequence(scene: str = "bunny-box", n_frames: int = 32, width: int 
         seq.ground_truth_stderr.append(photo.ground_truth_stderr)
         seq.masks.append(photo.mask)
         if depth:
-            from arlight.probeless.synthetic_rgbd import sensor_depth
+            from arlight.synthetic import sensor_depth
 
             seq.depths.append(np.nan_to_num(sensor_depth(wv), nan=0.0))
         if progress:
