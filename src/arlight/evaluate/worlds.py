@@ -254,6 +254,23 @@ class GeneratedWorld:
             out.append(sc)
         return tuple(out)
 
+    def suite_scene(self, width: int | None = None):
+        """The world as the evaluation harness runs it
+        (:class:`~arlight.evaluate.suite.SuiteScene`, ``quick`` when scaled down): the
+        proxy carries the depth a sensor at the camera reads of the real world
+        (:func:`arlight.synthetic.sensor_depth`, props the proxy lacks included), the
+        RGB-D input of ``probeless``."""
+        from dataclasses import replace
+
+        from arlight.evaluate.suite import SuiteScene
+        from arlight.synthetic import sensor_depth
+
+        world, proxy = self.scenes(width)
+        proxy = replace(proxy, depth=sensor_depth(world))
+        return SuiteScene(name=self.name, description=self.describe(),
+                          paper_figure=f"generated ({self.split}, {self.world_class})",
+                          world=world, proxy=proxy, quick=width not in (None, RESOLUTION[0]))
+
     def describe(self) -> str:
         """One line: class, scale, environment, lights, materials."""
         t = self.tags
