@@ -462,3 +462,20 @@ def test_progressive_methods_give_another_estimate_for_another_seed(name):
     scene, _ = case(name)
     other = get_method(name)(scene, settings(name, seed=4))
     assert not np.array_equal(other.composite, one_shot(name).composite)
+
+
+def test_a_method_that_needs_vertices_skips_analytic_virtual_shapes():
+    """prt and nearfield shade per vertex: a virtual analytic sphere is a stated skip in the
+    capability check (the harness's skip), not an error half-way through preparation
+    (found on generated worlds, issue #30)."""
+    from arlight.methods import get_method
+    from arlight.scene.load import parse_scene
+
+    scene = parse_scene({
+        "camera": {"resolution": [8, 6], "fov_y_deg": 40.0,
+                   "look_at": {"origin": [0, 0, 3], "target": [0, 0, 0]}},
+        "shapes": [{"role": "virtual", "type": "sphere", "radius": 0.5}],
+        "lights": [{"type": "constant", "radiance": [1, 1, 1]}]})
+    for name in ("prt", "nearfield"):
+        assert "virtual sphere" in get_method(name).spec.unsupported_reason(scene)
+    assert get_method("ibl").spec.unsupported_reason(scene) is None

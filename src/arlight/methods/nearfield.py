@@ -82,7 +82,10 @@ SPEC = MethodSpec(
                 "per-object SH; PRT, two shadow maps per VAL, Eq. 14; real time.",
     options=OPTIONS,
     capabilities=Capabilities(interactive=True,
-                              materials=frozenset({"diffuse", "phong", "roughconductor"})),
+                              materials=frozenset({"diffuse", "phong", "roughconductor"}),
+                              # per-vertex transfer: analytic spheres and disks have no
+                              # vertices (realtime.prt_shading.object_mesh)
+                              virtual_shapes=frozenset({"mesh", "box", "rectangle"})),
 )
 
 

@@ -97,7 +97,10 @@ SPEC = MethodSpec(
                 "with self-occlusion, rotated with the object; AR-OOF shadows; real time.",
     options=OPTIONS,
     capabilities=Capabilities(interactive=True,
-                              materials=frozenset({"diffuse", "phong", "roughconductor"})),
+                              materials=frozenset({"diffuse", "phong", "roughconductor"}),
+                              # per-vertex transfer: analytic spheres and disks have no
+                              # vertices (realtime.prt_shading.object_mesh)
+                              virtual_shapes=frozenset({"mesh", "box", "rectangle"})),
 )
 
 

@@ -26,7 +26,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from arlight.scene.schema import LIGHT_TYPES, MATERIAL_TYPES, REQUIRED, Field, Validator
+from arlight.scene.schema import (
+    LIGHT_TYPES,
+    MATERIAL_TYPES,
+    REQUIRED,
+    SHAPE_TYPES,
+    Field,
+    Validator,
+)
 
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
@@ -83,6 +90,9 @@ class Capabilities:
             :data:`arlight.scene.schema.MATERIAL_TYPES`).
         lights: supported light types (default: all of
             :data:`arlight.scene.schema.LIGHT_TYPES`).
+        virtual_shapes: shape types a virtual object may have (default: all of
+            :data:`arlight.scene.schema.SHAPE_TYPES`; e.g. per-vertex transfer needs
+            triangle meshes).
     """
 
     interactive: bool = False
@@ -91,9 +101,11 @@ class Capabilities:
     needs_frame: bool = True
     materials: frozenset[str] = frozenset(MATERIAL_TYPES)
     lights: frozenset[str] = frozenset(LIGHT_TYPES)
+    virtual_shapes: frozenset[str] = frozenset(SHAPE_TYPES)
 
     def __post_init__(self) -> None:
-        for name, known in (("materials", MATERIAL_TYPES), ("lights", LIGHT_TYPES)):
+        for name, known in (("materials", MATERIAL_TYPES), ("lights", LIGHT_TYPES),
+                            ("virtual_shapes", SHAPE_TYPES)):
             value = frozenset(getattr(self, name))
             object.__setattr__(self, name, value)
             unknown = sorted(value - set(known))
@@ -113,7 +125,8 @@ class Capabilities:
         return {"interactive": yes(self.interactive), "progressive": yes(self.progressive),
                 "needs depth": yes(self.needs_depth), "needs frame": yes(self.needs_frame),
                 "materials": types(self.materials, MATERIAL_TYPES),
-                "lights": types(self.lights, LIGHT_TYPES)}
+                "lights": types(self.lights, LIGHT_TYPES),
+                "virtual shapes": types(self.virtual_shapes, SHAPE_TYPES)}
 
 
 def _coerce(value: Any, spec: Field) -> Any:
@@ -216,6 +229,10 @@ class MethodSpec:
         if lights:
             return (f"{self.name} does not support light type {', '.join(lights)} "
                     f"(supports {', '.join(sorted(caps.lights)) or 'none'})")
+        shapes = sorted({s.type for s in world.shapes if s.is_virtual} - caps.virtual_shapes)
+        if shapes:
+            return (f"{self.name} does not support virtual {', '.join(shapes)} shapes "
+                    f"(supports {', '.join(sorted(caps.virtual_shapes))})")
         if view is not None:
             if caps.needs_frame and view.frame is None:
                 return f"{self.name} needs a background frame; the scene has none"
