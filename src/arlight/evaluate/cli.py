@@ -6,6 +6,9 @@
                                                            is not cached yet
     arlight eval --option onepass.reproject=false          an option of one method
     arlight eval --option reproject=false                  ... of every method declaring it
+    arlight eval --worlds heldout:24 --width 160           every method on 24 held-out
+                                                           generated worlds: distributions
+                                                           and the equal-time table
 
 Mounted by :mod:`arlight.cli` as ``app.command("eval")(eval_command)``.
 """
@@ -19,6 +22,7 @@ import typer
 
 from arlight.bounds import MAX_REPEATS, MAX_SEED, MAX_SPP
 from arlight.errors import InputError
+from arlight.evaluate.distribution import LADDER_SPP
 
 
 def _names(text: str | None, field: str) -> list[str] | None:
@@ -72,6 +76,19 @@ def eval_command(
                       "has it (repeatable; see `arlight methods NAME`)")] = None,
     force: Annotated[bool, typer.Option("--force", help="run even when the estimated time "
                      "or memory is beyond the limits (see docs/cli.md)")] = False,
+    worlds: Annotated[str | None, typer.Option("--worlds", "-w", help="generated worlds: "
+                      "heldout:N (report here), training:N (tune here), SPLIT:N+START, or "
+                      "comma-separated seeds; without --scenes the suite is not run")] = None,
+    width: Annotated[int | None, typer.Option("--width", help="image width of the generated "
+                     "worlds in px (default 80 with --quick, 640 with --full; 4:3)", min=8,
+                     max=4096)] = None,
+    equal_time: Annotated[bool | None, typer.Option("--equal-time/--no-equal-time",
+                          help="time onepass on a ladder of spp per scene and compare each "
+                          "method with onepass at its own frame time (default: on with "
+                          "--worlds)")] = None,
+    ladder: Annotated[str, typer.Option("--ladder", help="spp of onepass's equal-time "
+                      "ladder, comma-separated (stopped after the first frame slower than "
+                      "the world's slowest method)")] = ",".join(map(str, LADDER_SPP)),
 ) -> None:
     """Evaluate methods on the scene suite against path-traced ground truth; write a report
     (Markdown, HTML, JSON, CSV, image grids, plots)."""
@@ -93,9 +110,13 @@ def eval_command(
         for name, doc in available_methods().items():
             typer.echo(f"method {name:20s} {doc}")
         return
+    from arlight.evaluate.worlds import parse_worlds
+
     known_methods, known_scenes = list(available_methods()), list_scenes()
     method_names = _names(methods, "methods") or known_methods
-    scene_names = _names(scenes, "scenes") or known_scenes
+    seeds = parse_worlds(worlds) if worlds is not None else []
+    scene_names = _names(scenes, "scenes") or ([] if seeds and scenes is None
+                                                else known_scenes)
     for field, names, known in (("--methods", method_names, known_methods),
                                 ("--scenes", scene_names, known_scenes)):
         unknown = [n for n in names if n not in known]
@@ -105,9 +126,16 @@ def eval_command(
     sweep_spp = _ints(sweep, "sweep")
     for v in sweep_spp:
         check_range(v, "--sweep", 1, MAX_SPP)
+    ladder_spp = _ints(ladder, "ladder")
+    if not ladder_spp:
+        raise InputError("expected at least one spp", field="--ladder")
+    for v in ladder_spp:
+        check_range(v, "--ladder", 1, MAX_SPP)
     total = 0.0
-    for name in scene_names:
-        w, h = get_scene(name, quick=quick).resolution
+    world_w = width or (80 if quick else 640)
+    sizes = [(n, get_scene(n, quick=quick).resolution) for n in scene_names] + [
+        (f"world-{s}", (world_w, max(1, round(world_w * 3 / 4)))) for s in seeds]
+    for name, (w, h) in sizes:
         one = estimate(w, h, max([spp, *sweep_spp]), paths=2)
         check_estimate(one, f"scene {name} ({w}×{h}, {spp} spp)", force)
         gt = estimate(w, h, gt_spp, paths=2)
@@ -116,13 +144,16 @@ def eval_command(
             one.seconds * (repeats + 1) + sum(estimate(w, h, s, paths=2).seconds
                                               for s in sweep_spp))
     check_estimate(Estimate(0.0, total, 0.0),  # the time over every cell; memory: above
-                   f"{len(scene_names)} scenes × {len(method_names)} methods", force)
+                   f"{len(sizes)} scenes × {len(method_names)} methods", force)
     check_output_dir(out, REPORT_FILES, 64 << 20)
     cfg = EvalConfig(methods=method_names, scenes=scene_names, quick=quick, spp=spp,
                      gt_spp=gt_spp, repeats=repeats, seed=seed, max_depth=max_depth,
                      use_cache=not no_cache, cache_only=cache_only,
                      sweep_spp=sweep_spp,
-                     options=parse_option_pairs(option or [], "[method.]key=value"))
+                     options=parse_option_pairs(option or [], "[method.]key=value"),
+                     worlds=seeds, world_width=width,
+                     equal_time=bool(seeds) if equal_time is None else equal_time,
+                     ladder_spp=ladder_spp)
     results = run_evaluation(cfg, log=console.print)
     paths = write_report(results, out)
     failed = sum(bool(c.error) for c in results.cells)

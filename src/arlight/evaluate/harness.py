@@ -48,7 +48,8 @@ import numpy as np
 from arlight.cache import default_cache_dir
 from arlight.errors import InputError
 from arlight.evaluate import metrics as M
-from arlight.evaluate.suite import SuiteScene, get_scene
+from arlight.evaluate.distribution import LADDER_METHOD, LADDER_SPP, LadderPoint, onepass_at
+from arlight.evaluate.suite import QUICK_WIDTH, SuiteScene, get_scene
 from arlight.methods import RenderSettings, get_method
 from arlight.synthetic import SyntheticPhoto, content_key
 from arlight.timing import stage_times
@@ -76,6 +77,14 @@ class EvalConfig:
         options: method options: ``"method.key"`` for one method or a bare ``"key"`` for
             every evaluated method that declares it (see :func:`method_options`); values as
             in :attr:`RenderSettings.options` (command-line strings are converted).
+        worlds: seeds of generated worlds (:mod:`arlight.evaluate.worlds`) to evaluate
+            after the suite ``scenes``; each is the scene ``world-<seed>``.
+        world_width: image width of the generated worlds (px; default 80 when ``quick``,
+            else 640).
+        equal_time: time ``onepass`` on a ladder of spp per scene and compare every method
+            with it at the method's own frame time (:mod:`arlight.evaluate.distribution`).
+        ladder_spp: the spp of that ladder (default
+            :data:`~arlight.evaluate.distribution.LADDER_SPP`).
     """
 
     methods: list[str]
@@ -91,15 +100,24 @@ class EvalConfig:
     cache_dir: Path | None = None
     sweep_spp: list[int] = field(default_factory=list)
     options: dict[str, Any] = field(default_factory=dict)
+    worlds: list[int] = field(default_factory=list)
+    world_width: int | None = None
+    equal_time: bool = False
+    ladder_spp: list[int] = field(default_factory=lambda: list(LADDER_SPP))
 
     def __post_init__(self) -> None:
         if not self.methods:
             raise InputError("no methods given", field="methods")
-        if not self.scenes:
+        if not self.scenes and not self.worlds:
             raise InputError("no scenes given", field="scenes")
+        if self.world_width is not None and self.world_width < 8:
+            raise InputError(f"must be >= 8 px, got {self.world_width}", field="width")
         for name in ("spp", "gt_spp", "repeats"):
             if getattr(self, name) < 1:
                 raise InputError(f"must be >= 1, got {getattr(self, name)}", field=name)
+        if any(s < 1 for s in [*self.sweep_spp, *self.ladder_spp]) or not self.ladder_spp:
+            raise InputError(f"spp values must be >= 1, got {self.ladder_spp}",
+                             field="ladder")
         if any(s < 1 for s in self.sweep_spp):
             raise InputError(f"spp values must be >= 1, got {self.sweep_spp}", field="sweep")
         if self.cache_only and not self.use_cache:
@@ -161,6 +179,12 @@ class EvalResults:
     cells: list[CellResult]
     scenes: dict[str, dict[str, str]] = field(default_factory=dict)
     seconds_total: float = 0.0
+    ladders: dict[str, list[LadderPoint]] = field(default_factory=dict)
+    """Per scene, the ``onepass`` time ladder of the equal-time comparison."""
+
+    def world_classes(self) -> dict[str, str]:
+        """Scene name → world class of the generated worlds evaluated."""
+        return {k: v["class"] for k, v in self.scenes.items() if "class" in v}
 
 
 class PeakRSS:
@@ -194,6 +218,33 @@ class PeakRSS:
     @property
     def mib(self) -> float:
         return (self.peak - self.base) / 2**20
+
+
+def world_names(config: EvalConfig) -> list[str]:
+    """Scene names of the generated worlds of ``config`` (``world-<seed>``)."""
+    return [f"world-{s}" for s in config.worlds]
+
+
+def eval_scene(name: str, config: EvalConfig) -> SuiteScene:
+    """A suite scene, or a generated world named ``world-<seed>`` at ``config``'s world
+    width."""
+    if name.startswith("world-") and name[6:].isdigit():
+        from arlight.evaluate.worlds import generate
+
+        width = config.world_width or (QUICK_WIDTH if config.quick else None)
+        return generate(int(name[6:])).suite_scene(width)
+    return get_scene(name, quick=config.quick)
+
+
+def scene_info(scene: SuiteScene) -> dict[str, str]:
+    """What the report says about a scene (and, for a generated world, its class and
+    split)."""
+    info = {"description": scene.description, "paper_figure": scene.paper_figure,
+            "resolution": "{}×{}".format(*scene.resolution)}
+    if scene.paper_figure.startswith("generated ("):
+        split, _, cls = scene.paper_figure[len("generated ("):-1].partition(", ")
+        info.update({"split": split, "class": cls})
+    return info
 
 
 def photo_cache_path(scene: SuiteScene, config: EvalConfig) -> Path:
@@ -286,6 +337,67 @@ def _median_run_stages(seconds: list[float], runs: list[dict[str, float]]) -> di
     return dict(runs[i])
 
 
+def changed_region(photo: SyntheticPhoto) -> np.ndarray:
+    """The pixels the insertion changes (:func:`arlight.evaluate.metrics.changed_region`)."""
+    return M.changed_region(photo.frame, photo.ground_truth, photo.mask, photo.frame_stderr,
+                            photo.ground_truth_stderr)
+
+
+def composite_metrics(composite: np.ndarray, photo: SyntheticPhoto, transfer,
+                      region: np.ndarray) -> dict[str, float]:
+    """Whole-image metrics of ``composite`` against the ground truth, the same on
+    ``region`` (prefix ``changed_``) and the region's fraction of the image."""
+    gt = photo.ground_truth
+    return {**M.image_metrics(composite, gt, transfer),
+            **M.image_metrics(composite, gt, transfer, region, "changed_"),
+            "changed_fraction": float(region.mean())}
+
+
+def onepass_ladder(scene: SuiteScene, photo: SyntheticPhoto, config: EvalConfig,
+                   options: dict[str, Any] | None, max_seconds: float) -> list[LadderPoint]:
+    """``onepass`` on ``scene`` at each spp of ``config.ladder_spp`` (the world prepared once;
+    per spp one warm-up and one timed frame), stopped after the first frame slower than
+    ``max_seconds``; empty when onepass cannot render the scene."""
+    render = get_method(LADDER_METHOD)
+    ar = scene.ar_scene(photo)
+    if render.spec.unsupported_reason(ar, ar):
+        return []
+
+    def settings(spp: int) -> RenderSettings:
+        return RenderSettings(spp=spp, max_depth=config.max_depth, seed=config.seed,
+                              options=dict(options or {}))
+
+    state = render.prepare(ar.world, settings(1))
+    region, tr = changed_region(photo), scene.world.camera.transfer
+    points = []
+    for spp in sorted(config.ladder_spp):
+        render.render(state, ar.view, settings(spp))  # warm-up: kernels compile per spp
+        t0 = time.perf_counter()
+        out = render.render(state, ar.view, settings(spp))
+        dt = time.perf_counter() - t0
+        points.append(LadderPoint(spp, dt, composite_metrics(out.composite, photo, tr,
+                                                             region)))
+        if dt > max_seconds:
+            break
+    return points
+
+
+def attach_equal_time(cells: list[CellResult], ladder: list[LadderPoint]) -> None:
+    """Give each successful cell (but onepass's own) the metrics of the onepass frame at
+    its frame time (:func:`~arlight.evaluate.distribution.onepass_at`): ``onepass_at_time_
+    psnr``, ``..._changed_psnr``, ``..._flip`` (NaN when onepass had no frame that fast)
+    and ``onepass_at_time_spp`` (0 then)."""
+    if not ladder:
+        return
+    for c in cells:
+        if not c.ok or c.method == LADDER_METHOD:
+            continue
+        p = onepass_at(ladder, c.seconds)
+        for k in ("psnr", "changed_psnr", "flip"):
+            c.metrics[f"onepass_at_time_{k}"] = p.metrics[k] if p else float("nan")
+        c.metrics["onepass_at_time_spp"] = float(p.spp if p else 0)
+
+
 def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
                   config: EvalConfig, options: dict[str, Any] | None = None) -> CellResult:
     """Run one method on one scene: warm-up, timed repeats, metrics, optional spp sweep.
@@ -326,11 +438,8 @@ def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
         cell.stats = {k: float(v) for k, v in layers.stats.items()
                       if isinstance(v, int | float)}
         gt, tr = photo.ground_truth, cam.transfer
-        region = M.changed_region(photo.frame, gt, photo.mask, photo.frame_stderr,
-                                  photo.ground_truth_stderr)
-        cell.metrics = {**M.image_metrics(layers.composite, gt, tr),
-                        **M.image_metrics(layers.composite, gt, tr, region, "changed_"),
-                        "changed_fraction": float(region.mean())}
+        region = changed_region(photo)
+        cell.metrics = composite_metrics(layers.composite, photo, tr, region)
         cell.images = {"frame": photo.frame, "composite": layers.composite,
                        "ground_truth": gt, "mask": photo.mask, "region": region}
         for spp in config.sweep_spp:
@@ -355,12 +464,11 @@ def run_evaluation(config: EvalConfig,
     options = method_options(config.methods, config.options)
     cells: list[CellResult] = []
     scenes: dict[str, dict[str, str]] = {}
-    for name in config.scenes:
+    ladders: dict[str, list[LadderPoint]] = {}
+    for name in [*config.scenes, *world_names(config)]:
         try:
-            scene = get_scene(name, quick=config.quick)
-            scenes[name] = {"description": scene.description,
-                            "paper_figure": scene.paper_figure,
-                            "resolution": "{}×{}".format(*scene.resolution)}
+            scene = eval_scene(name, config)
+            scenes[name] = scene_info(scene)
             skips = {m: skip_reason(m, scene) for m in config.methods}
             if all(skips.values()):
                 for m in config.methods:
@@ -384,5 +492,18 @@ def run_evaluation(config: EvalConfig,
                 f"{cell.seconds * 1e3:.0f} ms, PSNR {cell.metrics['psnr']:.2f} dB, "
                 f"FLIP {cell.metrics['flip']:.4f}"))
             cells.append(cell)
+        mine = [c for c in cells if c.scene == name and c.ok]
+        if config.equal_time and mine:
+            try:
+                ladder = onepass_ladder(scene, photo, config, options.get(LADDER_METHOD),
+                                        max(c.seconds for c in mine))
+            except Exception as exc:  # noqa: BLE001 — the cells keep their own results
+                log(f"{name}: equal-time ladder failed: {_error(exc)}")
+                continue
+            ladders[name] = ladder
+            attach_equal_time(mine, ladder)
+            log(f"{name}: onepass ladder " + ", ".join(
+                f"{p.spp} spp {p.seconds * 1e3:.0f} ms {p.metrics['psnr']:.1f} dB"
+                for p in ladder))
     return EvalResults(config=config, cells=cells, scenes=scenes,
-                       seconds_total=time.perf_counter() - t_start)
+                       seconds_total=time.perf_counter() - t_start, ladders=ladders)

@@ -8,6 +8,8 @@ Layout of ``out/``::
     results.json, results.csv every number of every cell
     grids/<scene>__<method>.png  frame | composite | ground truth | signed error ×4
     plots/error_vs_spp.png, plots/error_vs_time.png   (when a spp sweep ran)
+    plots/pareto_<class>.png  PSNR vs frame time per world class (generated worlds), with
+                              onepass's time ladder
     errors/<scene>__<method>.txt tracebacks of failed cells
 
 The error panel is the signed luminance error of the display image, scaled ×4 (Franke Fig.
@@ -28,6 +30,7 @@ import numpy as np
 
 from arlight.camera_response import Transfer
 from arlight.evaluate import metrics as M
+from arlight.evaluate.distribution import MethodRow, Spread, method_rows
 from arlight.evaluate.harness import CellResult, EvalResults
 from arlight.io.images import atomic_write
 
@@ -151,6 +154,110 @@ def write_plots(results: EvalResults, out: Path) -> list[Path]:
     return paths
 
 
+def write_pareto(results: EvalResults, out: Path) -> list[Path]:
+    """Per world class (and over all worlds): PSNR vs frame time, one small dot per method
+    and world, a large marker at the method's medians, and onepass's time ladder (median
+    time and median PSNR over the worlds at each spp)."""
+    classes = results.world_classes()
+    if not classes:
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = list(dict.fromkeys(c.method for c in results.cells))
+    colour = {m: plt.get_cmap("tab10")(i % 10) for i, m in enumerate(methods)}
+    paths = []
+    for group in ["all", *sorted(set(classes.values()))]:
+        scenes = {s for s, k in classes.items() if group in ("all", k)}
+        cells = [c for c in results.cells if c.ok and c.scene in scenes]
+        if not cells:
+            continue
+        fig, ax = plt.subplots(figsize=(6.5, 4.5), layout="constrained")
+        for m in methods:
+            mine = [c for c in cells if c.method == m]
+            if not mine:
+                continue
+            t = [c.seconds for c in mine]
+            q = [c.metrics["psnr"] for c in mine]
+            ax.scatter(t, q, s=8, alpha=0.35, color=colour[m])
+            ax.scatter([np.median(t)], [np.median(q)], s=70, color=colour[m], label=m,
+                       edgecolors="k")
+        ladder: dict[int, list] = {}
+        for name, pts in results.ladders.items():
+            if name in scenes:
+                for p in pts:
+                    ladder.setdefault(p.spp, []).append(p)
+        if ladder:
+            spp = sorted(k for k, v in ladder.items() if len(v) * 2 >= len(scenes))
+            ax.plot([np.median([p.seconds for p in ladder[k]]) for k in spp],
+                    [np.median([p.metrics["psnr"] for p in ladder[k]]) for k in spp],
+                    "k--", lw=1, label="onepass ladder (medians)")
+        ax.set_xscale("log")
+        ax.set_xlabel("frame time (s)")
+        ax.set_ylabel("PSNR (dB, display)")
+        ax.set_title(f"{group} worlds ({len(scenes)})")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        path = out / "plots" / f"pareto_{group}.png"
+        _save_fig(fig, path)
+        paths.append(path)
+    return paths
+
+
+def _spread_text(sp: Spread, key: str) -> str:
+    if sp.n == 0:
+        return "—"
+    if key == "seconds":
+        return f"{sp.median * 1e3:.0f} / {sp.p10 * 1e3:.0f} / {sp.worst * 1e3:.0f} ms"
+    fmt = "{:.4f}" if key == "flip" else "{:+.2f}" if key == "delta" else "{:.2f}"
+    return " / ".join(fmt.format(v) for v in (sp.median, sp.p10, sp.worst))
+
+
+WORLD_HEADER = ["method", "worlds run", "skipped", "failed", "PSNR dB", "PSNR changed dB",
+                "FLIP", "frame time", "Δ PSNR vs onepass at equal time", "Δ changed",
+                "wins vs onepass"]
+
+
+def world_table(rows: list[MethodRow]) -> list[list[str]]:
+    """Rows of the distribution table: each spread as median / 10th-percentile world /
+    worst world."""
+    return [[r.method, str(r.ran), str(r.skipped), str(r.failed),
+             _spread_text(r.psnr, "psnr"), _spread_text(r.changed_psnr, "psnr"),
+             _spread_text(r.flip, "flip"), _spread_text(r.seconds, "seconds"),
+             _spread_text(r.equal_time_delta, "delta"),
+             _spread_text(r.equal_time_changed_delta, "delta"),
+             (f"{r.wins}/{r.compared}" + (f" ({r.no_onepass_frame} without an onepass "
+                                          "frame that fast)" if r.no_onepass_frame else ""))
+             if r.compared else "—"] for r in rows]
+
+
+def _world_markdown(results: EvalResults) -> list[str]:
+    classes = results.world_classes()
+    if not classes:
+        return []
+    splits = sorted({results.scenes[s].get("split", "") for s in classes})
+    rows = method_rows(results.cells, classes)
+    lines = ["## Over generated worlds", "",
+             f"{len(classes)} generated worlds ({', '.join(splits)}; seeds "
+             f"{', '.join(s.removeprefix('world-') for s in classes)}). Classes: "
+             + ", ".join(f"{k} {list(classes.values()).count(k)}"
+                         for k in sorted(set(classes.values()))) + ". "
+             "Each entry: median / 10th-percentile world (90 % of worlds do better) / worst "
+             "world. Δ vs onepass: the method's PSNR minus that of the best onepass frame "
+             "of the same world that took at most the method's frame time (worlds where "
+             "onepass has no frame that fast count as wins and are left out of Δ). "
+             "Training worlds tune; held-out worlds report (docs/testing.md).", ""]
+    for group in dict.fromkeys(r.group for r in rows):
+        mine = [r for r in rows if r.group == group]
+        lines += [f"### {group} worlds", "", "| " + " | ".join(WORLD_HEADER) + " |",
+                  "|" + "---|" * len(WORLD_HEADER)]
+        lines += ["| " + " | ".join(_md(x) for x in r) + " |" for r in world_table(mine)]
+        lines.append("")
+    return lines
+
+
 def _status(cell: CellResult) -> str:
     """'error: ...' or 'skipped: ...' for a cell without results ('' for a cell with)."""
     return f"error: {cell.error}" if cell.error else (
@@ -233,6 +340,7 @@ def _markdown(results: EvalResults, grids: dict[str, str], plots: list[str]) -> 
                   "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(_md(x) for x in r) + " |" for r in rows]
         lines.append("")
+    lines += _world_markdown(results)
     if grids:
         lines += ["## Images", ""]
         lines += [f"![{k}]({v})" for k, v in grids.items()]
@@ -255,7 +363,12 @@ def _html(results: EvalResults, grids: dict[str, str], plots: list[str]) -> str:
                  f"ground truth spp {cfg.gt_spp}; time = median of {cfg.repeats} warm runs. "
                  f"PSNR on the display image (R = 1, Franke Eq. 5.28).</p>")
     header, rows = stage_table(results)
-    tables = [*_tables(results), ("Stage times, ms (Franke Tables 5.2/5.6 shape; stages of "
+    world = ([(f"Over generated worlds — {r}: median / 10th percentile / worst", WORLD_HEADER,
+               world_table([x for x in method_rows(results.cells, results.world_classes())
+                            if x.group == r]))
+              for r in ["all", *sorted(set(results.world_classes().values()))]]
+             if results.world_classes() else [])
+    tables = [*world, *_tables(results), ("Stage times, ms (Franke Tables 5.2/5.6 shape; stages of "
                                    "the median run, total = median wall time)", header, rows)]
     for title, header, rows in tables:
         parts.append(f"<h2>{e(title)}</h2><table><tr>"
@@ -299,8 +412,12 @@ def _json(results: EvalResults) -> str:
         return x
 
     header, rows = stage_table(results)
+    dist = [asdict(r) for r in method_rows(results.cells, results.world_classes())] \
+        if results.world_classes() else []
+    ladders = {k: [asdict(p) for p in v] for k, v in results.ladders.items()}
     return json.dumps(clean({"config": cfg, "scenes": results.scenes, "cells": cells,
                              "stage_table_ms": {"header": header, "rows": rows},
+                             "distribution": dist, "onepass_ladders": ladders,
                              "seconds_total": results.seconds_total}), indent=2)
 
 
@@ -334,7 +451,8 @@ def _write_report_files(results: EvalResults, out: Path) -> dict[str, Path]:
             grids[f"{c.scene} × {c.method}"] = rel
         if c.traceback:
             _write_text(out / "errors" / f"{_slug(c)}.txt", c.traceback)
-    plots = [str(p.relative_to(out)) for p in write_plots(results, out)]
+    plots = [str(p.relative_to(out)) for p in [*write_plots(results, out),
+                                                *write_pareto(results, out)]]
     paths = {"markdown": out / "report.md", "html": out / "index.html",
              "json": out / "results.json", "csv": out / "results.csv"}
     _write_text(paths["markdown"], _markdown(results, grids, plots))
