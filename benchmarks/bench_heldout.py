@@ -27,6 +27,7 @@ import argparse
 import math
 import pickle
 import statistics
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +135,34 @@ def section(results: EvalResults, pressure: str) -> str:
     return "\n".join(lines)
 
 
+def run_worlds(args) -> EvalResults:
+    """Evaluate world by world, pickling the results so far after each (``--save``), so an
+    interrupted run keeps what it measured and ``--resume`` continues it."""
+    seeds = parse_worlds(args.worlds)
+    cfg = EvalConfig(methods=args.methods.split(","), scenes=[], quick=False, spp=16,
+                     gt_spp=256, repeats=args.repeats, worlds=seeds, world_width=args.width,
+                     equal_time=True)
+    results = EvalResults(config=cfg, cells=[])
+    if args.resume and args.load and args.load.is_file():
+        with open(args.load, "rb") as f:
+            results = pickle.load(f)
+        results.config = cfg
+    for seed in seeds:
+        if f"world-{seed}" in results.scenes:
+            continue
+        one = run_evaluation(replace(cfg, worlds=[seed]), log=print)
+        for c in one.cells:
+            c.images = {}
+        results.cells += one.cells
+        results.scenes.update(one.scenes)
+        results.ladders.update(one.ladders)
+        results.seconds_total += one.seconds_total
+        if args.save:
+            with open(args.save, "wb") as f:
+                pickle.dump(results, f)
+    return results
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worlds", default="heldout:24")
@@ -143,21 +172,15 @@ def main() -> None:
     ap.add_argument("--report", type=Path, default=Path("heldout-report"))
     ap.add_argument("--load", type=Path, help="a pickled EvalResults of an earlier run")
     ap.add_argument("--save", type=Path, help="pickle the EvalResults here")
+    ap.add_argument("--resume", action="store_true", help="with --load and --save: run only "
+                    "the worlds the saved run lacks")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
-    if args.load:
+    if args.load and not args.resume:
         with open(args.load, "rb") as f:
             results = pickle.load(f)
     else:
-        cfg = EvalConfig(methods=args.methods.split(","), scenes=[], quick=False, spp=16,
-                         gt_spp=256, repeats=args.repeats, worlds=parse_worlds(args.worlds),
-                         world_width=args.width, equal_time=True)
-        results = run_evaluation(cfg, log=print)
-        if args.save:
-            for c in results.cells:
-                c.images = {}
-            with open(args.save, "wb") as f:
-                pickle.dump(results, f)
+        results = run_worlds(args)
     write_report(results, args.report)
     publish(section(results, cpu_pressure()), args.write)
     times = [c.seconds for c in results.cells if c.ok]
