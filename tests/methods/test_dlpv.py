@@ -22,6 +22,7 @@ from arlight.scene.load import parse_scene
 from tests.conftest import LOOK
 from tests.conftest import parsed_with_constant_frame as make
 
+LUM_W = np.array([0.2126, 0.7152, 0.0722])
 SMALL = {"volume_size": 16, "steps": 8, "rsm_size": 64}
 
 
@@ -218,21 +219,46 @@ def test_volume_placement_is_axis_stable():
 
 
 def test_calibrated_shadow_depth_matches_ray_traced_shadow():
-    """With `calibrate` (volume reads divided by the LPV's response to a lit plane) the mean
-    delta in the cube's shadow is within 30 % of `dir`'s, whose direct shadow is ray traced
-    (measured 0.87×); uncalibrated it is 1.7× too deep (LPV lateral exchange in the injection
-    layer). Rejects a missing or inverted calibration."""
+    """With ``calibrate = 0`` (``V_Δ`` reads divided by the LPV's response to a lit plane,
+    1.92) the mean delta in the cube's shadow is within 30 % of `dir`'s, whose direct shadow
+    is ray traced (measured 0.87×); with ``calibrate = 1`` (KD10's raw scale) it is 1.7× too
+    deep (LPV lateral exchange in the injection layer). A property of the plane response,
+    not of the default (which issue #30 chose on training worlds). Rejects a missing or
+    inverted calibration."""
     scene = make(box_scene(w=160, h=120))
     ref = get_method("dir")(scene, RenderSettings(options={"vpls": 4, "interleave": 1,
                                                            "clamp_distance": 10.0})).delta
     y = np.array([0.2126, 0.7152, 0.0722])
     shadow = ref @ y < -0.1
     assert shadow.sum() > 50
-    dl = get_method("dlpv")(scene, RenderSettings()).delta @ y
-    raw = get_method("dlpv")(scene, RenderSettings(options={"calibrate": False})).delta @ y
+    dl = get_method("dlpv")(scene, RenderSettings(options={"calibrate": 0.0})).delta @ y
+    raw = get_method("dlpv")(scene, RenderSettings(options={"calibrate": 1.0})).delta @ y
     ratio = dl[shadow].mean() / (ref @ y)[shadow].mean()
     assert 0.7 < ratio < 1.3, ratio
     assert raw[shadow].mean() / (ref @ y)[shadow].mean() > 1.4
+
+
+def test_calibrate_divides_delta_reads_and_calibrate_rho_the_virtual_bounce():
+    """``calibrate`` divides every ``V_Δ`` read (real pixels: delta × 2 when it halves) and
+    leaves the virtual pixels alone; ``calibrate_rho`` divides the ``V_ρ`` reads (the
+    virtual pixels' indirect light) and leaves the delta alone; 0 stands for the plane
+    response. Rejects one factor applied to both volumes, or a factor multiplied instead
+    of divided."""
+    from arlight.methods.dlpv import read_scales
+    from arlight.realtime.sh_volume import plane_response
+
+    scene = make(box_scene(w=40, h=30))
+    a = run(scene, calibrate=1.0, calibrate_rho=1.0)
+    b = run(scene, calibrate=2.0, calibrate_rho=1.0)
+    c = run(scene, calibrate=1.0, calibrate_rho=4.0)
+    virt = a.mask > 0.5
+    assert np.abs(a.delta).max() > 1e-3
+    assert np.allclose(b.delta, 0.5 * a.delta, rtol=1e-5, atol=1e-7)
+    assert np.array_equal(b.mixed[virt], a.mixed[virt])
+    assert np.array_equal(c.delta, a.delta)
+    assert (c.mixed[virt] @ LUM_W).mean() < (a.mixed[virt] @ LUM_W).mean()
+    opts = SPEC.parse_options({"calibrate": 0.0, "calibrate_rho": 2.0})
+    assert read_scales(opts) == pytest.approx((1.0 / plane_response(32, 32, True), 0.5))
 
 
 def test_plane_response_is_measured_not_assumed():

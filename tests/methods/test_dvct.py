@@ -237,13 +237,34 @@ def test_reflection_of_a_virtual_object_hides_what_was_behind_it():
                                        ("diffuse_aperture_deg", 0.0),
                                        ("specular_min_aperture_deg", -1.0),
                                        ("directional_aperture_deg", 0.0),
-                                       ("point_light_radius", -0.1)])
+                                       ("point_light_radius", -0.1), ("shells", 0.0),
+                                       ("shells", 1.5), ("level_bias", -1.0)])
 def test_bad_options_are_input_errors(opt, value):
-    """Volume size not a power of two, non-positive apertures, negative light radius →
-    InputError naming the option."""
+    """Volume size not a power of two, non-positive apertures, negative light radius, a
+    coverage scale outside (0, 1], a negative level bias → InputError naming the option."""
     with pytest.raises(InputError) as e:
         run(make(box_scene()), **{opt: value})
     assert e.value.field == f"options.{opt}"
+
+
+def test_cone_constants_are_options_that_reach_every_cone():
+    """``shells`` and ``level_bias`` (chosen on training worlds, issue #30) are method options:
+    the defaults are the module constants' values, and each changes the shadow of the cube
+    (shadow cones) and its bounce (diffuse cones). Rejects an option that is declared but
+    never passed to :func:`~arlight.realtime.voxels.trace_cones` (the module constant used
+    regardless) and defaults that differ from the documented constants."""
+    from arlight.realtime import voxels
+
+    assert SPEC.defaults().shells == voxels.SHELLS
+    assert SPEC.defaults().level_bias == voxels.LEVEL_BIAS
+    scene = make(box_scene(w=40, h=30))
+    base = run(scene).delta
+    assert np.array_equal(base, run(scene, shells=voxels.SHELLS,
+                                    level_bias=voxels.LEVEL_BIAS).delta)
+    for opt in ({"shells": 1.0 if voxels.SHELLS != 1.0 else 0.25},
+                {"level_bias": 0.0 if voxels.LEVEL_BIAS != 0.0 else 1.0}):
+        other = run(scene, **opt).delta
+        assert np.abs(other - base).max() > 1e-3, opt
 
 
 def test_volume_that_does_not_fit_in_memory_is_an_input_error(monkeypatch):

@@ -164,15 +164,21 @@ def test_added_occlusion_counts_only_virtual_geometry():
 def test_wide_cones_see_a_surface_with_its_radiance_at_every_level():
     """A cone of 60° aperture towards a lit plane 24 cells away arrives at a coarse level and
     still gathers most of the plane's radiance ``I/s²`` (``c > 0.7 I``: the ``2^l`` scaling of
-    a block's radiance) and a coverage near ``SHELLS`` (a single sheet counts as half a
-    closed surface). Rejects raw mip means, which fade a thin surface by ``2^−l`` (c ≈ 0.2 I
-    here)."""
+    a block's radiance, whatever the coverage scale). Its coverage is ``shells`` times that of
+    one sheet: with ``shells = 1`` (exact for one sheet) the opaque plane covers the cone
+    (α ≈ 0.83, trilinear sampling loses the rest), with 0.5 (a closed surface crosses a block
+    twice) half of that. Rejects raw mip means, which fade a thin surface by ``2^−l`` (c ≈
+    0.2 I here), and a coverage that ignores the ``shells`` argument."""
     vols, _ = _slab_volumes(n=32, layers={28: (1.0, 3.0)})
     o = mi.Point3f(4.0, 16.0, 16.0)
-    r = trace_cones(vols, o, mi.Vector3f(1, 0, 0), math.tan(math.radians(30)), dr.inf,
-                    mi.Bool(True))
-    assert 0.3 < float(r.a_all[0]) < 0.8
-    assert 0.7 * 3.0 < float(r.radiance.x[0]) < 1.1 * 3.0
+    alpha = {}
+    for shells in (0.5, 1.0):
+        r = trace_cones(vols, o, mi.Vector3f(1, 0, 0), math.tan(math.radians(30)), dr.inf,
+                        mi.Bool(True), shells=shells)
+        alpha[shells] = float(r.a_all[0])
+        assert 0.7 * 3.0 < float(r.radiance.x[0]) < 1.1 * 3.0
+    assert alpha[1.0] > 0.75
+    assert 0.4 < alpha[0.5] / alpha[1.0] < 0.6
 
 
 def test_eta_level0_keeps_real_and_all_occupancy():

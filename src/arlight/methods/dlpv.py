@@ -72,6 +72,17 @@ from arlight.realtime.shading import (
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
+REDUCIBLE_LIGHTS = frozenset({"point", "spot", "directional", "area", "constant", "envmap",
+                              "sh"})
+"""Light types :func:`~arlight.realtime.light_reduction.reduce_lights` handles (not
+``sphere``: a world with one is skipped by the harness instead of failing in ``prepare``)."""
+
+CALIBRATE = 0.0
+"""Default ``calibrate``: the divisor of ``V_Δ`` reads (0: :func:`~arlight.realtime.
+sh_volume.plane_response`)."""
+CALIBRATE_RHO = 0.0
+"""Default ``calibrate_rho``: the divisor of ``V_ρ`` reads (0: the plane response)."""
+
 OPTIONS: dict[str, Field] = {
     "volume_size": Field("int", 32, "cells per edge of V_Δ and V_ρ (Franke: 32³)", "cells",
                          min=2, max=256),
@@ -82,8 +93,13 @@ OPTIONS: dict[str, Field] = {
                        "(Franke §4.4)"),
     "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
                            "§4.3.2); off: indirect change only"),
-    "calibrate": Field("bool", True, "divide volume reads by the LPV's response to a uniformly "
-                       "lit plane (1.9 at 32³, 32 steps, damped; ours, not Franke's)"),
+    "calibrate": Field("float", CALIBRATE, "divisor of V_Δ reads (ours, not Franke's): 1 "
+                       "KD10's raw scale; 0 the LPV's response to a uniformly lit plane at "
+                       "this volume_size/steps/dampening (1.92 at the defaults); chosen on "
+                       "training worlds (issue #30)", "", min=0.0, max=100.0),
+    "calibrate_rho": Field("float", CALIBRATE_RHO, "divisor of V_ρ reads (the indirect light "
+                           "on the virtual objects; ours): as calibrate, 0 the plane response; "
+                           "chosen on training worlds (issue #30)", "", min=0.0, max=100.0),
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
     **REDUCTION_OPTIONS,
@@ -96,14 +112,16 @@ SPEC = MethodSpec(
     description="Delta Light Propagation Volumes (Franke 2013): one SH volume of the change "
                 "of light, real time.",
     options=OPTIONS,
-    capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"})),
+    capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"}),
+                              lights=REDUCIBLE_LIGHTS),
 )
 
 
 @dataclass
 class DLPVData:
     """What ``prepare_world`` keeps: the world, its Mitsuba views, the reduced lights, the
-    volume grid and the real proxy's RSMs (both None without virtual objects)."""
+    volume grid, the scales of ``V_Δ`` and ``V_ρ`` reads (:func:`read_scales`) and the real
+    proxy's RSMs (grid and maps None without virtual objects)."""
 
     world: World
     views: SceneViews
@@ -111,6 +129,7 @@ class DLPVData:
     grid: Grid | None
     read_scale: float = 1.0
     real_maps: RealMaps | None = None
+    rho_scale: float = 1.0
 
 
 @dataclass
@@ -127,6 +146,18 @@ class Volumes:
         return injected_count(self.injected)
 
 
+def read_scales(options: Options) -> tuple[float, float]:
+    """``(1/calibrate, 1/calibrate_rho)``: the factors of ``V_Δ`` and ``V_ρ`` reads, a
+    divisor 0 standing for :func:`~arlight.realtime.sh_volume.plane_response` at the options'
+    volume size, steps and dampening."""
+    def scale(divisor: float) -> float:
+        if divisor == 0.0:
+            divisor = plane_response(options.volume_size, options.steps, options.dampening)
+        return 1.0 / float(divisor)
+
+    return scale(options.calibrate), scale(options.calibrate_rho)
+
+
 def prepare(world: World, options: Options) -> DLPVData:
     """Mitsuba views, reduced lights and the volume placement of ``world``."""
     check_memory(options.rsm_size)
@@ -135,11 +166,9 @@ def prepare(world: World, options: Options) -> DLPVData:
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
     grid = None if bounds is None else Grid.around(*bounds, n=options.volume_size,
                                                      scale=options.volume_scale)
-    scale = 1.0
-    if options.calibrate and grid is not None:
-        scale = 1.0 / plane_response(options.volume_size, options.steps, options.dampening)
+    k_delta, k_rho = (1.0, 1.0) if grid is None else read_scales(options)
     maps = None if grid is None else real_maps(views, lights, grid, options.rsm_size, bounds)
-    return DLPVData(world, views, lights, grid, scale, maps)
+    return DLPVData(world, views, lights, grid, k_delta, maps, k_rho)
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
@@ -211,7 +240,9 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
     virt = gb.virtual
     real = gb.valid & ~virt
     e_amb = ambient_irradiance_dr(data.lights, gb.normal)
-    k = float(data.read_scale)
+    # opaque: one compiled kernel for every scale (benchmarks/tune_realtime.py sweeps them)
+    k = dr.opaque(mi.Float, float(data.read_scale))
+    k_rho = dr.opaque(mi.Float, float(data.rho_scale))
     half = 0.5 * vols.rho.grid.cell if vols.rho is not None else 0.0
 
     def virtual_irradiance(p: mi.Point3f, n: mi.Vector3f) -> mi.Color3f:
@@ -219,18 +250,37 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
         e = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
         if vols.rho is None:
             return e
-        return e + query_irradiance(vols.rho, p + n * half, n) * k  # [KD10]: half a cell off
+        return e + query_irradiance(vols.rho, p + n * half, n) * k_rho  # [KD10]: half a cell
 
     e_virtual = on_active(virtual_irradiance, gb.position, gb.normal, virt)
     delta = mi.Color3f(0.0)
     if vols.delta is not None:
         q = gb.position + gb.normal * half
-        delta = gb.albedo * (k / np.pi) * query_irradiance_compact(vols.delta, q, gb.normal,
+        delta = gb.albedo * (k * (1.0 / np.pi)) * query_irradiance_compact(vols.delta, q, gb.normal,
                                                                    real)
     mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_virtual + e_amb), mi.Color3f(0.0))
     delta = dr.select(real, delta, mi.Color3f(0.0))
     dr.eval(mixed, delta)
     return mixed, delta
+
+
+def compose(data: DLPVData, gb: GBuffer, vols: Volumes, view: FrameView,
+            timer: StageTimer | None = None) -> Layers:
+    """Shading and composition of one frame from its G-buffer and volumes (the stages after
+    :func:`build_volumes`; only these read ``data.read_scale`` and ``data.rho_scale``, so
+    ``benchmarks/tune_realtime.py`` builds the volumes once per world and composes each
+    calibration candidate)."""
+    timer = timer or StageTimer()
+    with timer.stage("shade"):
+        mixed, delta = shade(data, gb, vols)
+    with timer.stage("assemble"):
+        stats = {"lights": float(len(data.lights.lights)),
+                 "vpls_delta": float(vols.vpls_delta),
+                 "volume_cell": data.grid.cell if data.grid else 0.0}
+        layers = assemble(gb, view.frame, mixed, delta, stats)
+    if not data.world.has_virtual:
+        assert not np.any(layers.delta), "dlpv: delta must vanish without virtual objects"
+    return layers
 
 
 class DLPVMethod(BaseMethod):
@@ -248,18 +298,9 @@ class DLPVMethod(BaseMethod):
             gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp,
                                 settings.seed)
         vols = build_volumes(data, options, timer)
-        with timer.stage("shade"):
-            mixed, delta = shade(data, gb, vols)
-        with timer.stage("assemble"):
-            stats = {"lights": float(len(data.lights.lights)),
-                     "vpls_delta": float(vols.vpls_delta),
-                     "volume_cell": data.grid.cell if data.grid else 0.0}
-            layers = assemble(gb, view.frame, mixed, delta, stats)
-        if not data.world.has_virtual:
-            assert not np.any(layers.delta), "dlpv: delta must vanish without virtual objects"
-        return layers
+        return compose(data, gb, vols, view, timer)
 
 
-__all__ = ["DLPVData", "DLPVMethod", "OPTIONS", "RealMaps", "SPEC", "Volumes", "build_volumes",
-           "inject_delta", "inject_regular", "injected_count", "prepare", "real_maps",
-           "rsm_pair"]
+__all__ = ["CALIBRATE", "CALIBRATE_RHO", "DLPVData", "DLPVMethod", "OPTIONS", "RealMaps",
+           "SPEC", "Volumes", "build_volumes", "compose", "inject_delta", "inject_regular",
+           "injected_count", "prepare", "read_scales", "real_maps", "rsm_pair"]

@@ -83,6 +83,8 @@ from arlight.realtime.shading import (
     virtual_bounds,
 )
 from arlight.realtime.voxels import (
+    LEVEL_BIAS,
+    SHELLS,
     ConeResult,
     ConeVolumes,
     MipVolume,
@@ -97,6 +99,11 @@ from arlight.realtime.voxels import (
 )
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
+
+REDUCIBLE_LIGHTS = frozenset({"point", "spot", "directional", "area", "constant", "envmap",
+                              "sh"})
+"""Light types :func:`~arlight.realtime.light_reduction.reduce_lights` handles (not
+``sphere``: a world with one is skipped by the harness instead of failing in ``prepare``)."""
 
 OPTIONS: dict[str, Field] = {
     "volume_size": Field("int", 128, "cells per edge of V_η, V_Δ, V_ρ, a power of two "
@@ -125,6 +132,13 @@ OPTIONS: dict[str, Field] = {
                            "off: shadows and reflections only)"),
     "specular_cones": Field("bool", True, "trace the specular cone on specular materials "
                             "(Eq. 5.22, 5.25)"),
+    "shells": Field("float", SHELLS, "coverage scale of a level-l block, α_l = min(1, "
+                    "max(1, shells·2^l)·mean α): 1 exact for one sheet, 0.5 for closed "
+                    "surfaces (ours; chosen on training worlds, issue #30)", "", min=0.0,
+                    max=1.0, exclusive_min=True),
+    "level_bias": Field("float", LEVEL_BIAS, "cones sample mip levels this much finer than "
+                        "log2(diameter / cell) (ours; [CNS+11], Franke: 0; chosen on training "
+                        "worlds, issue #30)", "levels", min=0.0, max=4.0),
     **REDUCTION_OPTIONS,
     **GBUFFER_OPTIONS,
 }
@@ -143,7 +157,7 @@ SPEC = MethodSpec(
                 "shadow, diffuse and specular cones; real time on a GPU.",
     options=OPTIONS,
     capabilities=Capabilities(interactive=True, materials=frozenset(
-        {"diffuse", "phong", "mirror", "roughconductor"})),
+        {"diffuse", "phong", "mirror", "roughconductor"}), lights=REDUCIBLE_LIGHTS),
     check=_check,
 )
 
@@ -415,11 +429,13 @@ class Lanes:
 
 
 def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
-                  alpha_for_light: int = 0) -> tuple[mi.Color3f, mi.Float, mi.Float]:
+                  alpha_for_light: int = 0, shells: float = SHELLS,
+                  level_bias: float = LEVEL_BIAS) -> tuple[mi.Color3f, mi.Float, mi.Float]:
     """Nine diffuse cones per lane (Eq. 5.21 / 5.24): ``(Σ w_k C_k`` — irradiance, W/m² —
     ``, Σ w_k a_all,k / π, Σ w_k (1 − k)_k / π)``, the last two cosine-weighted
     occlusions in [0, 1]. Cones start two cells off the surface along the normal and sample
-    the nearest mip level only (wide cones; half the gathers of quadrilinear sampling)."""
+    the nearest mip level only (wide cones; half the gathers of quadrilinear sampling).
+    ``shells``, ``level_bias``: see :func:`~arlight.realtime.voxels.trace_cones`."""
     dirs, w, tan_h = diffuse_cone_set(aperture_deg)
     n = lanes.width
     k = len(w)
@@ -436,7 +452,7 @@ def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
     s0 = vols.alpha.grid.cell
     res = trace_cones(vols, p + nrm * (DIFFUSE_START * s0), d, tan_h, dr.inf, mi.Bool(True),
                       t_start=0.5 * s0, alpha_for_light=alpha_for_light,
-                      quadrilinear=False)
+                      quadrilinear=False, level_bias=level_bias, shells=shells)
     e = dr.block_sum(res.radiance * wt, k)
     ao = dr.block_sum(res.a_all * wt, k) * (1.0 / math.pi)
     added = dr.block_sum(res.added * wt, k) * (1.0 / math.pi)
@@ -449,14 +465,16 @@ def reflect(v: mi.Vector3f, n: mi.Vector3f) -> mi.Vector3f:
 
 
 def specular_cone(vols: ConeVolumes, lanes: Lanes, rough: mi.Float, min_aperture_deg: float,
-                  active: mi.Bool) -> ConeResult:
+                  active: mi.Bool, shells: float = SHELLS,
+                  level_bias: float = LEVEL_BIAS) -> ConeResult:
     """One cone along the reflected view direction (Eq. 5.22 / 5.25), full aperture
     ``β = max(min_aperture, 2 atan(α))`` for GGX roughness ``α``."""
     tan_min = math.tan(math.radians(min_aperture_deg) / 2.0)
     d = reflect(lanes.to_camera, lanes.normal)
     s0 = vols.alpha.grid.cell
     return trace_cones(vols, lanes.position + lanes.normal * (1.5 * s0), d,
-                       dr.maximum(rough, tan_min), dr.inf, active, t_start=0.5 * s0)
+                       dr.maximum(rough, tan_min), dr.inf, active, t_start=0.5 * s0,
+                       level_bias=level_bias, shells=shells)
 
 
 def light_direction(lt: ReducedLight, p: mi.Point3f) -> tuple[mi.Vector3f, mi.Float]:
@@ -468,7 +486,8 @@ def light_direction(lt: ReducedLight, p: mi.Point3f) -> tuple[mi.Vector3f, mi.Fl
     return to / dr.maximum(dist, 1e-12), dist
 
 
-def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes) -> mi.Color3f:
+def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes, shells: float = SHELLS,
+                 level_bias: float = LEVEL_BIAS) -> mi.Color3f:
     """Direct relighting (Eq. 5.20): ``−Σ_i (1 − k_i) E_i^µ`` (W/m²), one shadow cone per
     reduced light of half-angle ``atan(r_i / dist)`` (directional: the light's own), ``k_i``
     the transmittance the virtual objects leave along it
@@ -484,7 +503,8 @@ def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes) -> mi.Color3f:
                               mi.Bool(True), shadows=True)
         lit = dr.dot(d, lanes.normal) > 0.0
         res = trace_cones(vols, lanes.position + lanes.normal * (SHADOW_LIFT * s0), d, tan_h,
-                          dist, lit, t_start=SHADOW_START * s0)
+                          dist, lit, t_start=SHADOW_START * s0, level_bias=level_bias,
+                          shells=shells)
         out -= e * res.added
     return out
 
@@ -512,6 +532,7 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
     cv_delta = ConeVolumes(vols.alpha, vols.normal, vols.delta)
     cv_rho = ConeVolumes(vols.alpha, vols.normal, vols.rho)
     count = 0
+    knobs = {"shells": float(options.shells), "level_bias": float(options.level_bias)}
     for role, cv in ((ROLE_REAL, cv_delta), (ROLE_VIRTUAL, cv_rho)):
         idx = dr.compress(lanes.role == role)
         if dr.width(idx) == 0:
@@ -522,14 +543,14 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
         zs = dr.zeros(mi.Float, dr.width(idx))
         if options.diffuse_cones:
             e, ao, added = diffuse_cones(cv, sub, options.diffuse_aperture_deg,
-                                         DELTA_VISIBILITY if role == ROLE_REAL else 0)
+                                         DELTA_VISIBILITY if role == ROLE_REAL else 0, **knobs)
             if role == ROLE_REAL:
                 amb = ambient_irradiance_dr(data.lights, sub.normal) * (1.0 / math.pi)
                 xs = e - amb * (math.pi * added)
             else:
                 xs, zs = e, added
         if role == ROLE_REAL and data.lights.lights:
-            xs = xs + shadow_cones(data, ConeVolumes(vols.alpha), sub)
+            xs = xs + shadow_cones(data, ConeVolumes(vols.alpha), sub, **knobs)
         ys = dr.zeros(mi.Color3f, dr.width(idx))
         if options.specular_cones:
             spec, rough, _ = data.materials.at(sub.shape, mi.Bool(True))
@@ -538,7 +559,7 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
             if dr.width(sidx):
                 ss = sub.subset(sidx)
                 res = specular_cone(cv, ss, dr.gather(mi.Float, rough, sidx),
-                                    options.specular_min_aperture_deg, mi.Bool(True))
+                                    options.specular_min_aperture_deg, mi.Bool(True), **knobs)
                 dr.scatter(ys, res.radiance, sidx)
                 if role == ROLE_REAL:
                     dr.scatter(zs, res.added, sidx)
@@ -565,7 +586,8 @@ def cone_error(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
     out = {}
     for name, light, which in (("rho", vols.rho, 0), ("mu", mu, 1), ("delta", vols.delta, 0)):
         e, _, _ = diffuse_cones(ConeVolumes(vols.alpha, vols.normal, light), lanes,
-                                options.diffuse_aperture_deg, which)
+                                options.diffuse_aperture_deg, which, float(options.shells),
+                                float(options.level_bias))
         out[name] = np.array(e, np.float64).T
     out["error"] = out["rho"] - (out["mu"] + out["delta"])
     return out
@@ -680,6 +702,55 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None
     return mixed, delta, hidden
 
 
+def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
+            options: Options, timer: StageTimer | None = None) -> Layers:
+    """Cones, upsampling, shading and composition of one frame from its G-buffer and volumes
+    (the stages after :func:`build_volumes`; only these read ``shells`` and
+    ``level_bias``, so ``benchmarks/tune_realtime.py`` builds the volumes once per world and
+    composes each candidate)."""
+    timer = timer or StageTimer()
+    stats: dict[str, float] = {"lights": float(len(data.lights.lights)),
+                               "volume_cell": data.grid.cell if data.grid else 0.0}
+    terms = None
+    if vols is not None:
+        k = int(options.cone_scale)
+        with timer.stage("cones"):
+            idx = low_res_lanes(gb, k) if k > 1 else dr.arange(mi.UInt32, dr.width(gb.role))
+            full = Lanes(gb.position, gb.normal, gb.to_camera, gb.role, gb.shape)
+            low = full.subset(idx) if k > 1 else full
+            terms = cone_terms(data, vols, low, options, stats)
+        if k > 1:
+            with timer.stage("upsample"):
+                terms = upsample(gb, k, low, terms, vols.alpha.grid.cell)
+        stats["vpls_delta"] = float(vols.vpls_delta)
+        stats["voxels"] = float(vols.voxels)
+    with timer.stage("shade"):
+        mixed, delta, hidden = shade(data, gb, terms)
+    with timer.stage("assemble"):
+        if terms is not None:
+            h = resolve_scalar(gb, hidden)
+            if gb.spp > 1:  # mean over the pixel's non-virtual samples, as delta's
+                n_r = gb.spp - resolve_scalar(gb, mi.Float(gb.virtual)) * gb.spp
+                h = np.where(n_r > 0.5, h * gb.spp / np.maximum(n_r, 1.0),
+                             0.0).astype(np.float32)
+            rows = h > 0
+            layers_delta = delta
+            layers = assemble(gb, view.frame, mixed, layers_delta, stats)
+            if rows.any():  # occlusion weighting of reflections: −h a B
+                d = layers.delta.copy()
+                bg = np.asarray(view.frame, np.float32)
+                d[rows] -= h[rows][:, None] * bg[rows]
+                m = layers.mixed.copy()
+                cover = layers.mask > 0
+                m[~cover] = bg[~cover] + d[~cover]
+                layers = Layers.assemble(bg, m, d, layers.mask, stats=stats)
+        else:
+            layers = assemble(gb, view.frame, mixed, delta, stats)
+    if not data.world.has_virtual:
+        assert not np.any(layers.delta), "dvct: delta must vanish without virtual objects"
+    return layers
+
+
 class DVCTMethod(BaseMethod):
     """Delta Voxel Cone Tracing (Franke 2014)."""
 
@@ -701,49 +772,10 @@ class DVCTMethod(BaseMethod):
             gb = render_gbuffer(data.views.mixed, view.camera, options.gbuffer_spp,
                                 settings.seed)
         vols = build_volumes(data, options, timer)
-        stats: dict[str, float] = {"lights": float(len(data.lights.lights)),
-                                   "volume_cell": data.grid.cell if data.grid else 0.0}
-        terms = None
-        if vols is not None:
-            k = int(options.cone_scale)
-            with timer.stage("cones"):
-                idx = low_res_lanes(gb, k) if k > 1 else dr.arange(mi.UInt32, dr.width(gb.role))
-                full = Lanes(gb.position, gb.normal, gb.to_camera, gb.role, gb.shape)
-                low = full.subset(idx) if k > 1 else full
-                terms = cone_terms(data, vols, low, options, stats)
-            if k > 1:
-                with timer.stage("upsample"):
-                    terms = upsample(gb, k, low, terms, vols.alpha.grid.cell)
-            stats["vpls_delta"] = float(vols.vpls_delta)
-            stats["voxels"] = float(vols.voxels)
-        with timer.stage("shade"):
-            mixed, delta, hidden = shade(data, gb, terms)
-        with timer.stage("assemble"):
-            if terms is not None:
-                h = resolve_scalar(gb, hidden)
-                if gb.spp > 1:  # mean over the pixel's non-virtual samples, as delta's
-                    n_r = gb.spp - resolve_scalar(gb, mi.Float(gb.virtual)) * gb.spp
-                    h = np.where(n_r > 0.5, h * gb.spp / np.maximum(n_r, 1.0),
-                                 0.0).astype(np.float32)
-                rows = h > 0
-                layers_delta = delta
-                layers = assemble(gb, view.frame, mixed, layers_delta, stats)
-                if rows.any():  # occlusion weighting of reflections: −h a B
-                    d = layers.delta.copy()
-                    bg = np.asarray(view.frame, np.float32)
-                    d[rows] -= h[rows][:, None] * bg[rows]
-                    m = layers.mixed.copy()
-                    cover = layers.mask > 0
-                    m[~cover] = bg[~cover] + d[~cover]
-                    layers = Layers.assemble(bg, m, d, layers.mask, stats=stats)
-            else:
-                layers = assemble(gb, view.frame, mixed, delta, stats)
-        if not data.world.has_virtual:
-            assert not np.any(layers.delta), "dvct: delta must vanish without virtual objects"
-        return layers
+        return compose(data, gb, vols, view, options, timer)
 
 
 __all__ = ["DVCTData", "DVCTMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
-           "cone_error", "cone_terms", "diffuse_cone_set", "diffuse_cones", "ggx_specular",
-           "inject_regular", "inject_split", "prepare", "shade", "shadow_cones",
-           "specular_cone", "upsample"]
+           "compose", "cone_error", "cone_terms", "diffuse_cone_set", "diffuse_cones",
+           "ggx_specular", "inject_regular", "inject_split", "prepare", "shade",
+           "shadow_cones", "specular_cone", "upsample"]

@@ -474,7 +474,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
                 tan_half: mi.Float | float, t_max: mi.Float | float, active: mi.Bool,
                 t_start: float = 0.0, stop_alpha: float = 0.99,
                 alpha_for_light: int = 0, quadrilinear: bool = True,
-                level_bias: float = LEVEL_BIAS) -> ConeResult:
+                level_bias: float = LEVEL_BIAS, shells: float = SHELLS) -> ConeResult:
     """March cones ``origin + t · direction`` of half-angle ``atan(tan_half)`` through the
     mip chains (see the module docstring), from ``max(t_start, box entry)`` to
     ``min(t_max, box exit)``. One symbolic ``dr.while_loop`` (a single kernel for all lanes).
@@ -484,7 +484,9 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     (the virtual objects' occlusion only). A lane stops
     when both occlusions exceed ``stop_alpha`` (or, for radiance cones, the attenuating one).
     ``quadrilinear`` False samples only the nearest level (half the gathers; for wide cones).
-    ``level_bias``: levels finer than the diameter's (:data:`LEVEL_BIAS`).
+    ``level_bias``: levels finer than the diameter's (:data:`LEVEL_BIAS`); ``shells``: the
+    coverage scale of a level-``l`` block, ``α_l = min(1, max(1, shells · 2^l) · mean α)``
+    (:data:`SHELLS`).
     """
     alpha = vols.alpha
     grid = alpha.grid
@@ -506,7 +508,9 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     max_lvl = float(levels - 1)
     quad = bool(quadrilinear)
     far_start = FAR_START * s0
-    bias = float(level_bias)
+    # opaque: one compiled kernel for every value (benchmarks/tune_realtime.py sweeps them)
+    bias = dr.opaque(mi.Float, float(level_bias))
+    shell = dr.opaque(mi.Float, float(shells))
 
     def cond(t, c, a_all, a_real, keep, act):
         return act
@@ -537,7 +541,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
             return xa * (1.0 - fr) + xb * fr
 
         al_a, al_b = s_a[0], s_b[0]
-        ka, kb = dr.maximum(k_a * SHELLS, 1.0), dr.maximum(k_b * SHELLS, 1.0)
+        ka, kb = dr.maximum(k_a * shell, 1.0), dr.maximum(k_b * shell, 1.0)
         al_all = mix(dr.minimum(al_a[0] * ka, 1.0), dr.minimum(al_b[0] * kb, 1.0))
         al_real = mix(dr.minimum(al_a[1] * ka, 1.0), dr.minimum(al_b[1] * kb, 1.0))
         if light is not None:
