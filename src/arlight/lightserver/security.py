@@ -12,10 +12,10 @@ server may check against a folder of allowed public keys (``--allow-clients``).
 - :func:`load_secret` / :func:`load_public` read them, naming the option at fault.
 - :func:`check_exposure`: a server bound off loopback needs keys (or an explicit
   ``insecure``); wildcard binds get a warning line.
-- :class:`Gate`: the ZAP handler (a :class:`zmq.auth.thread.ThreadAuthenticator`) every
-  connection to the server's sockets passes, with or without CURVE: it applies the key
-  allow-list and the bound on connected peers per socket (``max_clients``). The server's I/O
-  thread counts connections from socket monitor events (:meth:`Gate.on_monitor_event`).
+- :class:`Gate`: the ZAP handler every connection to the server's sockets passes, with or
+  without CURVE: it applies the key allow-list and the bound on connections admitted at
+  once per socket (``max_clients``), counting the handshakes it admits; a slot is freed
+  when the socket monitor (read by the gate itself) reports that connection's disconnect.
 
 See docs/lightserver.md, "Threat model and defaults".
 """
@@ -27,16 +27,18 @@ import os
 import re
 import shutil
 import stat
+import struct
 import tempfile
 import threading
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import zmq
 import zmq.auth
-from zmq.auth.thread import ThreadAuthenticator
+import zmq.utils.z85
 
-from arlight.errors import InputError
+from arlight.errors import ArlightError, InputError
 
 ZAP_DOMAINS = {"pub": b"arlight-light-pub", "snapshot": b"arlight-light-snapshot"}
 """The ZAP domain of each server socket: the gate counts peers per socket."""
@@ -208,60 +210,250 @@ def load_allowed(folder: Path, field: str = "--allow-clients") -> dict[bytes, bo
 
 # -- the gate --------------------------------------------------------------------------------
 
-class Gate(ThreadAuthenticator):
-    """ZAP handler of a light server: CURVE allow-list plus at most ``max_clients`` peers
-    connected to each socket (counted from monitor events by the server's I/O thread).
+ZAP_ENDPOINT = "inproc://zeromq.zap.01"
+"""Where libzmq sends the ZAP requests of a context's sockets (RFC 27)."""
+_FD = getattr(zmq, "SRCFD", 2)
+"""``zmq_msg_get`` property: the file descriptor a message was read from."""
 
-    Args:
-        context: the server's ZeroMQ context (the handler binds ``inproc://zeromq.zap.01``).
-        max_clients: peers per socket; beyond it a handshake is refused (the peer retries).
 
-    CURVE keys are set with :meth:`configure`.
+@dataclass
+class _Slots:
+    """The gate's view of one server socket (``Gate`` holds its lock around every use).
+
+    ``open``: connections the socket monitor reported accepted and not yet disconnected
+    (fd → the number of the ACCEPTED event, counted per socket); ``linked``: open
+    connections known to hold a slot (fd → the token the handshake got); ``floating``:
+    admitted handshakes not (yet) tied to a connection (token → the ACCEPTED count when
+    it was admitted), oldest first.
     """
 
-    def __init__(self, context: zmq.Context, max_clients: int):
-        super().__init__(context)
+    monitor: zmq.Socket
+    accepted: int = 0
+    open: dict[int, int] = field(default_factory=dict)
+    linked: dict[int, str] = field(default_factory=dict)
+    floating: OrderedDict[str, int] = field(default_factory=OrderedDict)
+
+    def held(self) -> int:
+        return len(self.linked) + len(self.floating)
+
+    def clamp(self) -> None:
+        """An admitted connection not linked is an open connection not linked: at most as
+        many floating slots as such connections (the oldest tokens go)."""
+        while len(self.floating) > len(self.open) - len(self.linked):
+            self.floating.popitem(last=False)
+
+
+class Gate:
+    """ZAP handler of a light server: the CURVE allow-list and at most ``max_clients``
+    connections admitted at once on each server socket.
+
+    The handler is the authority that admits, so it counts *admitted handshakes*: every
+    ``200`` reply takes a slot of its socket and names it with a token (the reply's
+    User-Id, which libzmq attaches to every message of that connection). A slot is freed
+    by the disconnect of its connection, which the gate learns from a socket monitor it
+    reads itself; the two are tied when the server's I/O thread sees the first message of
+    the connection (:meth:`note`: its User-Id and the fd it came from). Until then the
+    slot *floats*: it is freed once fewer connections that are not tied remain open than
+    slots float. Every count can only be late in one direction: a slot is held until the
+    disconnect event has been read (a little longer than the connection), never given
+    back early, so the bound is exact.
+
+    Why the ordering holds: before each decision the handler reads every pending monitor
+    event, and libzmq emits a connection's ACCEPTED event before its handshake starts
+    (one I/O thread: the listener queues the connection before it runs), so the
+    connection being decided is already in the handler's view.
+
+    Args:
+        context: the server's ZeroMQ context (one I/O thread; the handler binds
+            ``inproc://zeromq.zap.01``: one gate per context).
+        max_clients: connections admitted at once per socket; beyond it a handshake is
+            refused (``400``; the peer's libzmq reconnects and asks again).
+        sockets: ZAP domain → the server socket of that domain (not bound yet; the gate
+            must run before any of them binds, or connections would skip it).
+
+    CURVE keys are set with :meth:`configure` before :meth:`start`.
+    """
+
+    def __init__(self, context: zmq.Context, max_clients: int,
+                 sockets: dict[bytes, zmq.Socket]):
+        if context.get(zmq.IO_THREADS) != 1:
+            raise ArlightError("Gate: the context must have one I/O thread (the monitor "
+                               "events would not precede the handshakes)")
         self.max_clients = int(max_clients)
-        self._peers: dict[bytes, set[int]] = {d: set() for d in ZAP_DOMAINS.values()}
-        self._peer_lock = threading.Lock()
-        self.refused: dict[str, int] = {"full": 0, "key": 0}
+        self.refused: dict[str, int] = {"full": 0, "key": 0, "other": 0}
+        self._lock = threading.Lock()
+        self._curve = False
+        self._allowed: dict[bytes, bool] | None = None
+        self._tokens = 0
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self._slots: dict[bytes, _Slots] = {}
+        self._own: list[zmq.Socket] = []
+        try:
+            for domain, sock in sockets.items():
+                addr = f"inproc://arlight-gate-{id(self)}-{len(self._slots)}"
+                sock.monitor(addr, zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED)
+                mon = self._socket(context, zmq.PAIR)
+                mon.setsockopt(zmq.RCVHWM, 0)  # never drop a connection event
+                mon.connect(addr)
+                self._slots[domain] = _Slots(mon)
+            self._zap = self._socket(context, zmq.REP)
+            self._zap.bind(ZAP_ENDPOINT)
+            self._control = self._socket(context, zmq.PAIR)
+            self._control.bind(f"inproc://arlight-gate-{id(self)}-control")
+            self._control_peer = self._socket(context, zmq.PAIR)
+            self._control_peer.connect(f"inproc://arlight-gate-{id(self)}-control")
+        except BaseException:
+            self._close()
+            raise
+
+    def _socket(self, context: zmq.Context, kind: int) -> zmq.Socket:
+        sock = context.socket(kind)
+        sock.setsockopt(zmq.LINGER, 0)
+        self._own.append(sock)
+        return sock
 
     def configure(self, allowed: dict[bytes, bool] | None) -> None:
-        """Accept any CURVE client key (None) or only ``allowed``."""
-        if allowed is None:
-            self.configure_curve(domain="*", location=zmq.auth.CURVE_ALLOW_ANY)
-        else:  # pyzmq looks keys up per ZAP domain
-            for domain in ZAP_DOMAINS.values():
-                self.certs[domain.decode()] = dict(allowed)
+        """Connections use CURVE: accept any client key (None) or only ``allowed``
+        (Z85 public keys)."""
+        with self._lock:
+            self._curve = True
+            self._allowed = None if allowed is None else dict(allowed)
 
-    def on_monitor_event(self, domain: bytes, event: int, fd: int) -> None:
-        """A connection accepted (+1) or closed (−1) on the socket of ``domain``."""
-        with self._peer_lock:
-            peers = self._peers[domain]
-            if event == zmq.EVENT_ACCEPTED:
-                peers.add(fd)
-            elif event in (zmq.EVENT_DISCONNECTED, zmq.EVENT_CLOSED):
-                peers.discard(fd)
+    # -- life cycle ----------------------------------------------------------------------
 
-    def peers(self, domain: bytes) -> int:
-        """Connections currently open on the socket of ``domain``."""
-        with self._peer_lock:
-            return len(self._peers[domain])
+    def start(self) -> None:
+        """Answer ZAP requests and read the monitors on a thread of the gate's own."""
+        self._thread = threading.Thread(target=self._run, name="lightserver-gate",
+                                        daemon=True)
+        self._thread.start()
 
-    async def handle_zap_message(self, msg: list[bytes]) -> None:
-        if len(msg) >= 6 and msg[2] in self._peers:
-            # the connection being checked is already counted (accepted before its handshake)
-            if self.peers(msg[2]) > self.max_clients:
-                self.refused["full"] += 1
-                self._send_zap_reply(msg[1], b"400", b"too many clients")
+    def stop(self) -> None:
+        """Stop the thread and close the gate's sockets (the server sockets stay)."""
+        if self._thread is not None:
+            self._control_peer.send(b"STOP")
+            self._thread.join(10)
+            self._thread = None
+        self._close()
+
+    def _close(self) -> None:
+        for sock in self._own:
+            sock.close(linger=0)
+        self._own = []
+
+    def _run(self) -> None:
+        poller = zmq.Poller()
+        for sock in (self._control, self._zap, *(s.monitor for s in self._slots.values())):
+            poller.register(sock, zmq.POLLIN)
+        try:
+            while True:
+                ready = dict(poller.poll())
+                if self._control in ready:
+                    return
+                with self._lock:
+                    self._drain()
+                for _ in range(1000):
+                    try:
+                        request = self._zap.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    with self._lock:
+                        self._drain()  # this connection's ACCEPTED is among them
+                        reply = self._decide(request)
+                    self._zap.send_multipart(reply)
+        except zmq.ContextTerminated:
+            pass
+        except BaseException as exc:  # noqa: BLE001 - no ZAP answers from here on: closed
+            self._error = exc
+
+    # -- bookkeeping (under the lock) ----------------------------------------------------
+
+    def _drain(self) -> None:
+        for slots in self._slots.values():
+            while True:
+                try:
+                    event, value = _parse_event(slots.monitor.recv_multipart(zmq.NOBLOCK))
+                except zmq.Again:
+                    break
+                if event == zmq.EVENT_ACCEPTED:
+                    slots.accepted += 1
+                    slots.linked.pop(value, None)  # a reused fd: that connection is gone
+                    slots.open[value] = slots.accepted
+                elif event == zmq.EVENT_DISCONNECTED:
+                    slots.open.pop(value, None)
+                    slots.linked.pop(value, None)
+            slots.clamp()
+
+    def _decide(self, request: list[bytes]) -> list[bytes]:
+        if len(request) < 6 or request[0] != b"1.0":
+            self.refused["other"] += 1
+            return [b"1.0", request[1] if len(request) > 1 else b"", b"400",
+                    b"malformed request", b"", b""]
+        request_id, domain, mechanism, credentials = (request[1], request[2], request[5],
+                                                      request[6:])
+
+        def refuse(why: str, text: bytes) -> list[bytes]:
+            self.refused[why] += 1
+            return [b"1.0", request_id, b"400", text, b"", b""]
+
+        slots = self._slots.get(domain)
+        if slots is None:
+            return refuse("other", b"unknown ZAP domain")
+        if self._curve:
+            if mechanism != b"CURVE" or len(credentials) != 1 or len(credentials[0]) != 32:
+                return refuse("other", b"CURVE required")
+            if self._allowed is not None and not self._allowed.get(
+                    zmq.utils.z85.encode(credentials[0])):
+                return refuse("key", b"client key not allowed")
+        elif mechanism != b"NULL":
+            return refuse("other", b"unexpected mechanism")
+        if slots.held() >= self.max_clients:
+            return refuse("full", b"too many clients")
+        self._tokens += 1
+        token = str(self._tokens)
+        slots.floating[token] = slots.accepted
+        return [b"1.0", request_id, b"200", b"OK", token.encode(), b""]
+
+    # -- from the server's I/O thread ----------------------------------------------------
+
+    def note(self, domain: bytes, frame: zmq.Frame) -> None:
+        """Tie a floating slot to its connection, from a message of that connection
+        (received with ``copy=False``: its User-Id and source fd)."""
+        try:
+            token = frame.get("User-Id")
+        except zmq.ZMQError:  # no handshake through the gate (inproc)
+            return
+        with self._lock:
+            slots = self._slots.get(domain)
+            if slots is None or token not in slots.floating:
                 return
-        certs = self.certs.get(msg[2].decode(errors="replace")) if len(msg) >= 7 else None
-        if certs is not None and msg[5] == b"CURVE" and not self.allow_any:
-            if not certs.get(zmq.utils.z85.encode(msg[6])):
-                self.refused["key"] += 1
-        await super().handle_zap_message(msg)
+            try:
+                fd = frame.get(_FD)
+            except zmq.ZMQError:
+                return
+            # the fd's open connection was open when the token was admitted: it is the
+            # token's (one connection per fd at a time); a later one reuses the fd
+            accepted = slots.open.get(fd)
+            if accepted is None or accepted > slots.floating[token] or fd in slots.linked:
+                return
+            slots.linked[fd] = token
+            del slots.floating[token]
+
+    def held(self, domain: bytes) -> int:
+        """Slots taken on the socket of ``domain``: admitted connections, counted until
+        their disconnect has been seen."""
+        with self._lock:
+            return self._slots[domain].held()
 
 
-__all__ = ["Gate", "KeyPair", "ZAP_DOMAINS", "check_exposure", "endpoint_host", "has_curve",
-           "is_loopback", "is_wildcard", "keygen", "load_allowed", "load_public",
-           "load_secret"]
+def _parse_event(msg: list[bytes]) -> tuple[int, int]:
+    """(event, value) of a socket monitor message (libzmq's v1 format)."""
+    if len(msg) != 2 or len(msg[0]) != 6:
+        return 0, 0
+    event, value = struct.unpack("=Hi", msg[0])
+    return event, value
+
+
+__all__ = ["Gate", "KeyPair", "ZAP_DOMAINS", "ZAP_ENDPOINT", "check_exposure",
+           "endpoint_host", "has_curve", "is_loopback", "is_wildcard", "keygen",
+           "load_allowed", "load_public", "load_secret"]

@@ -20,7 +20,7 @@ Exposure (docs/lightserver.md, "Threat model and defaults"): with a CURVE key pa
 (``curve``) both sockets authenticate and encrypt every connection, optionally only for
 allowed client keys (``allow_clients``); off loopback the server refuses to start without
 keys unless ``insecure``. Every connection passes the :class:`~.security.Gate` (at most
-``max_clients`` peers per socket); every inbound frame is capped at
+``max_clients`` connections admitted at once per socket); every inbound frame is capped at
 :data:`~.transport.MAX_REQUEST_BYTES` (so is every subscription topic, which libzmq keeps
 per connection); the publish socket is an XPUB in manual mode that applies only the empty
 subscription (a topic never selects anything);
@@ -72,7 +72,10 @@ class ServerStats:
     stopped: float = 0.0
     refused: dict = field(default_factory=dict)
     """Connections the gate refused: ``full`` (max_clients reached), ``key`` (CURVE key not
-    allowed)."""
+    allowed), ``other`` (a mechanism or ZAP domain the server does not use)."""
+    clients: dict = field(default_factory=dict)
+    """Slots the gate holds per socket (``pub``, ``snapshot``): connections admitted and not
+    yet seen to disconnect; never more than ``max_clients``."""
 
 
 class LightServer:
@@ -142,11 +145,6 @@ class LightServer:
         self._gate: security.Gate | None = None
         self._snap_seen: OrderedDict[bytes, float] = OrderedDict()
         try:
-            # the gate (ZAP handler) must listen before any socket binds
-            self._gate = security.Gate(self._ctx, self.max_clients)
-            self._gate.start()
-            if curve is not None:
-                self._gate.configure(allow_clients)
             self._pub = self._ctx.socket(zmq.XPUB)
             self._pub.setsockopt(zmq.XPUB_MANUAL, 1)  # we decide which subscriptions apply
             self._pub.setsockopt(zmq.SNDHWM, int(sndhwm))
@@ -154,7 +152,6 @@ class LightServer:
             self._snap.setsockopt(zmq.ROUTER_MANDATORY, 0)
             self._snap.setsockopt(zmq.SNDHWM, 4)  # replies queued per peer (then dropped)
             self._snap.setsockopt(zmq.RCVHWM, 64)
-            self._monitors: dict[zmq.Socket, bytes] = {}
             for sock, name in ((self._pub, "pub"), (self._snap, "snapshot")):
                 sock.setsockopt(zmq.LINGER, 0)
                 sock.setsockopt(zmq.MAXMSGSIZE, transport.MAX_REQUEST_BYTES_CURVE if curve
@@ -164,9 +161,13 @@ class LightServer:
                     sock.setsockopt(zmq.CURVE_SERVER, 1)
                     sock.setsockopt(zmq.CURVE_PUBLICKEY, curve.public)
                     sock.setsockopt(zmq.CURVE_SECRETKEY, curve.secret)
-                mon = sock.get_monitor_socket(zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED)
-                mon.setsockopt(zmq.RCVHWM, 0)  # never drop a connection event
-                self._monitors[mon] = security.ZAP_DOMAINS[name]
+            # the gate (ZAP handler) must listen before any socket binds
+            self._gate = security.Gate(self._ctx, self.max_clients, {
+                security.ZAP_DOMAINS["pub"]: self._pub,
+                security.ZAP_DOMAINS["snapshot"]: self._snap})
+            if curve is not None:
+                self._gate.configure(allow_clients)
+            self._gate.start()
             self._pull = self._ctx.socket(zmq.PAIR)
             self._pull.bind(self._inproc)
             pub_ep = transport.bind(self._pub, bind, "--bind")
@@ -239,6 +240,8 @@ class LightServer:
             s = dataclasses.replace(self._stats)
             if self._gate is not None:
                 s.refused = dict(self._gate.refused)
+                s.clients = {name: self._gate.held(domain)
+                             for name, domain in security.ZAP_DOMAINS.items()}
             s.produce_seconds = deque(self._stats.produce_seconds, maxlen=HISTORY)
             s.publish_seconds = deque(self._stats.publish_seconds, maxlen=HISTORY)
         return s
@@ -291,8 +294,6 @@ class LightServer:
         poller.register(self._pull, zmq.POLLIN)
         poller.register(self._snap, zmq.POLLIN)
         poller.register(self._pub, zmq.POLLIN)  # subscriptions (XPUB)
-        for mon in self._monitors:
-            poller.register(mon, zmq.POLLIN)
         last_sent = time.monotonic()
         while not self._stop.is_set():
             timeout = max(0.0, last_sent + self.heartbeat_s - time.monotonic())
@@ -316,9 +317,6 @@ class LightServer:
                 self._answer_snapshot()
             if self._pub in events:
                 self._read_subscriptions()
-            for mon, domain in self._monitors.items():
-                if mon in events:
-                    self._read_monitor(mon, domain)
             if time.monotonic() - last_sent >= self.heartbeat_s:
                 with self._lock:
                     seq = self._stats.published
@@ -326,25 +324,16 @@ class LightServer:
                 self._pub.send(wire.encode_heartbeat(seq, epoch=self.epoch, sent=time.time()))
                 last_sent = time.monotonic()
 
-    def _read_monitor(self, mon: zmq.Socket, domain: bytes) -> None:
-        from zmq.utils.monitor import recv_monitor_message
-
-        for _ in range(1000):
-            try:
-                ev = recv_monitor_message(mon, flags=zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            if self._gate is not None:
-                self._gate.on_monitor_event(domain, ev["event"], ev["value"])
-
     def _read_subscriptions(self) -> None:
         """Apply empty-topic subscriptions (the only kind a client makes), ignore the rest
         (XPUB_MANUAL: nothing is stored for them); unsubscriptions are ignored."""
         for _ in range(10_000):  # bounded per pass: updates and heartbeats go on
             try:
-                msg = self._pub.recv(flags=zmq.NOBLOCK)
+                frame = self._pub.recv(flags=zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
+            self._note(security.ZAP_DOMAINS["pub"], frame)
+            msg = frame.bytes
             if msg == b"\x01":
                 self._pub.setsockopt(zmq.SUBSCRIBE, b"")  # for the peer that just sent it
                 with self._lock:
@@ -357,14 +346,22 @@ class LightServer:
         """One request from the ROUTER: at most 3 frames kept (the rest read and dropped;
         each frame is at most MAX_REQUEST_BYTES)."""
         try:
-            frames = [self._snap.recv(flags=zmq.NOBLOCK)]
+            frames = [self._snap.recv(flags=zmq.NOBLOCK)]  # the peer's routing id
         except zmq.Again:
             return None
         while self._snap.getsockopt(zmq.RCVMORE):
-            part = self._snap.recv()  # the whole message is already here
+            part = self._snap.recv(copy=False)  # the whole message is already here
+            if len(frames) == 1:
+                self._note(security.ZAP_DOMAINS["snapshot"], part)
             if len(frames) < 3:
-                frames.append(part)
+                frames.append(part.bytes)
         return frames
+
+    def _note(self, domain: bytes, frame: zmq.Frame) -> None:
+        """Show the gate a message: it ties the connection to its slot (User-Id, fd)."""
+        gate = self._gate
+        if gate is not None:
+            gate.note(domain, frame)
 
     def _answer_snapshot(self) -> None:
         for _ in range(1000):
