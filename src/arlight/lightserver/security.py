@@ -418,7 +418,9 @@ class Gate:
 
     def note(self, domain: bytes, frame: zmq.Frame) -> None:
         """Tie a floating slot to its connection, from a message of that connection
-        (received with ``copy=False``: its User-Id and source fd)."""
+        (received with ``copy=False``: its User-Id and source fd). Both properties are
+        libzmq's: a peer's own ZMTP metadata cannot replace them (libzmq keeps the first
+        value of a name, and sets these before the peer's)."""
         try:
             token = frame.get("User-Id")
         except zmq.ZMQError:  # no handshake through the gate (inproc)
