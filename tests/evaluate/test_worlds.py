@@ -162,3 +162,30 @@ def test_worlds_make_writes_a_method_ready_world(tmp_path):
     assert (foreign / "notes.txt").read_text() == "keep" and len(list(foreign.iterdir())) == 1
     r = run.invoke(cli.app, ["worlds", "list", "--worlds", "heldout:x"])
     assert r.exit_code == 2 and "worlds" in r.stderr
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["worlds", "make", "--seed", "-1", "-o", "{tmp}/o"], "seed"),
+    (["worlds", "make", "-o", "{tmp}/o"], "seed"),
+    (["worlds", "make", "--seed", "1", "-o", "{tmp}/o", "--spp", "1"], "spp"),
+    (["worlds", "make", "--seed", "1", "-o", "{tmp}/o", "--width", "4"], "width"),
+    (["worlds", "make", "--seed", "1", "-o", "{tmp}/afile"], "afile"),
+    (["worlds", "list", "--worlds", "elsewhere:3"], "worlds"),
+    (["eval", "--worlds", "heldout:x", "-o", "{tmp}/e"], "worlds"),
+    (["eval", "--worlds", "heldout:1", "--ladder", "0", "-o", "{tmp}/e"], "ladder"),
+    (["eval", "--worlds", "heldout:1", "--ladder", "", "-o", "{tmp}/e"], "ladder"),
+    (["eval", "--worlds", "heldout:1", "--width", "2", "-o", "{tmp}/e"], "width"),
+])
+def test_bad_world_input_is_one_line_exit_2_and_writes_nothing(tmp_path, args, needle):
+    """The bad-input contract (docs/cli.md) for ``worlds`` and ``eval --worlds``: exit 2,
+    one ``error:`` line naming the option, no output folder created, a file left as it
+    was."""
+    from arlight import cli
+    from tests.cli_invoke import MainRunner
+
+    (tmp_path / "afile").write_text("mine")
+    r = MainRunner().invoke(cli.app, [a.format(tmp=tmp_path) for a in args])
+    assert r.exit_code == 2, r.output
+    assert needle in r.stderr and r.stderr.count("rror") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    assert (tmp_path / "afile").read_text() == "mine"
