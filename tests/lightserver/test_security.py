@@ -131,8 +131,12 @@ def test_a_peer_without_keys_receives_nothing_and_gets_no_snapshot(keys):
                              client_key=keys["client"]) as good:
                 assert good.wait_for(3, timeout=10).sequence >= 3
                 assert received(sub, 1.0) == 0 and received(dealer, 0.2) == 0
-            assert server.stats().bad_requests == 0
-            assert server.stats().snapshots == good.stats().from_snapshot == 1
+            st = server.stats()
+            assert st.bad_requests == 0
+            # only the keyed client's requests arrived (the keyless three would add three);
+            # its reply may come after an update and be dropped as stale, so from_snapshot is
+            # 0 or 1 on a loaded machine
+            assert 1 <= st.snapshots + st.snapshots_limited <= good.stats().snapshot_requests
     finally:
         ctx.destroy(linger=0)
 
