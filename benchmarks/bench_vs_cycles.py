@@ -392,7 +392,7 @@ class Cycles:
 
     def __init__(self, python: str, scene_npz: Path, frame: np.ndarray | None, tmp: Path):
         self.frame = None if frame is None else frame.astype(np.float64)
-        self.tmp, self.count = tmp, 0
+        self.tmp, self.count, self.syncs = tmp, 0, []
         self.log = tmp / f"{Path(scene_npz).stem}.log"
         with open(self.log, "w") as log:
             self.proc = subprocess.Popen([python, str(HERE / "cycles_worker.py"),
@@ -417,6 +417,7 @@ class Cycles:
         reply = json.loads(line)
         if not reply["ok"]:
             raise RuntimeError(reply["error"])
+        self.syncs.append(reply.get("sync"))
         with np.load(f"{out}.npz") as z:
             comb = z["combined"].astype(np.float64)
             catcher = z["catcher"].astype(np.float64) if "catcher" in z else None
@@ -429,7 +430,11 @@ class Cycles:
     def close(self) -> None:
         if self.proc.stdin is not None:
             self.proc.stdin.close()
-        self.proc.wait(timeout=60)
+        try:  # Blender's shutdown is slow on a saturated machine
+            self.proc.wait(timeout=600)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
 
 
 # --------------------------------------------------------------------------------------------
@@ -550,6 +555,8 @@ def measure(name: str, world, proxy, photo, args, labels: list[str], tmp: Path) 
                     print(name, label, spp, rep, f"{sec:.2f} s", flush=True)
     finally:
         cyc.close()
+    syncs = [x for x in cyc.syncs[1:] if x is not None]  # after the warm-up
+    res["cycles_sync"] = float(np.mean(syncs)) if syncs else float("nan")
     top = max(args.spp)
     pts, best, nan = {}, {}, {}
     for k, per_spp in runs.items():
@@ -701,7 +708,8 @@ def check_lights(args) -> None:
 def _fmt_check(res: dict) -> str:
     c = res["check"]
     flag = " **disagrees**" if disagrees(c) else ""
-    return (f"{c['chi']:.2f} / {100 * c['bias']:.2f} %{flag} "
+    noise = c["rel"] / np.sqrt(c["chi"])  # the expected relative difference
+    return (f"{c['chi']:.2f} / {100 * c['bias']:.2f} % / {100 * noise:.2g} %{flag} "
             f"({100 * res['lights_px']:.1f} % px lights)")
 
 
@@ -743,14 +751,15 @@ def worlds_report(results: list[dict], descriptions: dict[str, str], labels: lis
              "Columns: *world check* — Cycles' render of the world (real world and virtual "
              "objects, no catcher) against Mitsuba's ground-truth photograph, "
              f"{args.check_spp} spp ×2: χ (mean squared difference / expected from both "
-             "noises, ≈ 1 when they agree) / relative bias beyond the noise (*disagrees*: "
+             "noises, ≈ 1 when they agree) / relative bias beyond the noise / the relative "
+             "noise of the difference (the check's resolution) (*disagrees*: "
              f"χ > {CHI_MAX:g} and bias > {100 * BIAS_MAX:g} %); *vs ground truth* — the "
              "mean of each renderer's top-spp AR composites against the ground truth (rel. "
              "RMSE: the proxy's imperfections and the composite, as in issue 22); *t* — "
              "time to the noise level from the log–log fit (s); ratios: Cycles' time / "
              f"onepass's. Every measure leaves out directly seen lights (pixels brighter than "
              f"{BRIGHT:g}× the ground truth's median luminance; share in brackets).", "",
-             f"| scene | world check χ / bias | vs ground truth: onepass / "
+             f"| scene | world check χ / bias / noise | vs ground truth: onepass / "
              f"{'reference / ' if ref else ''}Cycles | onepass t 5 % / 2.5 % | Cycles t 5 % "
              "/ 2.5 % | **Cycles / onepass at 5 %** | **at 2.5 %** | "
              f"{'Cycles / reference at 2.5 % | ' if ref else ''}noise slope onepass / Cycles |",
@@ -797,9 +806,12 @@ def worlds_report(results: list[dict], descriptions: dict[str, str], labels: lis
     lines += ["Worlds:", ""]
     for res in results:
         lines.append(f"* {res['name']}: {descriptions.get(res['name'], '')}")
-    lines += ["", f"Points (mean seconds, noise) per spp {args.spp}:", ""]
+    lines += ["", f"Points (mean seconds, noise) per spp {args.spp}; Cycles' seconds include its "
+              "synchronisation (its mean per render on its own line: with an environment "
+              "map mostly the bake of the map's importance table):", ""]
     for res in results:
         if "pts" in res:
+            lines.append(f"* {res['name']} Cycles synchronisation: {res['cycles_sync']:.2f} s")
             for k, v in res["pts"].items():
                 lines.append(f"* {res['name']} {k}: "
                              + ", ".join(f"({s:.2f}, {e:.4f})" for s, e in v))
