@@ -770,7 +770,7 @@ def worlds_report(results: list[dict], descriptions: dict[str, str], labels: lis
         name = res["name"]
         if "skip" in res:
             skipped.append(res)
-            lines.append(f"| {name} | skipped: {res['skip']} |" + " |" * (6 if ref else 5))
+            lines.append(f"| {name} | skipped: {res['skip']} |" + " |" * (7 if ref else 6))
             continue
         t, vs = res["t_to"], res["vs_gt"]
         r5 = t["cycles"][0.05] / t["onepass"][0.05]
