@@ -412,6 +412,9 @@ class Gate:
         self._tokens += 1
         token = str(self._tokens)
         slots.floating[token] = slots.accepted
+        # the connection may have gone while its request waited (its DISCONNECTED already
+        # read: no later event would free the slot)
+        slots.clamp()
         return [b"1.0", request_id, b"200", b"OK", token.encode(), b""]
 
     # -- from the server's I/O thread ----------------------------------------------------
