@@ -318,6 +318,74 @@ def test_max_clients_slots_come_back_when_clients_leave():
             ctx.destroy(linger=0)
 
 
+def test_gate_bookkeeping_never_frees_a_slot_early_and_frees_every_slot():
+    """The gate's count driven event by event (no network, max_clients=2): a refused
+    connection takes no slot; a slot tied to its connection comes back with its
+    disconnect; a message of a gone connection read after its fd was reused does not tie
+    the newcomer's connection; an untied slot comes back once its connection is gone, also
+    when the connection went while its request waited."""
+    pub = security.ZAP_DOMAINS["pub"]
+    ctx = zmq.Context()
+    gate = security.Gate(ctx, 2, {pub: ctx.socket(zmq.XPUB)})
+    slots = gate._slots[pub]
+    accepted, disconnected = zmq.EVENT_ACCEPTED, zmq.EVENT_DISCONNECTED
+
+    def event(kind, fd):  # what the gate's monitor reading does with one event
+        slots.event(kind, fd)
+        slots.clamp()
+
+    def ask():  # a ZAP request (NULL mechanism) → (status, token)
+        reply = gate._decide([b"1.0", b"1", pub, b"127.0.0.1", b"", b"NULL"])
+        return reply[2], reply[4].decode()
+
+    class Message:  # a received frame: its User-Id and source fd
+        def __init__(self, token, fd):
+            self.props = {"User-Id": token, security._FD: fd}
+
+        def get(self, key):
+            return self.props[key]
+
+    try:
+        event(accepted, 10)
+        status, a = ask()
+        event(accepted, 11)
+        status_b, b = ask()
+        event(accepted, 12)
+        assert (status, status_b, ask()[0]) == (b"200", b"200", b"400")
+        event(disconnected, 12)  # the refused one leaves: nothing to give back
+        assert slots.held() == 2
+        gate.note(pub, Message(a, 10))  # a's first message ties its slot to fd 10
+        assert slots.linked == {10: a} and slots.held() == 2
+        event(disconnected, 10)
+        assert slots.held() == 1
+        event(accepted, 13)
+        status, c = ask()
+        assert status == b"200" and slots.held() == 2
+        event(disconnected, 13)  # c leaves before its first message is read: its slot
+        assert slots.held() == 1  # comes back (the one untied connection open is b's)
+        event(accepted, 13)  # a newcomer gets fd 13,
+        gate.note(pub, Message(c, 13))  # then c's message is read: not the newcomer's
+        assert slots.linked == {}
+        status, n = ask()
+        gate.note(pub, Message(n, 13))  # the newcomer's own message ties it
+        assert status == b"200" and slots.linked == {13: n} and slots.held() == 2
+        event(accepted, 15)
+        assert ask()[0] == b"400"
+        event(disconnected, 11)  # b leaves while the refused 15 is open: for all the gate
+        assert slots.held() == 2  # knows, 15 is b's; the slot is held a little longer
+        event(disconnected, 15)
+        assert slots.held() == 1
+        event(disconnected, 13)
+        assert slots.held() == 0
+        event(accepted, 14)
+        event(disconnected, 14)  # gone while its request waited
+        assert ask()[0] == b"200" and slots.held() == 0
+        assert gate.refused["full"] == 2
+    finally:
+        gate.stop()
+        ctx.destroy(linger=0)
+
+
 # -- flood and oversize: memory of a server process ------------------------------------------
 
 def _free_port() -> int:

@@ -236,6 +236,16 @@ class _Slots:
     def held(self) -> int:
         return len(self.linked) + len(self.floating)
 
+    def event(self, event: int, fd: int) -> None:
+        """A monitor event of the socket (in the order libzmq emitted them)."""
+        if event == zmq.EVENT_ACCEPTED:
+            self.accepted += 1
+            self.linked.pop(fd, None)  # a reused fd: that connection is gone
+            self.open[fd] = self.accepted
+        elif event == zmq.EVENT_DISCONNECTED:
+            self.open.pop(fd, None)
+            self.linked.pop(fd, None)
+
     def clamp(self) -> None:
         """An admitted connection not linked is an open connection not linked: at most as
         many floating slots as such connections (the oldest tokens go)."""
@@ -375,13 +385,7 @@ class Gate:
                     event, value = _parse_event(slots.monitor.recv_multipart(zmq.NOBLOCK))
                 except zmq.Again:
                     break
-                if event == zmq.EVENT_ACCEPTED:
-                    slots.accepted += 1
-                    slots.linked.pop(value, None)  # a reused fd: that connection is gone
-                    slots.open[value] = slots.accepted
-                elif event == zmq.EVENT_DISCONNECTED:
-                    slots.open.pop(value, None)
-                    slots.linked.pop(value, None)
+                slots.event(event, value)
             slots.clamp()
 
     def _decide(self, request: list[bytes]) -> list[bytes]:
