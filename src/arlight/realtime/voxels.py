@@ -80,16 +80,20 @@ geometry in the way (no light through walls, and fewer steps)."""
 
 SHELLS = 0.5
 """Coverage scale of a block of level ``l``: ``α_l = min(1, max(1, SHELLS · 2^l) · mean α)``
-(ours). 1 is exact for a single sheet (a real plane); closed objects cross a block twice, so
-0.5 (bunny-box 32.3 → 33.3 dB, red-paper 28.7 → 31.3 dB: Lucy's soft shadow had come out
-opaque)."""
+(ours; ``dvct`` option ``shells``). 1 is exact for a single sheet (a real plane); closed
+objects cross a block twice, so 0.5 (bunny-box 32.3 → 33.3 dB, red-paper 28.7 → 31.3 dB:
+Lucy's soft shadow had come out opaque). Re-chosen on 16 training worlds (issue #30,
+``benchmarks/tune_realtime.py``): 0.25 won there, lost on the held-out worlds, and 0.5
+stays (docs/methods/dvct.md)."""
 
 LEVEL_BIAS = 1.0
 """Mip levels finer than ``log2(d / s_0)`` at which a cone of diameter ``d`` samples (ours):
 trilinear interpolation between cell centres spreads a cell over a tent two cells wide, so
 sampling at the level whose cells equal the diameter blurs occluders over about twice the
 cone's cross-section (on bunny-box the soft shadow came out 3× too deep in the mean); one
-level finer matches the footprint (floor-shadow RMSE 0.044 → 0.028 against ray tracing)."""
+level finer matches the footprint (floor-shadow RMSE 0.044 → 0.028 against ray tracing).
+``dvct`` option ``level_bias``; re-chosen on 16 training worlds (issue #30): 0 (with
+``SHELLS`` 0.25) won there, lost on the held-out worlds, and 1 stays."""
 
 ALPHA_CHANNELS = 2
 """``V_η`` occupancy channels: ``α_all`` (real + virtual), ``α_real``."""
