@@ -78,3 +78,18 @@ def test_bad_input_exits_2_and_writes_nothing(files, case):
               "sees_nothing": "sees nothing", "size": "does not match"}[case]
     assert expect in r.output
     assert not out.exists()
+
+
+def test_atlas_default_tau_is_the_servers():
+    """``arlight light atlas`` spells τ's default as a literal (a command module imports no
+    NumPy); it must be the server's and the method's default. Rejects a default changed in
+    one place only."""
+    import inspect
+
+    from arlight.methods.nearfield import OPTIONS
+    from arlight.nearfield.cli import atlas
+    from arlight.nearfield.pipeline import NearFieldSettings
+    from arlight.nearfield.split import DEFAULT_TAU
+
+    assert inspect.signature(atlas).parameters["tau"].default == DEFAULT_TAU
+    assert NearFieldSettings().tau == OPTIONS["tau"].default == DEFAULT_TAU

@@ -42,6 +42,7 @@ from arlight.nearfield.shading import (
     shadow_maps,
     tile_lanes,
 )
+from arlight.nearfield.split import DEFAULT_TAU
 from arlight.nearfield.state import MAX_VALS, NearFieldLight
 from arlight.realtime.gbuffer import assemble, render_gbuffer
 from arlight.scene.model import FrameView, World
@@ -56,8 +57,9 @@ OPTIONS: dict[str, Field] = {
                           max=2048),
     "capture_spp": Field("int", 32, "paths per pixel of the synthetic capture", "", min=1,
                          max=4096),
-    "tau": Field("float", 0.6, "direct share τ of the total radiant intensity (0.6: best "
-                 "of 0.5–0.98 on cornell-near-field)", "", min=0.0, max=1.0),
+    "tau": Field("float", DEFAULT_TAU, "direct share τ of the total radiant intensity (0.6: "
+                 "best of 0.5–0.98 on cornell-near-field; see docs/methods/nearfield.md)", "",
+                 min=0.0, max=1.0),
     "vals": Field("int", 16, "number of virtual area lights M", "", min=1, max=MAX_VALS),
     "atlas_resolution": Field("int", 256, "radiance atlas side", "texels", min=16,
                               max=2048),

@@ -61,7 +61,7 @@ def atlas(
     world: Annotated[Path | None, typer.Option(
         help="scene whose real part the synthetic capture renders (default: SCENE)")] = None,
     tau: Annotated[float, typer.Option(help="direct share τ of the total intensity, [0, 1]")
-                   ] = 0.6,
+                   ] = 0.6,  # split.DEFAULT_TAU (a command module imports no NumPy; tested)
     vals: Annotated[int, typer.Option(
         help="number of virtual area lights M (1 … the nearfield method's cap, 256)")] = 16,
     atlas_resolution: Annotated[int, typer.Option("--atlas", help="atlas side (texels)")

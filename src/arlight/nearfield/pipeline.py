@@ -42,7 +42,7 @@ from arlight.nearfield.cameras import RigCamera
 from arlight.nearfield.indirect import IndirectProbes, VirtualObject
 from arlight.nearfield.projection import merge, project_camera
 from arlight.nearfield.raytrace import mesh_scene
-from arlight.nearfield.split import SplitAtlas, check_tau, split
+from arlight.nearfield.split import DEFAULT_TAU, SplitAtlas, check_tau, split
 from arlight.nearfield.state import SH_BLOCK_BYTES, VAL_RECORD_BYTES, NearFieldLight
 from arlight.nearfield.vals import VALSet, extract_vals
 from arlight.scene.mesh import vertex_normals
@@ -59,7 +59,8 @@ class NearFieldSettings:
         supersample: sub-samples per texel side for texel area / position.
         dilation: dilation range, texels (2).
         tau: direct share of the total radiant intensity, in [0, 1] (Rohmer's examples:
-            0.75–0.98; 0.6 measured best on cornell-near-field, benchmarks/RESULTS.md).
+            0.75–0.98; default :data:`~arlight.nearfield.split.DEFAULT_TAU`, 0.6, measured
+            best on cornell-near-field and kept after the generated rooms of issue #30).
         vals: number of VALs M (8–64; 16 in Table 1).
         samples: importance samples for the clustering (4096).
         iterations: k-means iterations per update (20).
@@ -72,7 +73,7 @@ class NearFieldSettings:
     atlas_resolution: int = 256
     supersample: int = 4
     dilation: int = 2
-    tau: float = 0.6
+    tau: float = DEFAULT_TAU
     vals: int = 16
     samples: int = 4096
     iterations: int = 20

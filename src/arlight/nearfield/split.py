@@ -17,6 +17,13 @@ import numpy as np
 
 from arlight.errors import InputError
 
+DEFAULT_TAU = 0.6
+"""The server's, the method's and ``arlight light atlas``'s default ``τ``: the best of
+0.5–0.98 on cornell-near-field (benchmarks/RESULTS.md). Re-examined on generated worlds
+(issue #30, ``benchmarks/tune_light_estimation.py``): the training rooms chose 0.75 of
+{0.3, 0.45, 0.6, 0.75, 0.9} (on 2 rooms, one indifferent to τ within 0.25 dB), which was
+worse than 0.6 on every held-out room; 0.6 stays (docs/methods/nearfield.md)."""
+
 
 @dataclass
 class SplitAtlas:
@@ -74,4 +81,4 @@ def split(radiance: np.ndarray, area: np.ndarray, tau: float) -> SplitAtlas:
     return SplitAtlas(direct, L - direct, is_dir, thr)
 
 
-__all__ = ["SplitAtlas", "check_tau", "split"]
+__all__ = ["DEFAULT_TAU", "SplitAtlas", "check_tau", "split"]
