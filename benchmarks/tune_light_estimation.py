@@ -1,0 +1,485 @@
+"""Re-choose two light-estimation constants on training worlds, report them on held-out
+worlds (issue #30).
+
+* **probeless** (Gruber 2014): the Tikhonov weight ``ridge`` of the SH light fit (E5). Per
+  generated world (:mod:`arlight.evaluate.worlds`, 160×120, ground truth 256 spp, seed 1,
+  depth 8): the method's own pipeline (ART4, one frame, the proxy with the sensor depth and
+  the synthetic frame) gives the observations of E5 once; every ``ridge`` of the grid solves
+  E5 on them. The estimate is compared with the **true SH of the light arriving at the
+  virtual objects** (centre of their bounding box, the world's real part, i.e. the frame's
+  light): :func:`arlight.probeless.experiment.incident_sh` — Mitsuba's emitter sampling for
+  the emitted light seen directly (every light type, visibility tested) plus Mitsuba's path
+  tracer with the directly seen emitters hidden for the reflected light, both projected on
+  the 16 SH. Measures: relative SH error ``‖l − l_true‖/‖l_true‖`` and the upper-hemisphere
+  radiance error (:func:`~arlight.probeless.experiment.upper_hemisphere_error`), and through
+  the harness (:func:`arlight.evaluate.harness.evaluate_cell`) the composite's PSNR / FLIP
+  over the image and over the changed region. The ridge is chosen by the **median relative
+  SH error over the training worlds** (ties: the smaller weight).
+* **nearfield** (Rohmer 2015): the direct share ``τ``. Applicable to **rooms** (the proxy
+  surrounds the objects, so the light reaching them is on the radiance atlas); tabletops and
+  outdoor grounds get their light from the sky, which is on no proxy surface (counted as
+  skips). Per room: the method's automatic rig (six 128² fisheyes inside the proxy's bounds,
+  those that see the proxy) captured by Mitsuba's path tracer in the **world** (what real
+  cameras see, 32 spp), the server on the proxy for every ``τ`` of the grid, the light state
+  given to the method (option ``light``) through the harness. ``τ`` is chosen by the
+  **median changed-region PSNR over the training rooms** (ties: the old value).
+
+Old and new values run on the same held-out worlds in the same run. Per-world results are
+cached (``~/.cache/arlight/tune_light``), so a rerun only re-tabulates. Usage:
+
+    .venv/bin/python benchmarks/tune_light_estimation.py [--train 12] [--heldout 24]
+        [--rooms-train 8] [--rooms-heldout 12] [--part probeless|nearfield|all] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results import cpu_pressure, publish  # noqa: E402
+
+from arlight.cache import default_cache_dir  # noqa: E402
+from arlight.evaluate.harness import EvalConfig, evaluate_cell  # noqa: E402
+from arlight.evaluate.worlds import (  # noqa: E402
+    GENERATOR_VERSION,
+    generate,
+    parse_worlds,
+    split_seeds,
+)
+
+HEADING = ("## Held-out worlds: probeless and nearfield constants re-chosen on training "
+           "worlds (issue #30)")
+WIDTH = 160
+GT = {"spp": 256, "seed": 1, "max_depth": 8}
+RIDGES = [0.0, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1]
+OLD_RIDGE = 3e-3
+TAUS = [0.3, 0.45, 0.6, 0.75, 0.9]
+OLD_TAU = 0.6
+VERSION = 1
+"""Bump when a per-world record would change (measures, settings)."""
+METRICS = ("psnr", "flip", "changed_psnr", "changed_flip")
+NOTE = (
+    "Smaller than planned (12 training / 24 held-out): on the shared 2-core machine (CPU "
+    "pressure ≈ 100 % throughout) a room's ground truth took 2–7 min and its fisheye capture "
+    "2–14 min, so the recorded run used the first 11 held-out worlds for probeless, 2 training "
+    "and 4 held-out rooms for nearfield (`--heldout 11 --rooms-train 2 --nearfield-heldout "
+    "1000001,1000004,1000016,1000021`). **Neither training choice became the default**: both "
+    "were worse on the held-out worlds (probeless 0.1 on the median of every light measure, "
+    "nearfield 0.75 on all 4 rooms), and both were thin — probeless's at the grid's edge on 4 "
+    "determined worlds by a criterion that rewards shrinking toward the zero estimate "
+    "(error 1.0), nearfield's on 2 rooms, one indifferent to τ. Keeping the old values after "
+    "seeing held-out numbers is itself informed by them; docs/methods/probeless.md and "
+    "nearfield.md say so.")
+
+
+def cache_dir() -> Path:
+    d = default_cache_dir() / "tune_light"
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def cached(name: str, make):
+    """The JSON record ``name`` from the cache, or ``make()`` stored there."""
+    path = cache_dir() / f"{name}-g{GENERATOR_VERSION}-v{VERSION}.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    rec = make()
+    path.write_text(json.dumps(rec))
+    return rec
+
+
+def world_info(gw) -> dict:
+    t = gw.tags
+    return {"seed": gw.seed, "class": gw.world_class, "env": t["env"], "sun": bool(t["sun"]),
+            "lights": [x["type"] for x in t["lights"]], "open": t.get("room_open", "")}
+
+
+def harness(method: str, scene, photo, options: dict) -> dict:
+    cfg = EvalConfig(methods=[method], scenes=[scene.name], repeats=1, max_depth=GT["max_depth"],
+                     gt_spp=GT["spp"])
+    cell = evaluate_cell(method, scene, photo, cfg, options)
+    if cell.skipped:
+        return {"skipped": cell.skipped}
+    if cell.error:
+        return {"error": cell.error}
+    return {**{k: float(cell.metrics[k]) for k in METRICS}, "seconds": cell.seconds,
+            "stats": {k: v for k, v in cell.stats.items() if k.startswith("light_")}}
+
+
+# ------------------------------------------------------------------------------ probeless
+
+def probeless_world(seed: int) -> dict:
+    from arlight.backend.mitsuba_scene import build_views
+    from arlight.probeless.estimate import estimate_light
+    from arlight.probeless.experiment import (
+        incident_sh,
+        object_centre,
+        upper_hemisphere_error,
+    )
+    from arlight.probeless.pipeline import Pipeline, Settings
+
+    gw = generate(seed)
+    scene = gw.suite_scene(WIDTH)
+    photo = scene.photo(**GT)
+    rec = world_info(gw)
+    t0 = time.perf_counter()
+    truth = incident_sh(scene.world.world, object_centre(scene.world.world),
+                        directions=4096, spp=8)
+    rec["truth_seconds"] = time.perf_counter() - t0
+    ar = scene.ar_scene(photo)
+    world = ar.world
+    pipe = Pipeline(build_views(world), "ART4", Settings(), shapes=world.shapes)
+    res = pipe.process(ar.camera, ar.frame, ar.depth, shade=False)
+    obs = res.observations
+    rec["samples"] = int(len(obs[0]))
+    rec["rank"] = int(res.fit.rank)
+    rec["determined"] = bool(res.fit.determined)
+    rec["truth_norm"] = float(np.linalg.norm(truth))
+    rows = {}
+    for r in RIDGES:
+        fit = estimate_light(*obs, ridge=r)
+        rows[repr(r)] = {
+            "sh_error": float(np.linalg.norm(fit.sh - truth) / np.linalg.norm(truth)),
+            "upper_error": upper_hemisphere_error(fit.sh, truth),
+            "dot": float(fit.direction @ _unit(truth)),
+        }
+    rec["light"] = rows
+    rec["composite"] = {}
+    return rec
+
+
+def with_composites(name: str, rec: dict, keys: list[str], factory) -> dict:
+    """``rec`` with ``rec["composite"][k] = factory()(k)`` for the keys it lacks (stored)."""
+    todo = [k for k in keys if k not in rec["composite"]]
+    if todo:
+        make = factory()
+        for k in todo:
+            rec["composite"][k] = make(k)
+        (cache_dir() / f"{name}-g{GENERATOR_VERSION}-v{VERSION}.json").write_text(
+            json.dumps(rec))
+    return rec
+
+
+def probeless_composite(seed: int):
+    scene = generate(seed).suite_scene(WIDTH)
+    photo = scene.photo(**GT)
+    return lambda k: harness("probeless", scene, photo, {"ridge": float(k)})
+
+
+def _unit(sh: np.ndarray) -> np.ndarray:
+    from arlight.sphere import sh as SH
+
+    return SH.dominant_direction(sh)
+
+
+# ------------------------------------------------------------------------------ nearfield
+
+NEARFIELD_CLASSES = ("room",)
+
+
+def nearfield_world(seed: int) -> dict:
+    from arlight.methods.nearfield import OPTIONS, SPEC
+    from arlight.nearfield.cameras import default_rig, seeing_cameras
+    from arlight.nearfield.capture import capture_rig
+    from arlight.nearfield.lightfile import save_light
+    from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
+
+    gw = generate(seed)
+    rec = world_info(gw)
+    if gw.world_class not in NEARFIELD_CLASSES:
+        rec["skipped"] = (f"{gw.world_class}: its light comes from the sky, which lies on no "
+                          "proxy surface (nothing for the radiance atlas to capture)")
+        return rec
+    scene = gw.suite_scene(WIDTH)
+    proxy = scene.proxy.world
+    reason = SPEC.unsupported_reason(proxy)
+    if reason:
+        rec["skipped"] = reason
+        return rec
+    photo = scene.photo(**GT)
+    size, spp = OPTIONS["capture_size"].default, OPTIONS["capture_spp"].default
+    rig = default_rig(proxy, size)
+    t0 = time.perf_counter()
+    server = NearFieldServer(proxy, rig, NearFieldSettings())
+    server.cameras = seeing_cameras(rig, server.geometry, server.proxy_scene)
+    images = capture_rig(scene.world.world, server.cameras, spp)  # the world, not the proxy
+    rec["capture_seconds"] = time.perf_counter() - t0
+    rec["cameras"] = len(server.cameras)
+    rows = {}
+    for tau in TAUS:  # a fresh server per τ: one update from k-means++, as the method's
+        srv = NearFieldServer(proxy, server.cameras, NearFieldSettings(tau=tau))
+        light = srv.update(images, timestamp=0.0)
+        path = cache_dir() / f"nearfield-light-{seed}-{tau}.json"
+        save_light(light, path)
+        rows[repr(tau)] = harness("nearfield", scene, photo, {"light": str(path)})
+        rows[repr(tau)]["vals"] = int(light.count)
+    rec["composite"] = rows
+    return rec
+
+
+# ------------------------------------------------------------------------------ tables
+
+def _q(values: list[float], higher_better: bool) -> tuple[float, float, float]:
+    """(median, the worst decile's edge, worst): p90 and max of an error, p10 and min of a
+    PSNR."""
+    a = np.asarray(values, float)
+    if higher_better:
+        return float(np.median(a)), float(np.percentile(a, 10)), float(a.min())
+    return float(np.median(a)), float(np.percentile(a, 90)), float(a.max())
+
+
+def _fmt(q: tuple[float, float, float], digits: int = 3) -> str:
+    return " / ".join(f"{x:.{digits}f}" for x in q)
+
+
+def light_rows(recs: list[dict]) -> list[dict]:
+    """The records whose light is determined (others are skips)."""
+    return [r for r in recs if r["determined"]]
+
+
+def probeless_skips(recs: list[dict]) -> list[str]:
+    return [f"{r['seed']} ({r['class']}): light undetermined (rank {r['rank']} of 16)"
+            for r in recs if not r["determined"]]
+
+
+def composite_skips(recs: list[dict], key: str) -> list[str]:
+    out = []
+    for r in recs:
+        c = r["composite"].get(key, {})
+        if "skipped" in c or "error" in c:
+            out.append(f"{r['seed']} ({r['class']}): {c.get('skipped') or c.get('error')}")
+    return out
+
+
+def composite_ok(recs: list[dict], key: str) -> list[dict]:
+    """The composites of ``key`` that ran (absent: not run for that key)."""
+    out = [r.get("composite", {}).get(key) for r in recs]
+    return [c for c in out if c is not None and "skipped" not in c and "error" not in c]
+
+
+def choose(recs: list[dict], keys: list[str], score, old: str, higher_better: bool
+           ) -> tuple[str, dict[str, float]]:
+    """The key with the best median score over ``recs`` (ties: ``old``, then the first)."""
+    med = {k: float(np.median([score(r, k) for r in recs])) for k in keys}
+    best = max(med.values()) if higher_better else min(med.values())
+    pick = old if abs(med[old] - best) <= 1e-12 else next(k for k in keys if med[k] == best)
+    return pick, med
+
+
+def probeless_section(train: list[dict], held: list[dict]) -> tuple[str, float]:
+    keys = [repr(r) for r in RIDGES]
+    old = repr(OLD_RIDGE)
+    tl = light_rows(train)
+    pick, med = choose(tl, keys, lambda r, k: r["light"][k]["sh_error"], old, False)
+    lines = ["### probeless: the ridge weight of the light fit (E5)", "",
+             f"Training: {len(train)} worlds, {len(tl)} with a determined light. Grid "
+             f"`ridge` ∈ {{{', '.join(f'{r:g}' for r in RIDGES)}}}; criterion: median "
+             "relative SH error over the training worlds.", "",
+             "| ridge | median SH error | median upper-hemisphere error | median dot | "
+             "median changed-region PSNR (dB) | worlds with a composite |",
+             "|---|---|---|---|---|---|"]
+    for k in keys:
+        comp = composite_ok(train, k)
+        lines.append(
+            f"| {float(k):g}{' (old)' if k == old else ''}"
+            f"{' **training choice**' if k == pick else ''}"
+            f" | {med[k]:.3f} | "
+            f"{np.median([r['light'][k]['upper_error'] for r in tl]):.3f} | "
+            f"{np.median([r['light'][k]['dot'] for r in tl]):.3f} | "
+            + (f"{np.median([c['changed_psnr'] for c in comp]):.2f}" if comp else "—")
+            + f" | {len(comp)} |")
+    hl = light_rows(held)
+    lines += ["", f"Held-out: {len(held)} worlds, {len(hl)} with a determined light; "
+              "median / worst 10 % (p90 of an error, p10 of a PSNR) / worst.", "",
+              "| measure | old ridge = " + f"{OLD_RIDGE:g}" + " | new ridge = "
+              + f"{float(pick):g} |", "|---|---|---|"]
+    for name, field, hb in (("relative SH error", "sh_error", False),
+                            ("upper-hemisphere error", "upper_error", False),
+                            ("dot(d_est, d_true)", "dot", True)):
+        cells = [_fmt(_q([r["light"][k][field] for r in hl], hb)) for k in (old, pick)]
+        lines.append(f"| {name} | {cells[0]} | {cells[1]} |")
+    for name, field, hb, dg in (("PSNR (dB)", "psnr", True, 2),
+                                ("changed-region PSNR (dB)", "changed_psnr", True, 2),
+                                ("FLIP", "flip", False, 4),
+                                ("changed-region FLIP", "changed_flip", False, 4)):
+        cells = []
+        for k in (old, pick):
+            comp = composite_ok(held, k)
+            cells.append(_fmt(_q([c[field] for c in comp], hb), dg) if comp else "—")
+        lines.append(f"| {name} ({len(composite_ok(held, old))} worlds) | {cells[0]} | "
+                     f"{cells[1]} |")
+    skips = probeless_skips(train + held)
+    cskips = composite_skips([r for r in held if r["determined"]], old)
+    from arlight.probeless.estimate import DEFAULT_RIDGE
+
+    lines += ["", f"Default after this run: ridge = {DEFAULT_RIDGE:g} "
+              "(`arlight.probeless.estimate.DEFAULT_RIDGE`; docs/methods/probeless.md says "
+              "why it is or is not the training choice)."]
+    lines += ["", f"Light skips (training + held-out): {len(skips)}"
+              + (": " + "; ".join(skips) if skips else "") + ".",
+              f"Composite skips on held-out worlds ({len(cskips)} of {len(hl)}): "
+              + ("; ".join(cskips) if cskips else "none") + "."]
+    return "\n".join(lines), float(pick)
+
+
+def probeless_distribution(held: list[dict], ridge: float) -> str:
+    """The RESULTS.md probeless claim (dominant direction within ~0.94–0.98 dot on the
+    modelled room) restated on held-out worlds, by class and by what lights them."""
+    k = repr(ridge)
+    hl = light_rows(held)
+    groups: dict[str, list[dict]] = {"all": hl}
+    for cls in ("tabletop", "room", "outdoor"):
+        groups[cls] = [r for r in hl if r["class"] == cls]
+    groups["distant light only (environment / sun)"] = [r for r in hl if not r["lights"]]
+    groups["with local lights"] = [r for r in hl if r["lights"]]
+    lines = [f"### probeless light error on held-out worlds (ridge = {ridge:g})", "",
+             "Median / worst 10 % / worst; the truth is the SH of the light arriving at the "
+             "virtual objects (`arlight.probeless.experiment.incident_sh`).", "",
+             "| worlds | N | relative SH error | upper-hemisphere error | "
+             "dot(d_est, d_true) |", "|---|---|---|---|---|"]
+    for name, rs in groups.items():
+        if not rs:
+            continue
+        lines.append(f"| {name} | {len(rs)} | "
+                     f"{_fmt(_q([r['light'][k]['sh_error'] for r in rs], False), 2)} | "
+                     f"{_fmt(_q([r['light'][k]['upper_error'] for r in rs], False), 2)} | "
+                     f"{_fmt(_q([r['light'][k]['dot'] for r in rs], True), 2)} |")
+    lines += ["", "Per world (seed, class, lights: SH error, upper error, dot): "
+              + "; ".join(f"{r['seed']} {r['class']} {'+'.join(r['lights']) or r['env']}: "
+                          f"{r['light'][k]['sh_error']:.2f}, "
+                          f"{r['light'][k]['upper_error']:.2f}, {r['light'][k]['dot']:.2f}"
+                          for r in hl) + "."]
+    return "\n".join(lines)
+
+
+def nearfield_section(train: list[dict], held: list[dict]) -> tuple[str, float]:
+    keys = [repr(t) for t in TAUS]
+    old = repr(OLD_TAU)
+    tr = [r for r in train if "skipped" not in r and composite_ok([r], old)]
+    pick, med = choose(tr, keys, lambda r, k: r["composite"][k]["changed_psnr"], old, True)
+    lines = ["### nearfield: the direct share τ", "",
+             f"Training: {len(tr)} rooms (seeds {', '.join(str(r['seed']) for r in tr)}). "
+             f"Grid τ ∈ {{{', '.join(f'{t:g}' for t in TAUS)}}}; criterion: median "
+             "changed-region PSNR over the training rooms.", "",
+             "| τ | median changed-region PSNR (dB) | median PSNR (dB) | median FLIP |",
+             "|---|---|---|---|"]
+    for k in keys:
+        lines.append(f"| {float(k):g}{' (old)' if k == old else ''}"
+                     f"{' **training choice**' if k == pick else ''} | {med[k]:.2f} | "
+                     f"{np.median([r['composite'][k]['psnr'] for r in tr]):.2f} | "
+                     f"{np.median([r['composite'][k]['flip'] for r in tr]):.4f} |")
+    hr = [r for r in held if "skipped" not in r and composite_ok([r], old)]
+    lines += ["", f"Held-out: {len(hr)} rooms (seeds {', '.join(str(r['seed']) for r in hr)}"
+              "); median / worst 10 % / worst.", "",
+              f"| measure | old τ = {OLD_TAU:g} | new τ = {float(pick):g} |", "|---|---|---|"]
+    for name, field, hb, dg in (("PSNR (dB)", "psnr", True, 2),
+                                ("changed-region PSNR (dB)", "changed_psnr", True, 2),
+                                ("FLIP", "flip", False, 4),
+                                ("changed-region FLIP", "changed_flip", False, 4)):
+        cells = [_fmt(_q([r["composite"][k][field] for r in hr], hb), dg) for k in (old, pick)]
+        lines.append(f"| {name} | {cells[0]} | {cells[1]} |")
+    diff = [r["composite"][pick]["changed_psnr"] - r["composite"][old]["changed_psnr"]
+            for r in hr]
+    if diff:
+        lines += ["", "Per held-out room, new − old changed-region PSNR (dB): "
+                  + ", ".join(f"{r['seed']}: {d:+.2f}" for r, d in zip(hr, diff, strict=True))
+                  + f" (better on {sum(d > 0 for d in diff)}, worse on "
+                  f"{sum(d < 0 for d in diff)})."]
+    skips = [f"{r['seed']} ({r['class']}): {r['skipped']}" for r in train + held
+             if "skipped" in r]
+    from arlight.nearfield.split import DEFAULT_TAU
+
+    lines += ["", f"Default after this run: τ = {DEFAULT_TAU:g} "
+              "(`arlight.nearfield.split.DEFAULT_TAU`).",
+              "", f"Skips ({len(skips)}): " + "; ".join(skips) + "."]
+    return "\n".join(lines), float(pick)
+
+
+def nearfield_seeds(split: str, first: int, rooms: int) -> list[int]:
+    """The first ``first`` seeds of ``split`` plus further seeds until ``rooms`` applicable
+    rooms (shapes and materials the method supports) are among them."""
+    from arlight.methods.nearfield import SPEC
+    from arlight.scene.load import parse_world
+
+    seeds = split_seeds(split, first)
+    n_ok = 0
+    for s in split_seeds(split, 400):
+        gw = generate(s)
+        ok = gw.world_class in NEARFIELD_CLASSES and not SPEC.unsupported_reason(
+            parse_world(gw.proxy))
+        if s in seeds:
+            n_ok += ok
+        elif n_ok < rooms and ok:
+            seeds.append(s)
+            n_ok += 1
+        if n_ok >= rooms and s >= seeds[first - 1]:
+            break
+    return seeds
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--train", type=int, default=12)
+    ap.add_argument("--heldout", type=int, default=24)
+    ap.add_argument("--rooms-train", type=int, default=5)
+    ap.add_argument("--rooms-heldout", type=int, default=0)
+    ap.add_argument("--nearfield-heldout", default="",
+                    help="explicit held-out seeds for nearfield (e.g. 1000001,1000004) "
+                         "instead of the first --heldout plus --rooms-heldout")
+    ap.add_argument("--part", choices=("probeless", "nearfield", "all"), default="all")
+    ap.add_argument("--write", action="store_true")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    text = [HEADING, ""]
+    parts: list[str] = []
+    chosen = {}
+    if args.part in ("probeless", "all"):
+        recs: dict[str, list[dict]] = {"training": [], "heldout": []}
+        for split, n in (("training", args.train), ("heldout", args.heldout)):
+            for s in split_seeds(split, n):
+                recs[split].append(cached(f"probeless-{s}", lambda s=s: probeless_world(s)))
+                print(f"probeless light {s} done", file=sys.stderr, flush=True)
+        keys = [repr(r) for r in RIDGES]
+        ridge = choose(light_rows(recs["training"]), keys,
+                       lambda r, k: r["light"][k]["sh_error"], repr(OLD_RIDGE), False)[0]
+        for r in recs["training"] + recs["heldout"]:  # the composite of old and new
+            with_composites(f"probeless-{r['seed']}", r, [repr(OLD_RIDGE), ridge],
+                            lambda s=r["seed"]: probeless_composite(s))
+            print(f"probeless composite {r['seed']} done", file=sys.stderr, flush=True)
+        sec, chosen["ridge"] = probeless_section(recs["training"], recs["heldout"])
+        parts += [sec, probeless_distribution(recs["heldout"], OLD_RIDGE)]
+        if chosen["ridge"] != OLD_RIDGE:
+            parts.append(probeless_distribution(recs["heldout"], chosen["ridge"]))
+    if args.part in ("nearfield", "all"):
+        recs = {}
+        for split, n, rooms in (("training", args.train, args.rooms_train),
+                                ("heldout", args.heldout, args.rooms_heldout)):
+            recs[split] = []
+            seeds = (parse_worlds(args.nearfield_heldout)
+                     if split == "heldout" and args.nearfield_heldout
+                     else nearfield_seeds(split, n, rooms))
+            for s in seeds:
+                recs[split].append(cached(f"nearfield-{s}", lambda s=s: nearfield_world(s)))
+                print(f"nearfield {s} done", file=sys.stderr, flush=True)
+        sec, chosen["tau"] = nearfield_section(recs["training"], recs["heldout"])
+        parts.append(sec)
+    text.append(
+        f"Worlds: generator v{GENERATOR_VERSION}, {WIDTH}×{WIDTH * 3 // 4}, ground truth "
+        f"{GT['spp']} spp (seed {GT['seed']}, depth {GT['max_depth']}); training seeds from "
+        f"0, held-out from 1000000 (first {args.train} / {args.heldout}). Chosen: "
+        + ", ".join(f"{k} = {v:g}" for k, v in chosen.items()) + " (training choices)"
+        + f". CPU pressure (PSI some avg60) at the end: {cpu_pressure() or 'n/a'} %; "
+        f"this run {time.perf_counter() - t0:.0f} s (per-world results cached). Run: "
+        "`.venv/bin/python benchmarks/tune_light_estimation.py --write`.")
+    text += ["", NOTE]
+    publish("\n\n".join(["\n".join(text), *parts]), args.write)
+
+
+if __name__ == "__main__":
+    main()
