@@ -75,7 +75,11 @@ NOTE = (
     "determined worlds by a criterion that rewards shrinking toward the zero estimate "
     "(error 1.0), nearfield's on 2 rooms, one indifferent to τ. Keeping the old values after "
     "seeing held-out numbers is itself informed by them; docs/methods/probeless.md and "
-    "nearfield.md say so.")
+    "nearfield.md say so. On training evidence alone the change was not supported either: "
+    "the image metric on the training worlds favours the old ridge (changed-region PSNR "
+    "20.17 vs 19.67 dB), and τ = 0.75 rests on one room by 0.26 dB with the other flat "
+    "within 0.25 dB. Because these held-out worlds have now informed a decision, a later "
+    "re-choice of ridge or τ reports on held-out seeds from 1 000 024 on.")
 
 
 def cache_dir() -> Path:
@@ -472,8 +476,9 @@ def main() -> None:
     text.append(
         f"Worlds: generator v{GENERATOR_VERSION}, {WIDTH}×{WIDTH * 3 // 4}, ground truth "
         f"{GT['spp']} spp (seed {GT['seed']}, depth {GT['max_depth']}); training seeds from "
-        f"0, held-out from 1000000 (first {args.train} / {args.heldout}). Chosen: "
-        + ", ".join(f"{k} = {v:g}" for k, v in chosen.items()) + " (training choices)"
+        f"0, held-out from 1000000 (first {args.train} / {args.heldout}). Training choices: "
+        + ", ".join(f"{k} = {v:g}" for k, v in chosen.items())
+        + "; defaults kept at ridge = 0.003, τ = 0.6 (below)"
         + f". CPU pressure (PSI some avg60) at the end: {cpu_pressure() or 'n/a'} %; "
         f"this run {time.perf_counter() - t0:.0f} s (per-world results cached). Run: "
         "`.venv/bin/python benchmarks/tune_light_estimation.py --write`.")
