@@ -19,10 +19,13 @@ Protocol (docs/testing.md, :mod:`arlight.evaluate.worlds`):
 2. **Grid**: every candidate of the method's grid on every training world, scored by the
    harness's ``changed_psnr`` (PSNR of the display image on the pixels the insertion changes)
    and ``psnr``. The candidate with the highest **median training ``changed_psnr``** is
-   chosen; candidates within :data:`TIE_DB` of it count as ties and the principled one among
-   them wins (the order of ``principled`` below).
-3. **Held out**: today's values and the chosen ones on the held-out worlds: median, 10th
-   percentile and worst ``changed_psnr`` and ``psnr``, and the per-world wins.
+   chosen; candidates within :data:`TIE_DB` of it count as ties, and among ties the one
+   with the most constants at a principled value wins (a constant that makes no measurable
+   difference falls back to its principled value), then the higher median ``psnr``.
+3. **Held out**: the old values and the chosen ones on the held-out worlds: median, 10th
+   percentile and worst ``changed_psnr`` and ``psnr``, and the per-world wins. The chosen
+   value becomes the method's default only if it does not lose on the held-out median
+   ``changed_psnr``: the held-out worlds can veto a change, never pick another value.
 
 A world's volumes are built once and every candidate is composed from them
 (:func:`arlight.methods.dlpv.compose`, :func:`arlight.methods.dvct.compose`: the constants
@@ -145,14 +148,17 @@ def scores(composite: np.ndarray, scene, photo, full: bool = False) -> dict[str,
 
 @dataclass
 class Tuning:
-    """One method's constants: ``old`` (today's option values), the candidate grid, the
-    principled candidates in order of preference (tie-break) and their labels."""
+    """One method's constants: ``old`` (the values before issue #30), the candidate grid, the
+    principled values of each constant (tie-break) and the labels of special values."""
 
     method: str
     old: dict
     grid: list[dict]
-    principled: list[dict]
+    principled: dict[str, tuple[float, ...]]
     labels: dict = field(default_factory=dict)
+
+    def n_principled(self, cand: dict) -> int:
+        return sum(v in self.principled[k] for k, v in cand.items())
 
     def label(self, cand: dict) -> str:
         return ", ".join(f"{k}={self.labels.get((k, v), _fmt(v))}" for k, v in cand.items())
@@ -164,7 +170,7 @@ def _fmt(v: float) -> str:
 
 def dlpv_tuning() -> Tuning:
     """``calibrate`` (``V_Δ``) × ``calibrate_rho`` (``V_ρ``): 1 (KD10's raw scale), the
-    one-VPL response (:func:`vpl_response`), 0 = the plane response (1.92, today's), and
+    one-VPL response (:func:`vpl_response`), 0 = the plane response (1.92, the old default), and
     1.25, 1.5, 2.5 around them."""
     from arlight.realtime.sh_volume import plane_response
 
@@ -177,20 +183,17 @@ def dlpv_tuning() -> Tuning:
         labels[(k, vpl)] = f"{vpl} (VPL)"
         labels[(k, 1.0)] = "1 (raw)"
     grid = [{"calibrate": a, "calibrate_rho": b} for a in values for b in values]
-    principled = [{"calibrate": a, "calibrate_rho": b}
-                  for a, b in ((1.0, 1.0), (0.0, 0.0), (0.0, vpl), (vpl, vpl), (0.0, 1.0),
-                               (vpl, 1.0))]
+    principled = {k: (1.0, vpl, 0.0) for k in ("calibrate", "calibrate_rho")}
     return Tuning("dlpv", {"calibrate": 0.0, "calibrate_rho": 0.0}, grid, principled, labels)
 
 
 def dvct_tuning() -> Tuning:
-    """``shells`` × ``level_bias``: 1 (exact for one sheet) / 0.5 (closed surfaces, today's)
-    and 0.25, 0.75; 0 ([CNS+11], Franke) / 1 (a trilinear tent two cells wide, today's) and
-    0.5, 1.5, 2."""
+    """``shells`` × ``level_bias``: 1 (exact for one sheet) and 0.5 (a closed surface crosses a
+    block twice; the old default), 0.25, 0.75; 0 ([CNS+11], Franke) and 1 (a trilinear tent
+    two cells wide; the old default), 0.5, 1.5, 2."""
     grid = [{"shells": s, "level_bias": b} for s in (0.25, 0.5, 0.75, 1.0)
             for b in (0.0, 0.5, 1.0, 1.5, 2.0)]
-    principled = [{"shells": s, "level_bias": b} for s, b in ((1.0, 0.0), (0.5, 0.0),
-                                                              (1.0, 1.0), (0.5, 1.0))]
+    principled = {"shells": (1.0, 0.5), "level_bias": (0.0, 1.0)}
     return Tuning("dvct", {"shells": 0.5, "level_bias": 1.0}, grid, principled)
 
 
@@ -261,11 +264,9 @@ def choose(t: Tuning, train: dict[int, list[dict]]) -> tuple[dict, list[tuple[di
         rows.append((cand, cp, p))
     rows.sort(key=lambda r: -r[1])
     best = rows[0][1]
-    ties = [r[0] for r in rows if r[1] >= best - TIE_DB]
-    for cand in t.principled:
-        if cand in ties:
-            return cand, rows
-    return rows[0][0], rows
+    ties = [r for r in rows if r[1] >= best - TIE_DB]
+    ties.sort(key=lambda r: (-t.n_principled(r[0]), -r[2]))
+    return ties[0][0], rows
 
 
 def run_method(t: Tuning, n_train: int, n_held: int, log) -> dict:
@@ -279,13 +280,13 @@ def run_method(t: Tuning, n_train: int, n_held: int, log) -> dict:
     for s in seeds:
         scene, photo = world(s)
         if s == seeds[0]:
-            check = [t.old] + [c for c in t.principled[:1] if c != t.old]
+            check = [t.old] + [c for c in t.grid[:1] if c != t.old]
             out["self_check_db"] = self_check(t.method, scene, photo, check)
             log(f"  self-check vs evaluate_cell: max |Δ| {out['self_check_db']:.2g} dB")
         train[s] = [scores(c, scene, photo) for c in compose_all(t.method, scene, photo,
                                                                   t.grid)]
         i_old = t.grid.index(t.old)
-        log(f"  world-{s}: today {train[s][i_old]['changed_psnr']:.2f} dB, best "
+        log(f"  world-{s}: old {train[s][i_old]['changed_psnr']:.2f} dB, best "
             f"{max(r['changed_psnr'] for r in train[s]):.2f} dB")
     out["train_seconds"] = time.perf_counter() - t0
     chosen, rows = choose(t, train)
@@ -293,7 +294,7 @@ def run_method(t: Tuning, n_train: int, n_held: int, log) -> dict:
     out["chosen_label"], out["old_label"] = t.label(chosen), t.label(t.old)
     out["train_old"] = [train[s][t.grid.index(t.old)] for s in seeds]
     out["train_new"] = [train[s][t.grid.index(chosen)] for s in seeds]
-    log(f"{t.method}: chosen {t.label(chosen)} (today {t.label(t.old)})")
+    log(f"{t.method}: chosen {t.label(chosen)} (old {t.label(t.old)})")
     held, hskipped = usable_seeds(t.method, "heldout", n_held)
     out["held_seeds"], out["held_skipped"] = held, hskipped
     log(f"{t.method}: held-out worlds {held} ({len(hskipped)} skipped)")
@@ -330,7 +331,7 @@ def wins(old: list[dict], new: list[dict], key: str, eps: float = 0.005) -> str:
     return f"{w} better, {lo} worse, {len(d) - w - lo} equal (±{eps} dB)"
 
 
-def report(results: list[dict]) -> str:
+def report(results: list[dict], note: str = "") -> str:
     """The RESULTS.md section of one or more method runs (:func:`run_method` results)."""
     runs = "; ".join(f"`{r['method']}` {r['seconds'] / 60:.0f} min, CPU pressure (PSI some "
                      f"avg60) {r['pressure_start']} → {r['pressure_end']} %" for r in results)
@@ -340,9 +341,12 @@ def report(results: list[dict]) -> str:
              f"N training / held-out worlds it can render, {WIDTH}×{WIDTH * 3 // 4}, ground "
              "truth Mitsuba 256 spp, seed 1, max depth 8. Each candidate is scored by "
              "`changed_psnr` (primary) and `psnr`; the highest median training "
-             f"`changed_psnr` wins, ties (within {TIE_DB} dB) go to the principled value. "
-             "Today's values and the chosen ones are then run on the held-out worlds, which "
-             "played no part in the choice.", ""]
+             f"`changed_psnr` wins; among ties (within {TIE_DB} dB) the candidate with the "
+             "most constants at a principled value, then the higher median `psnr`. "
+             "The old values and the chosen ones are then run on the held-out worlds, which "
+             "played no part in the choice; a chosen value becomes the default only if it "
+             "does not lose on the held-out median `changed_psnr` (a veto, never a second "
+             "choice).", ""]
     for r in results:
         lines += [f"### `{r['method']}`", "",
                   f"Training: {len(r['train_seeds'])} worlds (seeds "
@@ -351,23 +355,40 @@ def report(results: list[dict]) -> str:
                   f"{len(r['held_seeds'])} worlds (seeds {_seeds(r['held_seeds'])}; "
                   f"{len(r['held_skipped'])} skipped). Fast path vs `evaluate_cell`: max "
                   f"|Δ| {r['self_check_db']:.1g} dB.", "",
-                  f"**Chosen: {r['chosen_label']}** (today: {r['old_label']}).", "",
+                  f"**Chosen: {r['chosen_label']}** (old: {r['old_label']}).", "",
                   "Training grid, median over the training worlds (best first; all "
                   f"{len(r['grid_rows'])} candidates):", "",
                   "| candidate | median `changed_psnr` | median `psnr` |", "|---|---|---|"]
         lines += [f"| {lab} | {cp:.2f} dB | {p:.2f} dB |" for lab, cp, p in r["grid_rows"]]
-        lines += ["", f"Training, today → chosen: `changed_psnr` wins "
+        lines += ["", f"Training, old → chosen: `changed_psnr` wins "
                   f"{wins(r['train_old'], r['train_new'], 'changed_psnr')}.", "",
-                  f"Held out ({len(r['held_seeds'])} worlds), today → chosen:", "",
-                  "| metric | today | chosen | Δ |", "|---|---|---|---|"]
+                  f"Held out ({len(r['held_seeds'])} worlds), old → chosen:", "",
+                  "| metric | old | chosen | Δ |", "|---|---|---|---|"]
         lines += summary(r["held_old"], r["held_new"])
         fo = statistics.median(x["flip"] for x in r["held_old"])
         fn = statistics.median(x["flip"] for x in r["held_new"])
         lines += [f"| `flip` median | {fo:.4f} | {fn:.4f} | {fn - fo:+.4f} |", "",
-                  "Per-world wins (chosen vs today): `changed_psnr` "
+                  "Per-world wins (chosen vs old): `changed_psnr` "
                   f"{wins(r['held_old'], r['held_new'], 'changed_psnr')}; `psnr` "
-                  f"{wins(r['held_old'], r['held_new'], 'psnr')}.", ""]
+                  f"{wins(r['held_old'], r['held_new'], 'psnr')}.", "",
+                  f"**Default: {adoption(r)}.**", ""]
+    if note:
+        lines += [note.strip(), ""]
     return "\n".join(lines)
+
+
+def adoption(r: dict) -> str:
+    """Whether the chosen values become the default (the held-out veto of the protocol)."""
+    old = statistics.median(x["changed_psnr"] for x in r["held_old"])
+    new = statistics.median(x["changed_psnr"] for x in r["held_new"])
+    if new >= old:
+        return f"the chosen values ({r['chosen_label']}) are adopted"
+    return (f"vetoed — the chosen values lose on the held-out median `changed_psnr` "
+            f"({new - old:+.2f} dB), the old values ({r['old_label']}) stay")
+
+
+def _note(path: Path | None) -> str:
+    return path.read_text(encoding="utf-8") if path else ""
 
 
 def _seeds(seeds: list[int]) -> str:
@@ -382,11 +403,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="also write every number here")
     ap.add_argument("--merge", type=Path, nargs="+", help="no run: the section from these "
                     "--json files (methods run separately)")
+    ap.add_argument("--note", type=Path, help="a file whose text ends the section (how the run "
+                    "went)")
     ap.add_argument("--write", action="store_true", help="write the RESULTS.md section")
     args = ap.parse_args(argv)
     if args.merge:
         results = [r for f in args.merge for r in json.loads(f.read_text())]
-        publish(report(results), args.write)
+        publish(report(results, _note(args.note)), args.write)
         return 0
     import mitsuba as mi
 
@@ -406,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
         results.append(r)
         if args.json:
             args.json.write_text(json.dumps(results, indent=1, default=str))
-    publish(report(results), args.write)
+    publish(report(results, _note(args.note)), args.write)
     return 0
 
 

@@ -77,11 +77,15 @@ REDUCIBLE_LIGHTS = frozenset({"point", "spot", "directional", "area", "constant"
 """Light types :func:`~arlight.realtime.light_reduction.reduce_lights` handles (not
 ``sphere``: a world with one is skipped by the harness instead of failing in ``prepare``)."""
 
-CALIBRATE = 0.0
-"""Default ``calibrate``: the divisor of ``V_Δ`` reads (0: :func:`~arlight.realtime.
-sh_volume.plane_response`)."""
-CALIBRATE_RHO = 0.0
-"""Default ``calibrate_rho``: the divisor of ``V_ρ`` reads (0: the plane response)."""
+CALIBRATE = 1.5
+"""Default ``calibrate``, the divisor of ``V_Δ`` reads: chosen on 8 training worlds
+(``benchmarks/tune_realtime.py``, issue #30) from 1 (KD10's raw scale), 1.25, 1.5, 1.628
+(the one-VPL response), 1.92 (:func:`~arlight.realtime.sh_volume.plane_response`, the
+default before) and 2.5; see docs/methods/dlpv.md for the held-out effect."""
+CALIBRATE_RHO = 1.0
+"""Default ``calibrate_rho``, the divisor of ``V_ρ`` reads: KD10's raw scale. The same grid
+on the training worlds could not tell 1 from 1.25 (0.01 dB), so the principled value won the
+tie; the plane response (the default before) cost 0.4 dB there."""
 
 OPTIONS: dict[str, Field] = {
     "volume_size": Field("int", 32, "cells per edge of V_Δ and V_ρ (Franke: 32³)", "cells",
