@@ -38,6 +38,7 @@ from arlight.evaluate.harness import EvalConfig, EvalResults, run_evaluation
 from arlight.evaluate.report import WORLD_HEADER, world_table, write_report
 from arlight.evaluate.worlds import GENERATOR_VERSION, parse_worlds
 from arlight.methods import available_methods
+from arlight.methods.spec import parse_option_pairs
 
 HEADING = "## Held-out worlds: every method, distributions and equal time (issue #30)"
 REAL_TIME = ("dlpv", "dir", "dvct", "ibl", "prt", "probeless", "nearfield")
@@ -141,7 +142,8 @@ def run_worlds(args) -> EvalResults:
     seeds = parse_worlds(args.worlds)
     cfg = EvalConfig(methods=args.methods.split(","), scenes=[], quick=False, spp=16,
                      gt_spp=256, repeats=args.repeats, worlds=seeds, world_width=args.width,
-                     equal_time=True)
+                     equal_time=True,
+                     options=parse_option_pairs(args.option, "[method.]key=value"))
     results = EvalResults(config=cfg, cells=[])
     if args.resume and args.load and args.load.is_file():
         with open(args.load, "rb") as f:
@@ -170,6 +172,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--methods", default=",".join(available_methods()))
     ap.add_argument("--report", type=Path, default=Path("heldout-report"))
+    ap.add_argument("--option", action="append", default=[], help="method option "
+                    "METHOD.KEY=VALUE, as `arlight eval --option` (repeatable)")
     ap.add_argument("--load", type=Path, help="a pickled EvalResults of an earlier run")
     ap.add_argument("--save", type=Path, help="pickle the EvalResults here")
     ap.add_argument("--resume", action="store_true", help="with --load and --save: run only "
