@@ -479,3 +479,22 @@ def test_a_method_that_needs_vertices_skips_analytic_virtual_shapes():
     for name in ("prt", "nearfield"):
         assert "virtual sphere" in get_method(name).spec.unsupported_reason(scene)
     assert get_method("ibl").spec.unsupported_reason(scene) is None
+
+
+def test_methods_on_the_light_reduction_skip_sphere_lights():
+    """dir, dlpv, dvct, ibl and prt reduce the world's lights (realtime.light_reduction),
+    which cannot reduce a sphere light: a stated skip, not "light type 'sphere' cannot be
+    reduced" from inside prepare (found on held-out worlds, #30); the path tracers render it."""
+    from arlight.methods import get_method
+    from arlight.scene.load import parse_scene
+
+    scene = parse_scene({
+        "camera": {"resolution": [8, 6], "fov_y_deg": 40.0,
+                   "look_at": {"origin": [0, 0, 3], "target": [0, 0, 0]}},
+        "shapes": [{"role": "virtual", "type": "box"}],
+        "lights": [{"type": "sphere", "position": [0, 2, 0], "radius": 0.1,
+                    "intensity": [1, 1, 1]}]})
+    for name in ("dir", "dlpv", "dvct", "ibl", "prt"):
+        assert "sphere" in get_method(name).spec.unsupported_reason(scene), name
+    for name in ("reference", "onepass"):
+        assert get_method(name).spec.unsupported_reason(scene) is None

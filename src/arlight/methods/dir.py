@@ -40,7 +40,7 @@ from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
-from arlight.realtime.light_reduction import LightSet, reduce_lights
+from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.rsm import RSM, concat_rays, light_rays, render_rsm_pair, shared_texels
 from arlight.realtime.shading import (
     SHADOW_EPS,
@@ -78,7 +78,8 @@ SPEC = MethodSpec(
     description="Differential instant radiosity (Knecht et al. 2010): RSM VPLs with "
                 "ray-traced visibility, mixed minus real.",
     options=OPTIONS,
-    capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"})),
+    capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"}),
+                              lights=REDUCIBLE_LIGHTS),
     check=_check,
 )
 

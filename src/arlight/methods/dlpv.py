@@ -46,7 +46,7 @@ from arlight.methods.base import BaseMethod, Layers, RenderSettings
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
-from arlight.realtime.light_reduction import LightSet, reduce_lights
+from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.rsm import (
     RealMaps,
     RSMPair,
@@ -71,11 +71,6 @@ from arlight.realtime.shading import (
 )
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
-
-REDUCIBLE_LIGHTS = frozenset({"point", "spot", "directional", "area", "constant", "envmap",
-                              "sh"})
-"""Light types :func:`~arlight.realtime.light_reduction.reduce_lights` handles (not
-``sphere``: a world with one is skipped by the harness instead of failing in ``prepare``)."""
 
 CALIBRATE = 1.5
 """Default ``calibrate``, the divisor of ``V_Δ`` reads: chosen on 8 training worlds

@@ -72,7 +72,7 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
 from arlight.realtime.ibl_shading import ggx_d, smith_g1
-from arlight.realtime.light_reduction import LightSet, ReducedLight, reduce_lights
+from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, ReducedLight, reduce_lights
 from arlight.realtime.rsm import RealMaps, RSMPair, real_maps, rsm_pair
 from arlight.realtime.rsm import check_memory as check_rsm_memory
 from arlight.realtime.sh_volume import Grid, cell_index
@@ -99,11 +99,6 @@ from arlight.realtime.voxels import (
 )
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
-
-REDUCIBLE_LIGHTS = frozenset({"point", "spot", "directional", "area", "constant", "envmap",
-                              "sh"})
-"""Light types :func:`~arlight.realtime.light_reduction.reduce_lights` handles (not
-``sphere``: a world with one is skipped by the harness instead of failing in ``prepare``)."""
 
 OPTIONS: dict[str, Field] = {
     "volume_size": Field("int", 128, "cells per edge of V_η, V_Δ, V_ρ, a power of two "

@@ -54,7 +54,7 @@ from arlight.realtime.ibl_shading import (
     specular_fis,
     specular_tables,
 )
-from arlight.realtime.light_reduction import LightSet, reduce_lights
+from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
@@ -89,7 +89,8 @@ SPEC = MethodSpec(
     description="Dynamic pipeline (Franke §4.2): SH irradiance, GGX filtered importance "
                 "sampling, AO; AR-OOF shadows on real surfaces; real time.",
     options=OPTIONS,
-    capabilities=Capabilities(interactive=True, materials=MATERIALS),
+    capabilities=Capabilities(interactive=True, materials=MATERIALS,
+                              lights=REDUCIBLE_LIGHTS),
 )
 
 

@@ -52,7 +52,7 @@ from arlight.realtime.ibl_shading import (
     rot_y,
     specular_tables,
 )
-from arlight.realtime.light_reduction import LightSet, reduce_lights
+from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
@@ -100,7 +100,8 @@ SPEC = MethodSpec(
                               materials=frozenset({"diffuse", "phong", "roughconductor"}),
                               # per-vertex transfer: analytic spheres and disks have no
                               # vertices (realtime.prt_shading.object_mesh)
-                              virtual_shapes=frozenset({"mesh", "box", "rectangle"})),
+                              virtual_shapes=frozenset({"mesh", "box", "rectangle"}),
+                              lights=REDUCIBLE_LIGHTS),
 )
 
 

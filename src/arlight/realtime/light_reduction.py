@@ -144,6 +144,13 @@ def _environment(name: str, image: np.ndarray, rotation_deg: float, env_lights: 
     return lights, np.asarray(sh, np.float64).reshape(9, 3)
 
 
+REDUCIBLE_LIGHTS = frozenset({"point", "spot", "directional", "area", "constant", "envmap",
+                              "sh"})
+"""Light types :func:`reduce_lights` handles (not ``sphere``): the ``lights`` capability of
+every method built on it, so a world with a sphere light is skipped by the harness instead of
+failing in ``prepare``."""
+
+
 def reduce_lights(world: World, env_lights: int = 4, area_grid: int = 1,
                   threshold_factor: float = 4.0) -> LightSet:
     """The reduced lights of ``world`` (see the module docstring).
