@@ -76,15 +76,28 @@ def _fmt3(sp, fmt="{:.2f}") -> str:
     return " / ".join(fmt.format(v) for v in (sp.median, sp.p10, sp.worst)) if sp.n else "—"
 
 
-def section(results: EvalResults, pressure: str) -> str:
+def section(results: EvalResults, pressure: str, excluded: dict[str, str] | None = None,
+            generator: str | None = None) -> str:
+    """The RESULTS.md section; ``excluded`` maps world names left out of every table to
+    the reason (stated in the section)."""
     cfg = results.config
+    excluded = excluded or {}
+    if excluded:
+        results = EvalResults(config=cfg, seconds_total=results.seconds_total,
+                              cells=[c for c in results.cells if c.scene not in excluded],
+                              scenes={k: v for k, v in results.scenes.items()
+                                      if k not in excluded},
+                              ladders={k: v for k, v in results.ladders.items()
+                                       if k not in excluded})
     classes = results.world_classes()
+    generator = generator or next(iter(results.scenes.values())).get(
+        "generator", str(GENERATOR_VERSION))
     seeds = [int(s.removeprefix("world-")) for s in classes]
     rows = method_rows(results.cells, classes)
     splits = "/".join(sorted({results.scenes[s]["split"] for s in classes}))
     lines = [HEADING, "",
              f"{len(seeds)} {splits} worlds (seeds {min(seeds)}–{max(seeds)}, generator "
-             f"v{GENERATOR_VERSION}; held-out worlds are never tuned on — constants are "
+             f"v{generator}; held-out worlds are never tuned on — constants are "
              f"chosen on training seeds < 1 000 000, docs/testing.md#tuned-constants): "
              + ", ".join(f"{k} {list(classes.values()).count(k)}"
                          for k in sorted(set(classes.values())))
@@ -97,6 +110,8 @@ def section(results: EvalResults, pressure: str) -> str:
              "Each entry: median / 10th-percentile world / worst world. Δ vs onepass = the "
              "method's PSNR minus that of the best onepass frame of the same world that took "
              "at most the method's frame time (docs/evaluation.md).", ""]
+    lines += [f"Left out: {name} — {why}." for name, why in excluded.items()]
+    lines += [""] if excluded else []
     for group in dict.fromkeys(r.group for r in rows):
         mine = [r for r in rows if r.group == group]
         lines += [f"### {group} worlds", "", "| " + " | ".join(WORLD_HEADER) + " |",
@@ -178,6 +193,10 @@ def main() -> None:
     ap.add_argument("--save", type=Path, help="pickle the EvalResults here")
     ap.add_argument("--resume", action="store_true", help="with --load and --save: run only "
                     "the worlds the saved run lacks")
+    ap.add_argument("--exclude", action="append", default=[], metavar="SEED=REASON",
+                    help="leave a world out of the tables, with the reason stated")
+    ap.add_argument("--generator", help="generator version of a loaded run (default: as "
+                    "recorded, else the current one)")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
     if args.load and not args.resume:
@@ -186,7 +205,9 @@ def main() -> None:
     else:
         results = run_worlds(args)
     write_report(results, args.report)
-    publish(section(results, cpu_pressure()), args.write)
+    excluded = dict(x.split("=", 1) for x in args.exclude)
+    excluded = {f"world-{k}": v for k, v in excluded.items()}
+    publish(section(results, cpu_pressure(), excluded, args.generator), args.write)
     times = [c.seconds for c in results.cells if c.ok]
     print(f"{len(results.cells)} cells, median frame {statistics.median(times) * 1e3:.0f} ms, "
           f"{np.isfinite(times).sum()} timed")

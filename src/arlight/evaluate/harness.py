@@ -242,8 +242,10 @@ def scene_info(scene: SuiteScene) -> dict[str, str]:
     info = {"description": scene.description, "paper_figure": scene.paper_figure,
             "resolution": "{}×{}".format(*scene.resolution)}
     if scene.paper_figure.startswith("generated ("):
+        from arlight.evaluate.worlds import GENERATOR_VERSION
+
         split, _, cls = scene.paper_figure[len("generated ("):-1].partition(", ")
-        info.update({"split": split, "class": cls})
+        info.update({"split": split, "class": cls, "generator": str(GENERATOR_VERSION)})
     return info
 
 

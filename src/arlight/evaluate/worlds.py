@@ -54,8 +54,10 @@ import numpy as np
 
 from arlight.errors import InputError
 
-GENERATOR_VERSION = 1
-"""Changes whenever the same seed would give a different world."""
+GENERATOR_VERSION = 2
+"""Changes whenever the same seed would give a different world. v2: a closed room always has
+a local light (v1 drew some closed rooms lit only by a sky outside their walls: black frames,
+e.g. held-out seed 1000023)."""
 HELDOUT_BASE = 1_000_000
 """First held-out seed: seeds ``[0, HELDOUT_BASE)`` are training worlds, the rest held out."""
 SPLITS = ("training", "heldout")
@@ -646,9 +648,10 @@ def _environment(d: _Draw, world_class: str, room: dict | None) -> float:
 
 def _local_lights(d: _Draw, world_class: str, scale: float, target: np.ndarray,
                   cam_origin, room: dict | None, env_irr: float) -> float:
-    """0–3 local lights and, outdoors, a sun; returns their estimated irradiance at the
-    objects (W/m²). Each light's share is drawn log-uniform over three orders of magnitude
-    relative to a base irradiance (the environment's, or 1 W/m² without one)."""
+    """0–3 local lights (at least one without an environment or in a closed room) and,
+    outdoors, a sun; returns their estimated irradiance at the objects (W/m²). Each light's
+    share is drawn log-uniform over three orders of magnitude relative to a base irradiance
+    (the environment's, or 1 W/m² without one)."""
     base = env_irr if env_irr > 0 else 1.0
     total = 0.0
     d.tags["sun"] = world_class == "outdoor" and d.chance(0.5)
@@ -658,7 +661,8 @@ def _local_lights(d: _Draw, world_class: str, scale: float, target: np.ndarray,
         d.lights.append({"type": "directional", "direction": _v(direction),
                          "irradiance": _v(e_sun * np.array([1.0, 0.95, 0.85]))})
         total += e_sun * max(0.0, -direction[1])
-    lo = 1 if d.tags["env"] == "none" else 0
+    closed = room is not None and room["open"] == "none"
+    lo = 1 if d.tags["env"] == "none" or closed else 0  # light must reach the objects
     n = d.pick(tuple(range(lo, 4)))
     fwd = np.asarray(target) - np.asarray(cam_origin)
     cam_az = math.degrees(math.atan2(fwd[0], fwd[2]))
