@@ -2,11 +2,37 @@
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
+import os
 
-from arlight.scene.load import parse_scene
-from tests.mutations import mutation_session, pytest_addoption  # noqa: F401 (--mutation plugin)
+
+def _single_threaded_blas() -> None:
+    """Load NumPy's and SciPy's OpenBLAS with one thread each in the test process.
+
+    OpenBLAS' default pool (one thread per core) spends its time waking and spinning on the
+    small, tall matrices of the tests (``scipy.optimize.least_squares`` in the SoG fits: a
+    thin SVD of 6912 × 9 per step): ``tests/realtime/test_sog.py`` took 120 s of CPU with
+    it and 16 s without, with the same results. OpenBLAS reads ``OPENBLAS_NUM_THREADS``
+    once, when the library loads; the variable is restored afterwards, so the subprocesses
+    the tests start (the CLI, the interruption tests) get the default pool like a user."""
+    previous = os.environ.get("OPENBLAS_NUM_THREADS")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    try:
+        import numpy  # noqa: F401
+        import scipy.linalg  # noqa: F401 (SciPy's own OpenBLAS)
+    finally:
+        if previous is None:
+            del os.environ["OPENBLAS_NUM_THREADS"]
+        else:
+            os.environ["OPENBLAS_NUM_THREADS"] = previous
+
+
+_single_threaded_blas()
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from arlight.scene.load import parse_scene  # noqa: E402
+from tests.mutations import mutation_session, pytest_addoption  # noqa: E402, F401 (plugin)
 
 LOOK = {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}
 
