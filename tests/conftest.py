@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 
 
 def _single_threaded_blas() -> None:
@@ -36,6 +37,23 @@ from tests.mutations import mutation_session, pytest_addoption  # noqa: E402, F4
 
 LOOK = {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.25, 0.0]}
 
+WARM_CACHE_ENV = "ARLIGHT_TEST_WARM_CACHE"
+"""A folder of ground-truth photographs rendered by an earlier, unmutated run
+(``tests/test_mutations.py`` sets it): copied into the session's cache, so the photographs are
+not rendered again and the original folder is never written."""
+
+
+@pytest.fixture(scope="session")
+def eval_cache(tmp_path_factory):
+    """A synthetic-photo cache folder shared by the tests of a session: each photograph is
+    rendered once per session (``tests/evaluate/test_ground_truth.py``,
+    ``tests/test_mutations.py`` and ``tests/evaluate/test_eval_quick.py`` read the same
+    ones)."""
+    cache = tmp_path_factory.mktemp("arlight-cache")
+    warm = os.environ.get(WARM_CACHE_ENV)
+    if warm:
+        shutil.copytree(warm, cache, dirs_exist_ok=True)
+    return cache
 
 
 def parsed_with_constant_frame(d: dict, value: float = 0.3):

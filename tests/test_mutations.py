@@ -7,12 +7,14 @@ stopping at the first failure) on photographs rendered once, unmutated, by this 
 subprocess gets a copy of them (``ARLIGHT_TEST_WARM_CACHE``), so a mutated run neither
 renders ground truth nor writes into a cache another run reads. Which test caught each
 mutation is printed and recorded as the ``caught_by`` property (``--junitxml``); the table in
-``docs/testing.md`` comes from such a run. About 30 s on 2 cores.
+``docs/testing.md`` comes from such a run. The photographs are the session's
+(``eval_cache``): rendered once for this module and ``tests/evaluate/test_ground_truth.py``.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -23,8 +25,7 @@ import pytest
 
 from arlight.evaluate.suite import get_scene
 from arlight.synthetic import synthesize
-from tests.conftest import area_light_scene, load
-from tests.evaluate.conftest import WARM_CACHE_ENV
+from tests.conftest import WARM_CACHE_ENV, area_light_scene, load
 from tests.mutations import MUTATIONS, apply_mutation
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,16 +39,22 @@ def _not_under_a_mutation(request):
 
 
 @pytest.fixture(scope="module")
-def warm_cache(tmp_path_factory):
-    """Every photograph the ground-truth tests read, rendered by this unmutated process."""
+def warm_cache(eval_cache, tmp_path_factory):
+    """Every photograph the ground-truth tests read, rendered by this unmutated process: in
+    the session's cache, where ``tests/evaluate/test_ground_truth.py`` has rendered them when
+    it ran before in this session (rendered now otherwise). The mutated runs get a copy of its
+    ground-truth photographs only (``synthetic/``: unmutated by construction, see
+    :func:`test_mutations_leave_the_ground_truth_renderer_alone`), never the session's other
+    caches."""
     from tests.evaluate.test_ground_truth import AGREE_SPP, BIAS_SPP, SCENES, photo
 
-    cache = tmp_path_factory.mktemp("ground-truth-warm")
     for name in SCENES:
         scene = get_scene(name, quick=True)
         for spp in (AGREE_SPP, BIAS_SPP):
-            photo(scene, spp, cache)
-    return cache
+            photo(scene, spp, eval_cache)
+    warm = tmp_path_factory.mktemp("ground-truth-warm")
+    shutil.copytree(eval_cache / "synthetic", warm / "synthetic")
+    return warm
 
 
 def test_mutations_leave_the_ground_truth_renderer_alone():
