@@ -7,9 +7,16 @@ from arlight.evaluate.suite import list_scenes
 from arlight.methods import available_methods
 
 
-def test_eval_quick_default_runs_every_method_on_every_scene(tmp_path):
+def test_eval_quick_default_runs_every_method_on_every_scene(tmp_path, eval_cache,
+                                                           monkeypatch):
+    """The methods run with the defaults; the ground truth is the session's 64-spp photograph
+    of each scene (64 single-sample batches, seed 1: the one ``test_ground_truth.py`` grades
+    the methods against, rendered once for both) instead of eval's default 256 spp, whose
+    quality nothing here looks at."""
+    monkeypatch.setenv("ARLIGHT_CACHE", str(eval_cache))
     out = tmp_path / "report"
-    assert main(["eval", "--quick", "--repeats", "1", "--sweep", "", "-o", str(out)]) == 0
+    assert main(["eval", "--quick", "--repeats", "1", "--sweep", "", "--gt-spp", "64",
+                 "-o", str(out)]) == 0
     cells = json.loads((out / "results.json").read_text())["cells"]
     expected = {(m, s) for m in available_methods() for s in list_scenes()}
     assert {(c["method"], c["scene"]) for c in cells} == expected
