@@ -142,6 +142,71 @@ def _roughdielectric(p: dict[str, Any]) -> Node:
             "int_ior": p["ior"], "ext_ior": p["ext_ior"]}
 
 
+def _bitmap(pixels: np.ndarray) -> Node:
+    """A raw (linear, unconverted) bitmap texture node of ``(H, W, C)`` values."""
+    return {"type": "bitmap", "bitmap": np.ascontiguousarray(pixels, dtype=np.float32),
+            "raw": True}
+
+
+def _factor_texture(tex: Any, factor: Any, channels: slice | int) -> Node | float:
+    """``factor × tex[..., channels]`` as a bitmap node, or the factor alone without a
+    texture (a float for one channel, an ``rgb`` node for three)."""
+    f = np.asarray(factor, dtype=np.float64)
+    if tex is None:
+        return _rgb(f) if f.ndim else float(f)
+    px = np.asarray(tex.pixels, dtype=np.float64)[..., channels]
+    px = px[..., None] if px.ndim == 2 else px
+    return _bitmap(px * f)
+
+
+def _normal_pixels(tex: Any, scale: float) -> np.ndarray:
+    """A glTF normal map scaled as ``normalTexture.scale`` says (x, y times ``scale``,
+    renormalised), re-encoded as ``(n + 1) / 2`` for Mitsuba's ``normalmap``."""
+    n = 2.0 * np.asarray(tex.pixels[..., :3], dtype=np.float64) - 1.0
+    n[..., :2] *= scale
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    return (n + 1.0) / 2.0
+
+
+def _opacity(p: dict[str, Any]) -> Node | float | None:
+    """Coverage of a ``pbr`` material for Mitsuba's ``mask`` (None: opaque)."""
+    if p["alpha_mode"] == "opaque":
+        return None
+    tex = p.get("base_color_texture")
+    alpha = (np.asarray(tex.pixels[..., 3], np.float64) * p["alpha"]
+             if tex is not None and tex.pixels.shape[2] == 4 else np.float64(p["alpha"]))
+    if p["alpha_mode"] == "mask":
+        alpha = (alpha >= p["alpha_cutoff"]).astype(np.float64)
+    if alpha.ndim == 0:
+        return None if alpha >= 1.0 else float(alpha)
+    return _bitmap(alpha[..., None])
+
+
+def _pbr(p: dict[str, Any]) -> Node:
+    """Metallic-roughness PBR as Mitsuba's ``principled`` (GGX, α = roughness², dielectric
+    F0 from ``ior``), in ``normalmap`` when it has a normal map, ``twosided`` when opaque and
+    two-sided, ``mask`` when ``alpha_mode`` is not opaque. Factors are multiplied into the
+    texture pixels (glTF: factor × texture). Occlusion and emission are not part of it
+    (a path tracer traces occlusion; see docs/scene-format.md for emission)."""
+    mr = p.get("metallic_roughness_texture")
+    node: Node = {"type": "principled",
+                  "base_color": _factor_texture(p.get("base_color_texture"), p["base_color"],
+                                                slice(0, 3)),
+                  "roughness": _factor_texture(mr, p["roughness"], 1),
+                  "metallic": _factor_texture(mr, p["metallic"], 2),
+                  "eta": float(p["ior"]), "spec_trans": float(p["transmission"])}
+    if p.get("normal_texture") is not None:
+        node = {"type": "normalmap",
+                "normalmap": _bitmap(_normal_pixels(p["normal_texture"], p["normal_scale"])),
+                "bsdf": node}
+    if p["transmission"] == 0.0 and p.get("two_sided", True):
+        node = _twosided(node)
+    opacity = _opacity(p)
+    if opacity is not None:
+        node = {"type": "mask", "opacity": opacity, "bsdf": node}
+    return node
+
+
 MATERIALS: dict[str, Callable[[dict[str, Any]], Node]] = {
     "diffuse": _diffuse,
     "phong": _phong,
@@ -149,6 +214,7 @@ MATERIALS: dict[str, Callable[[dict[str, Any]], Node]] = {
     "mirror": _mirror,
     "glass": _glass,
     "roughdielectric": _roughdielectric,
+    "pbr": _pbr,
 }
 """Material type -> BSDF node from the material's ``params`` (opaque materials two-sided
 unless ``two_sided = false``; dielectrics have two sides by nature)."""

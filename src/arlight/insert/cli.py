@@ -22,7 +22,9 @@ def insert_command(
     light: Annotated[str, typer.Option("--light", help="LightEstimate .json, HDR panorama "
                                        "(.hdr/.exr), rig .toml, or sun:DX,DY,DZ:E[:AMBIENT] "
                                        "(direction towards the sun, board frame, +Y up)")],
-    obj: Annotated[Path, typer.Option("--object", help="mesh of the virtual object")],
+    obj: Annotated[Path, typer.Option("--object", help="the virtual object: a mesh (PLY, "
+                                      "OBJ) or a model with its own PBR materials (glTF/GLB, "
+                                      "USD/USDZ)")],
     out: Annotated[Path, typer.Option("--out", "-o", help="output folder")],
     at: Annotated[str, typer.Option("--at", help="X,Y,Z (m, board frame, +Y up) of the "
                                     "object's bottom centre; Y = 0 stands on the board")]
@@ -30,8 +32,9 @@ def insert_command(
     scale: Annotated[float, typer.Option("--scale", help="uniform scale of the mesh")] = 1.0,
     rotate: Annotated[list[str] | None, typer.Option("--rotate", help="AX,AY,AZ,DEG rotation "
                       "after scaling (repeatable, applied in order)")] = None,
-    color: Annotated[str, typer.Option("--color", help="R,G,B diffuse albedo of the object "
-                                       "in [0, 1]")] = "0.8,0.8,0.8",
+    color: Annotated[str, typer.Option("--color", help="R,G,B diffuse albedo of a mesh "
+                                       "object in [0, 1] (models keep their materials)")]
+    = "0.8,0.8,0.8",
     light_rotation: Annotated[float, typer.Option("--light-rotation", help="rotation of a "
                               "panorama or estimate about +Y relative to the board (deg)")]
     = 0.0,

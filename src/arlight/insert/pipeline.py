@@ -127,17 +127,22 @@ def _object_shape(req: InsertRequest) -> tuple[dict[str, Any], np.ndarray]:
     import trimesh
 
     from arlight.scene.load import transform_matrix
+    from arlight.scene.models import is_model_path, read_model
     from arlight.scene.schema import Validator
 
     path = Path(req.object)
     if not path.is_file():
         raise InputError("mesh file not found", file=str(path), field="--object")
-    try:
-        mesh = trimesh.load(path, force="mesh")
-        verts = np.asarray(mesh.vertices, np.float64)
-    except Exception as exc:  # trimesh raises many types for garbage files
-        raise InputError(f"cannot read the mesh ({exc})", file=str(path),
-                         field="--object") from exc
+    model = is_model_path(path)
+    if model:  # glTF/GLB, USD/USDZ: the file's own PBR materials (--color not used)
+        verts = np.concatenate([p.vertices for p in read_model(path).parts])
+    else:
+        try:
+            mesh = trimesh.load(path, force="mesh")
+            verts = np.asarray(mesh.vertices, np.float64)
+        except Exception as exc:  # trimesh raises many types for garbage files
+            raise InputError(f"cannot read the mesh ({exc})", file=str(path),
+                             field="--object") from exc
     if len(verts) == 0:
         raise InputError("the mesh has no vertices", file=str(path), field="--object")
     rot = [list(map(float, r)) for r in req.rotate]
@@ -147,10 +152,12 @@ def _object_shape(req: InsertRequest) -> tuple[dict[str, Any], np.ndarray]:
     lo, hi = posed.min(axis=0), posed.max(axis=0)
     bottom = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
     translate = np.asarray(req.at, np.float64) - bottom
-    table = {"name": "object", "role": "virtual", "type": "mesh", "file": str(path.resolve()),
+    table = {"name": "object", "role": "virtual", "type": "model" if model else "mesh",
+             "file": str(path.resolve()),
              "transform": {"scale": float(req.scale), "rotate": rot,
-                           "translate": translate.tolist()},
-             "material": {"type": "diffuse", "albedo": list(map(float, req.color))}}
+                           "translate": translate.tolist()}}
+    if not model:
+        table["material"] = {"type": "diffuse", "albedo": list(map(float, req.color))}
     return table, m
 
 

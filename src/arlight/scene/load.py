@@ -22,12 +22,14 @@ from arlight.errors import InputError
 from arlight.scene import schema
 from arlight.scene.camera import Camera, look_at
 from arlight.scene.model import ARScene, FrameView, Light, Material, MeshData, Shape, World
+from arlight.scene.pbr import TEXTURE_FIELDS
 from arlight.scene.schema import Validator
 
 FORMAT = "arlight-scene/1"
 TOP_LEVEL = {"format", "camera", "frame", "materials", "shapes", "lights", "description",
              "render"}
-PATH_KEYS = ("file", "image", "texture", "depth")  # fields holding paths (made absolute in raw)
+PATH_KEYS = ("file", "image", "texture", "depth", *TEXTURE_FIELDS)
+"""Fields holding paths (made absolute in ``raw``)."""
 
 
 def _read_file(path: str | Path) -> tuple[dict[str, Any], Path]:
@@ -97,7 +99,8 @@ def parse_world(data: dict[str, Any], base_dir: str | Path = ".",
     ``[[lights]]`` (``[camera]`` and ``[frame]`` are not read here)."""
     v = _validator(data, base_dir, file)
     materials = _materials(v, data.get("materials", {}))
-    shapes = [_shape(v, s, i, materials) for i, s in enumerate(_array(v, data, "shapes"))]
+    shapes = [shape for i, s in enumerate(_array(v, data, "shapes"))
+              for shape in _shapes(v, s, i, materials)]
     names = [s.name for s in shapes]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -257,7 +260,7 @@ def _material(v: Validator, tab: dict, name: str, field: str) -> Material:
     params = v.fields(tab, schema.MATERIAL_TYPES[mtype], field, extra={"type"})
     check = _MATERIAL_CHECKS.get(mtype)
     if check is not None:
-        check(v, params, field)
+        params = check(v, params, field) or params
     return Material(name=name, type=mtype, params=params)
 
 
@@ -283,9 +286,17 @@ def _check_phong(v: Validator, p: dict, field: str) -> None:
         raise v.fail(f"{field}.ks", "k_d + k_s must not exceed 1 (energy conservation)")
 
 
-# Checks across fields that a field table cannot express, one entry per material type.
-_MATERIAL_CHECKS: dict[str, Callable[[Validator, dict, str], None]] = {
-    "phong": _check_phong, "diffuse": _check_texture}
+def _finish_pbr(v: Validator, p: dict, field: str) -> dict:
+    """Decode the PBR textures now (sizes checked on the headers first)."""
+    from arlight.scene.pbr import finish_pbr
+
+    return finish_pbr(v.fail, p, field)
+
+
+# Checks across fields that a field table cannot express, one entry per material type; a
+# check may return the parameters with derived values (decoded textures).
+_MATERIAL_CHECKS: dict[str, Callable[[Validator, dict, str], dict | None]] = {
+    "phong": _check_phong, "diffuse": _check_texture, "pbr": _finish_pbr}
 
 
 def _materials(v: Validator, tab: Any) -> dict[str, Material]:
@@ -382,6 +393,16 @@ def z_to(normal, v: Validator | None = None, field: str = "") -> np.ndarray:
     return _rotation(np.cross([0, 0, 1], nrm), np.arccos(c))
 
 
+def _shapes(v: Validator, tab: dict, i: int, materials: dict[str, Material]) -> list[Shape]:
+    """The shapes of one ``[[shapes]]`` entry: one, or a model's parts."""
+    shape = _shape(v, tab, i, materials)
+    if shape.type != "model":
+        return [shape]
+    from arlight.scene.model_shapes import expand_model
+
+    return expand_model(v, shape, f"shapes[{i}]", own_material="material" in tab)
+
+
 def _shape(v: Validator, tab: dict, i: int, materials: dict[str, Material]) -> Shape:
     field = f"shapes[{i}]"
     stype = tab.get("type")
@@ -405,11 +426,19 @@ def _shape(v: Validator, tab: dict, i: int, materials: dict[str, Material]) -> S
     if "normal" in params:
         to_world = to_world @ z_to(params["normal"], v, f"{field}.normal")
     mesh = _load_mesh(v, params, field) if stype == "mesh" else None
-    if material.params.get("texture") and stype == "mesh" and mesh is not None \
-            and mesh.uv is None:
-        raise v.fail(f"{field}.material.texture", "the mesh has no texture coordinates")
+    if stype == "mesh" and mesh is not None and mesh.uv is None and \
+            (tex := _uv_field(material)) is not None:
+        raise v.fail(f"{field}.material.{tex}", "the mesh has no texture coordinates")
     return Shape(name=name, role=common["role"], type=stype, params=params,
                  to_world=to_world, material=material, mesh=mesh)
+
+
+def _uv_field(material: Material) -> str | None:
+    """The first texture field of ``material`` (which needs texture coordinates), or None."""
+    from arlight.scene.pbr import TEXTURE_FIELDS
+
+    keys = ("texture", *TEXTURE_FIELDS) if material.type != "pbr" else tuple(TEXTURE_FIELDS)
+    return next((k for k in keys if material.params.get(k)), None)
 
 
 def _load_mesh(v: Validator, params: dict, field: str) -> MeshData:

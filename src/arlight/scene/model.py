@@ -62,6 +62,9 @@ class Shape:
     to_world: np.ndarray
     material: Material
     mesh: MeshData | None = None
+    group: str | None = None
+    """For a part of a ``model`` entry: the entry's name (object transforms and saving
+    address the whole model by it); None otherwise."""
 
     @property
     def is_virtual(self) -> bool:
@@ -83,11 +86,19 @@ class Light:
 
 
 def _posed_shapes(shapes: list[Shape], transforms: dict[str, np.ndarray]) -> list[Shape]:
-    unknown = sorted(set(transforms) - {s.name for s in shapes})
+    """Shapes with ``transforms[name]`` applied; a model entry's name (``Shape.group``)
+    moves all of its parts."""
+    groups = {s.group for s in shapes if s.group is not None}
+    unknown = sorted(set(transforms) - {s.name for s in shapes} - groups)
     if unknown:
         raise ValueError(f"object transform for unknown shape {unknown[0]!r}")
-    return [replace(s, to_world=np.asarray(transforms[s.name], np.float64) @ s.to_world)
-            if s.name in transforms else s for s in shapes]
+
+    def key(s: Shape) -> str | None:
+        return s.name if s.name in transforms else (
+            s.group if s.group in transforms else None)
+
+    return [replace(s, to_world=np.asarray(transforms[k], np.float64) @ s.to_world)
+            if (k := key(s)) is not None else s for s in shapes]
 
 
 class _ShapeRoles:

@@ -28,6 +28,7 @@ import numpy as np
 
 from arlight.scene.load import FORMAT, PATH_KEYS
 from arlight.scene.model import ARScene, Light, Shape
+from arlight.scene.pbr import Texture
 
 # Parameters a loader derives or folds into `transform`; they are not written back.
 _DERIVED = {"normal", "transform", "to_world"}
@@ -77,7 +78,15 @@ def scene_to_dict(scene: ARScene, base_dir: str | Path,
     out["camera"] = _camera_dict(scene)
     materials: dict[str, dict[str, Any]] = {}
     shapes = []
+    groups: set[str] = set()
     for s in scene.shapes:
+        if s.group is not None:  # a model's parts: one `type = "model"` entry
+            if s.group in groups:
+                continue
+            groups.add(s.group)
+            if not s.params.get("own_material"):
+                shapes.append(_model_dict(s, base))
+                continue
         mat = _params(s.material.params, base, type=s.material.type)
         if materials.setdefault(s.material.name, mat) != mat:
             raise ValueError(f"two different materials are named {s.material.name!r}")
@@ -104,9 +113,22 @@ def _camera_dict(scene: ARScene) -> dict[str, Any]:
 
 
 def _shape_dict(s: Shape, material: str, base: Path) -> dict[str, Any]:
+    if s.group is not None:
+        return {**_model_dict(s, base), "material": material}
     return {"name": s.name, "role": s.role, "type": s.type,
             **_params(s.params, base), "material": material,
             "transform": {"matrix": _matrix(s.to_world)}}
+
+
+def _model_dict(s: Shape, base: Path) -> dict[str, Any]:
+    """The ``type = "model"`` entry a model part came from (all parts share its transform;
+    the file's own node transforms are applied again on load)."""
+    out: dict[str, Any] = {"name": s.group, "role": s.role, "type": "model",
+                           "file": _relative(Path(s.params["file"]), base)}
+    if s.params.get("select") is not None:
+        out["select"] = s.params["select"]
+    out["transform"] = {"matrix": _matrix(s.to_world)}
+    return out
 
 
 def _light_dict(light: Light, base: Path) -> dict[str, Any]:
@@ -123,7 +145,9 @@ def _params(params: dict[str, Any], base: Path, **first: Any) -> dict[str, Any]:
     for k, x in params.items():
         if x is None or k in _DERIVED:
             continue
-        if k in PATH_KEYS and isinstance(x, str):
+        if isinstance(x, Texture):  # a decoded texture is written as its file
+            x = _relative(Path(x.source), base)
+        elif k in PATH_KEYS and isinstance(x, str):
             x = _relative(Path(x), base)
         elif isinstance(x, np.ndarray):
             x = x.tolist()

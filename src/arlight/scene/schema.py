@@ -89,6 +89,45 @@ MATERIAL_TYPES: dict[str, dict[str, Field]] = {
         "ext_ior": Field("float", 1.0, "exterior index of refraction (Mitsuba's default is "
                          "air, 1.000277; ours is vacuum)", "", min=1e-3, max=100.0),
     },
+    "pbr": {
+        "base_color": Field("rgb", 1.0, "base colour factor (glTF `baseColorFactor`, linear)",
+                            "", **_RGB_REFL),
+        "base_color_texture": Field("path", None, "base colour texture (PNG/JPEG, sRGB-decoded; "
+                                    "an alpha channel multiplies `alpha`); times `base_color`"),
+        "metallic": Field("float", 1.0, "metalness factor (glTF `metallicFactor`)", "",
+                          min=0.0, max=1.0),
+        "roughness": Field("float", 1.0, "perceptual roughness factor (glTF "
+                           "`roughnessFactor`; GGX α = roughness²)", "", min=0.0, max=1.0),
+        "metallic_roughness_texture": Field("path", None, "linear texture: G = roughness, "
+                                            "B = metallic (glTF's channels); times the factors"),
+        "normal_texture": Field("path", None, "tangent-space normal map (linear, n = 2·rgb − 1, "
+                                "+Y up as glTF/OpenGL)"),
+        "normal_scale": Field("float", 1.0, "scale of the normal map's x and y", "",
+                              min=0.0, max=10.0),
+        "occlusion_texture": Field("path", None, "ambient occlusion (R channel; read by the "
+                                   "real-time approximations, ignored by path tracers, which "
+                                   "trace occlusion)"),
+        "occlusion_strength": Field("float", 1.0, "occlusion = 1 + strength · (R − 1)", "",
+                                    min=0.0, max=1.0),
+        "emissive": Field("rgb", 0.0, "emitted radiance factor", "W/(sr·m²)", min=0.0,
+                          max=1e6),
+        "emissive_texture": Field("path", None, "emission texture (sRGB-decoded); times "
+                                  "`emissive`"),
+        "alpha": Field("float", 1.0, "opacity factor (glTF base colour alpha, USD `opacity`)",
+                       "", min=0.0, max=1.0),
+        "alpha_mode": Field("choice", "opaque", "`opaque` (alpha ignored), `mask` (opaque where "
+                            "alpha >= `alpha_cutoff`, else absent), `blend` (alpha-weighted "
+                            "coverage)", choices=("opaque", "mask", "blend")),
+        "alpha_cutoff": Field("float", 0.5, "threshold of `alpha_mode = \"mask\"`", "",
+                              min=0.0, max=1.0),
+        "ior": Field("float", 1.5, "index of refraction of the dielectric part "
+                     "(`KHR_materials_ior`, USD `ior`)", "", min=1.0, max=10.0),
+        "transmission": Field("float", 0.0, "fraction of light transmitted through the "
+                              "dielectric part (`KHR_materials_transmission`)", "", min=0.0,
+                              max=1.0),
+        "two_sided": Field("bool", True, "both sides reflect (glTF `doubleSided = false` "
+                           "gives false; ignored when `transmission` > 0)"),
+    },
 }
 
 SHAPE_TYPES: dict[str, dict[str, Field]] = {
@@ -119,6 +158,14 @@ SHAPE_TYPES: dict[str, dict[str, Field]] = {
                          choices=("auto", "file", "recompute", "flat")),
         "smooth": Field("bool", True, "older form: `false` is `normals = \"flat\"`; `true` "
                         "leaves `normals` in charge"),
+    },
+    "model": {
+        "file": Field("path", REQUIRED, "glTF 2.0 (`.gltf`, `.glb`) or USD (`.usd`, `.usda`, "
+                      "`.usdc`, `.usdz`) file; expands on load into one mesh shape per "
+                      "mesh primitive (glTF) or Mesh prim (USD), named `<name>/<part>`, with "
+                      "the file's `pbr` materials"),
+        "select": Field("str", None, "only this node (glTF node name) or prim path (USD) and "
+                        "what lies below it (default: the whole default scene)"),
     },
 }
 

@@ -51,15 +51,19 @@ class Proxy:
         self.camera = scene.camera
         self.real: SceneView = build_views(scene.without_virtual()).real
         self.real_names = [s.name for s in scene.real_shapes]
-        self.virtual_names = [s.name for s in scene.virtual_shapes]
+        # one object per virtual shape, or per model entry (its parts move together)
+        objects: dict[str, list] = {}
+        for shape in scene.virtual_shapes:
+            objects.setdefault(shape.group or shape.name, []).append(shape)
+        self.virtual_names = list(objects)
         self.virtual: dict[str, SceneView] = {}
         self.anchors: dict[str, tuple[float, float, float]] = {}
-        for shape in scene.virtual_shapes:
-            view = build_views(replace(scene, shapes=[shape], lights=[])).mixed
+        for name, shapes in objects.items():
+            view = build_views(replace(scene, shapes=shapes, lights=[])).mixed
             b = view.scene.bbox()
-            self.virtual[shape.name] = view
-            self.anchors[shape.name] = (0.5 * (b.min.x + b.max.x), float(b.min.y),
-                                        0.5 * (b.min.z + b.max.z))
+            self.virtual[name] = view
+            self.anchors[name] = (0.5 * (b.min.x + b.max.x), float(b.min.y),
+                                  0.5 * (b.min.z + b.max.z))
 
     def rest_poses(self) -> dict[str, ObjectPose]:
         """The identity pose of every virtual shape (anchored at its bounding box's base)."""

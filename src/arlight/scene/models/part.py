@@ -1,0 +1,120 @@
+"""What a model file (glTF, USD) becomes: parts in the model's world space, in metres, +Y up.
+
+A :class:`ModelPart` is one triangle mesh with one material: glTF's mesh primitive under a
+node, USD's ``Mesh`` prim (one part per ``GeomSubset`` material binding is not split: the
+prim's bound material is used). Readers raise :class:`ModelError` naming the field *inside*
+the model file (``meshes[0].primitives[1].attributes.TEXCOORD_0``, ``/Root/Body.points``);
+:func:`check_model` runs the checks every format shares (degenerate geometry, scale).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+MIN_EXTENT_M = 1e-4
+"""Smallest bounding-box diagonal a model may have after unit conversion (0.1 mm)."""
+MAX_EXTENT_M = 1e4
+"""Largest bounding-box diagonal a model may have after unit conversion (10 km): an AR
+object that large is a unit mistake (centimetres read as metres, or worse)."""
+MAX_TRIANGLES = 5_000_000
+"""Most triangles one model may hold (estimated from accessor/attribute counts before any
+buffer is decoded)."""
+
+
+class ModelError(ValueError):
+    """A bad model file; ``field`` is the path of the offending entry inside the file."""
+
+    def __init__(self, message: str, field: str):
+        super().__init__(message)
+        self.message = message
+        self.field = field
+
+
+class ModelWarning(UserWarning):
+    """Something in a model file that arlight loads only partly (animation, skinning,
+    morph targets: the static pose is loaded)."""
+
+
+@dataclass(frozen=True)
+class ModelPart:
+    """One mesh of a model, flattened to the model's world space.
+
+    Attributes:
+        name: the part's name (glTF node name + primitive index, or the USD prim path).
+        vertices: ``(V, 3)`` float64 positions, metres, +Y up (the format's units and up axis
+            converted).
+        faces: ``(F, 3)`` int64 vertex indices, counter-clockwise seen from the front.
+        uv: ``(V, 2)`` float64 texture coordinates, v = 0 at the top row of the textures
+            (glTF's convention; USD's ``st`` is flipped on import), or None.
+        normals: ``(V, 3)`` unit vertex normals in the same space, or None (recompute).
+        tangents: ``(V, 4)`` tangents (xyz, w = bitangent sign) in the same space, or None.
+        material: the part's ``pbr`` parameter table (textures as
+            :class:`arlight.scene.pbr.Texture`), as :mod:`arlight.scene.schema` describes.
+        material_name: the material's name in the file.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray | None
+    normals: np.ndarray | None
+    tangents: np.ndarray | None
+    material: dict[str, Any]
+    material_name: str
+
+
+@dataclass
+class Model:
+    """The parts of a model file and what it could not load (warnings already issued)."""
+
+    parts: list[ModelPart]
+    notes: list[str] = field(default_factory=list)
+
+
+def warn(model: Model, file: str, where: str, message: str) -> None:
+    """Record and issue a :class:`ModelWarning` naming the file and the field."""
+    text = f"{file}: {where}: {message}"
+    model.notes.append(text)
+    warnings.warn(text, ModelWarning, stacklevel=3)
+
+
+def check_model(model: Model) -> None:
+    """Checks every format shares; raises :class:`ModelError`.
+
+    * no parts (nothing to render, or a selection that matched nothing);
+    * a part whose triangles all have zero area, or non-finite positions;
+    * a bounding box smaller than :data:`MIN_EXTENT_M` or larger than :data:`MAX_EXTENT_M`.
+
+    Degenerate triangles among good ones are dropped by the renderer and allowed; a
+    non-manifold mesh (an edge shared by more than two triangles) renders correctly in a
+    path tracer and is allowed too.
+    """
+    if not model.parts:
+        raise ModelError("the file has no triangle meshes to load", "meshes")
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for part in model.parts:
+        v, f = part.vertices, part.faces
+        if not np.all(np.isfinite(v)):
+            raise ModelError("non-finite vertex positions", f"{part.name}.positions")
+        if len(f) == 0:
+            raise ModelError("no triangles", f"{part.name}.indices")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ModelError(f"indices reach vertex {int(f.max())} of {len(v)}",
+                             f"{part.name}.indices")
+        p = v[f]
+        area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        if not np.any(area > 0):
+            raise ModelError(f"all {len(f)} triangles are degenerate (zero area)",
+                             f"{part.name}.indices")
+        lo = np.minimum(lo, v.min(axis=0))
+        hi = np.maximum(hi, v.max(axis=0))
+    size = float(np.linalg.norm(hi - lo))
+    if not MIN_EXTENT_M <= size <= MAX_EXTENT_M:
+        raise ModelError(f"the model is {size:.3g} m across after unit conversion, outside "
+                         f"[{MIN_EXTENT_M:g}, {MAX_EXTENT_M:g}] m: a unit or scale mistake "
+                         "(glTF is in metres; USD's metersPerUnit gives its unit)", "scale")
