@@ -52,6 +52,7 @@ TIERS: dict[str, int] = {
     "arlight.backend": BACKEND,
     "arlight.tracing": ENGINES, "arlight.realtime": ENGINES, "arlight.light": ENGINES,
     "arlight.probeless": ENGINES, "arlight.nearfield": ENGINES, "arlight.synthetic": ENGINES,
+    "arlight.denoise": ENGINES,
     "arlight.methods": CONTRACT, "arlight.methods.spec": CONTRACT,
     "arlight.methods.base": CONTRACT, "arlight.methods.fragments": CONTRACT,
     "arlight.cli": APPS, "arlight.cli_progress": APPS, "arlight.cli_options": APPS,

@@ -25,6 +25,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from arlight.denoise.options import DenoiseSettings
 from arlight.errors import InputError
 from arlight.layers import Layers
 from arlight.methods.spec import MethodSpec, Options
@@ -153,6 +154,37 @@ class BaseMethod(ABC):
         """Data for the world posed by ``transforms`` (default: prepare it again)."""
         return self.prepare_world(state.world.posed(transforms), state.options, settings)
 
+    def aux_view(self, data: Any) -> Any:
+        """The Mitsuba scene (a :class:`~arlight.backend.mitsuba_scene.SceneView` of the
+        mixed world) the denoiser's albedo and normal buffers are traced in, or None (the
+        denoiser then sees the colour only). Default None."""
+        return None
+
+    def denoise(self, layers: Layers, data: Any, view: FrameView,
+                denoise: DenoiseSettings, timer: StageTimer) -> Layers:
+        """The frame's layers denoised (``denoise = oidn``, methods with Monte Carlo noise;
+        :func:`arlight.denoise.differential.denoise_layers`): stages ``denoise_aux`` (the
+        auxiliary buffers of the denoised window) and ``denoise``; the raw layers stay in
+        the result's ``noisy``."""
+        from arlight.denoise.differential import denoise_layers
+
+        scene_view = self.aux_view(data) if denoise.aux else None
+        aux, aux_seconds = None, [0.0]
+        if scene_view is not None:
+            from arlight.denoise.aux import aux_buffers
+
+            def aux(rows, cols):
+                t0 = time.perf_counter()
+                buffers = aux_buffers(scene_view, view.camera, denoise.aux_spp, rows, cols)
+                aux_seconds[0] += time.perf_counter() - t0
+                return buffers
+        with timer.stage("denoise"):  # stages do not nest: the buffers' time is moved out
+            out = denoise_layers(layers, denoise, aux)
+        if aux_seconds[0]:
+            timer.seconds["denoise"] -= aux_seconds[0]
+            timer.add("denoise_aux", aux_seconds[0])
+        return out
+
     # --------------------------------------------------------------- protocol
     def options(self, settings: RenderSettings | None) -> Options:
         """``settings.options`` validated against ``spec.options``, defaults filled in."""
@@ -200,6 +232,9 @@ class BaseMethod(ABC):
                 data = self.pose(state, view.object_transforms, settings)
             view = replace(view, object_transforms={})
         layers = self.render_view(data, view, opts, settings, timer)
+        denoise = DenoiseSettings.from_options(opts)
+        if denoise is not None:
+            layers = self.denoise(layers, data, view, denoise, timer)
         layers.stats.update(timer.stats())
         layers.stats["seconds"] = time.perf_counter() - t0
         layers.method = self.spec.name

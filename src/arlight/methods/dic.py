@@ -103,7 +103,7 @@ SPEC = MethodSpec(
     description="Differential irradiance caching: path-traced differential irradiance at "
                 "sparse records, splatted, plus one-pass direct light (Kán §4.2).",
     options=OPTIONS,
-    capabilities=Capabilities(interactive=True),
+    capabilities=Capabilities(interactive=True, noisy=True),
     check=_check,
 )
 

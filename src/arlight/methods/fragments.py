@@ -35,5 +35,9 @@ class PathScenesMethod(BaseMethod):
                       settings: RenderSettings) -> PathScenes:
         return prepare_scenes(world)
 
+    def aux_view(self, data: PathScenes):
+        """The mixed view: the denoiser's albedo and normal buffers are traced there."""
+        return data.views.mixed
+
 
 __all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS"]

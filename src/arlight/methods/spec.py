@@ -26,6 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arlight.denoise.options import NAMES as DENOISE_NAMES
+from arlight.denoise.options import NOT_NOISY
+from arlight.denoise.options import OPTIONS as DENOISE_OPTIONS
 from arlight.scene.schema import (
     LIGHT_TYPES,
     MATERIAL_TYPES,
@@ -93,6 +96,9 @@ class Capabilities:
         virtual_shapes: shape types a virtual object may have (default: all of
             :data:`arlight.scene.schema.SHAPE_TYPES`; e.g. per-vertex transfer needs
             triangle meshes).
+        noisy: renders carry Monte Carlo noise (default: ``progressive``); such a method
+            gets the denoiser's options (:data:`arlight.denoise.options.OPTIONS`) as frame
+            options, and a deterministic one refuses them.
     """
 
     interactive: bool = False
@@ -102,8 +108,11 @@ class Capabilities:
     materials: frozenset[str] = frozenset(MATERIAL_TYPES)
     lights: frozenset[str] = frozenset(LIGHT_TYPES)
     virtual_shapes: frozenset[str] = frozenset(SHAPE_TYPES)
+    noisy: bool | None = None
 
     def __post_init__(self) -> None:
+        if self.noisy is None:
+            object.__setattr__(self, "noisy", self.progressive)
         for name, known in (("materials", MATERIAL_TYPES), ("lights", LIGHT_TYPES),
                             ("virtual_shapes", SHAPE_TYPES)):
             value = frozenset(getattr(self, name))
@@ -124,6 +133,7 @@ class Capabilities:
 
         return {"interactive": yes(self.interactive), "progressive": yes(self.progressive),
                 "needs depth": yes(self.needs_depth), "needs frame": yes(self.needs_frame),
+                "Monte Carlo noise": yes(bool(self.noisy)),
                 "materials": types(self.materials, MATERIAL_TYPES),
                 "lights": types(self.lights, LIGHT_TYPES),
                 "virtual shapes": types(self.virtual_shapes, SHAPE_TYPES)}
@@ -181,6 +191,10 @@ class MethodSpec:
             raise ValueError(f"method name {self.name!r}: no spaces, dots, commas or '='")
         if "\n" in self.description.strip():
             raise ValueError(f"method {self.name!r}: the description must be one line")
+        if self.capabilities.noisy:  # the denoiser's options, never preparation options
+            object.__setattr__(self, "options", {**self.options, **DENOISE_OPTIONS})
+            object.__setattr__(self, "frame_options",
+                               frozenset(self.frame_options) | DENOISE_NAMES)
         if extra := sorted(set(self.frame_options) - set(self.options)):
             raise ValueError(f"method {self.name!r}: frame option {extra[0]!r} is not an option")
 
@@ -198,6 +212,8 @@ class MethodSpec:
         raw = dict(raw or {})
         v = Validator(f"method {self.name!r}", Path.cwd())
         unknown = sorted(set(raw) - set(self.options))
+        if unknown and unknown[0] in DENOISE_NAMES:
+            raise v.fail(f"options.{unknown[0]}", NOT_NOISY.format(method=self.name))
         if unknown:
             known = ", ".join(sorted(self.options))
             raise v.fail(f"options.{unknown[0]}",

@@ -1,0 +1,127 @@
+"""Noise-free auxiliary buffers for the denoiser: first-hit albedo and normal.
+
+    aux = aux_buffers(view, camera, samples=4)      # AuxBuffers(albedo, normal)
+
+A camera-ray pass through the Mitsuba scene of the *mixed* view (real proxy plus virtual
+objects; :class:`~arlight.backend.mitsuba_scene.SceneView`), independent of the tracers:
+``samples`` stratified sub-pixel positions (the multi-jittered camera of
+:func:`arlight.backend.camera_rays.generate_rays` at a fixed seed; on a thin-lens camera
+``max(samples, 16)`` so that the lens is covered too) are box-filtered per pixel, so the
+buffers are anti-aliased like the render and carry no Monte Carlo noise of their own apart
+from the edge coverage.
+
+At a purely specular surface (a mirror, smooth glass: every BSDF lobe a delta) the ray
+follows the specular direction of a fixed sample (the transmitted one through glass unless
+it is totally reflected) and the buffers take the first non-specular hit, its albedo
+multiplied by the specular weights on the way — what Cycles and the OIDN documentation do
+for perfect specular surfaces. At most :data:`MAX_SPECULAR` specular bounces are followed
+(then albedo and normal stay 0).
+
+Albedo: Mitsuba's ``eval_diffuse_reflectance`` (π·f(wi, n) at the hit; the diffuse
+reflectance of diffuse and Phong surfaces, the normal-incidence lobe of rough conductors),
+clamped to [0, 1]. Normal: the world-space shading normal, in [-1, 1] (averaged over the
+samples, not renormalised). Misses (the environment): albedo 0, normal 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.camera_rays import generate_rays
+from arlight.backend.mitsuba_scene import SceneView
+from arlight.jit import MAX_LANES, ensure_variant
+from arlight.scene.camera import Camera
+
+MAX_SPECULAR = 4
+"""Specular bounces followed before the buffers give up on a pixel."""
+AUX_SEED = 0x5EED
+"""Fixed seed of the sub-pixel positions (the buffers are the same for every render)."""
+
+
+@dataclass(frozen=True)
+class AuxBuffers:
+    """``albedo`` in [0, 1] and world-space ``normal`` in [-1, 1], each ``(H, W, 3)``
+    float32."""
+
+    albedo: np.ndarray
+    normal: np.ndarray
+
+    def crop(self, rows: slice, cols: slice) -> AuxBuffers:
+        return AuxBuffers(np.ascontiguousarray(self.albedo[rows, cols]),
+                          np.ascontiguousarray(self.normal[rows, cols]))
+
+
+def _first_diffuse_hit(view: SceneView, ray: mi.Ray3f) -> tuple[mi.Color3f, mi.Vector3f]:
+    """Per-lane albedo and normal of the first non-specular hit along ``ray``."""
+    scene = view.scene
+    active = mi.Bool(True)
+    weight = mi.Color3f(1.0)
+    albedo = mi.Color3f(0.0)
+    normal = mi.Vector3f(0.0)
+    ctx = mi.BSDFContext()
+    for bounce in range(MAX_SPECULAR + 1):
+        si = scene.ray_intersect(ray, active)
+        hit = active & si.is_valid()
+        bsdf = si.bsdf()
+        flags = bsdf.flags()
+        specular = hit & ~mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        done = hit & ~specular
+        refl = dr.clip(mi.Color3f(bsdf.eval_diffuse_reflectance(si, done)), 0.0, 1.0)
+        albedo = dr.select(done, weight * refl, albedo)
+        normal = dr.select(done, si.sh_frame.n, normal)
+        if bounce == MAX_SPECULAR:
+            break
+        active = specular
+        bs, w = bsdf.sample(ctx, si, mi.Float(0.999), mi.Point2f(0.5, 0.5), active)
+        active &= bs.pdf > 0
+        weight = dr.select(active, weight * mi.Color3f(w), weight)
+        ray = dr.select(active, si.spawn_ray(si.to_world(bs.wo)), ray)
+    return albedo, normal
+
+
+def aux_buffers(view: SceneView, camera: Camera, samples: int = 4,
+                rows: slice | None = None, cols: slice | None = None) -> AuxBuffers:
+    """Box-filtered first-hit albedo and normal of ``camera``'s pixels in ``view``.
+
+    Args:
+        view: the mixed view's Mitsuba scene (virtual objects included).
+        camera: the frame's camera (pinhole or thin lens).
+        samples: sub-pixel positions per pixel (a perfect square is stratified;
+            at least 16 on a thin-lens camera).
+        rows, cols: a window of the image (default: all of it).
+
+    Returns:
+        :class:`AuxBuffers` of the window, ``(rows, cols, 3)``.
+    """
+    if samples < 1:
+        raise ValueError(f"samples must be >= 1, got {samples}")
+    ensure_variant()
+    spp = max(samples, 16) if camera.aperture_radius > 0 else samples
+    r0, r1, _ = (rows or slice(None)).indices(camera.height)
+    c0, c1, _ = (cols or slice(None)).indices(camera.width)
+    h, w = r1 - r0, c1 - c0
+    pixels = h * w
+    albedo = np.zeros((pixels, 3), np.float64)
+    normal = np.zeros((pixels, 3), np.float64)
+    step = max(1, MAX_LANES // spp)  # pixels per launch
+    for p0 in range(0, pixels, step):
+        n = min(step, pixels - p0)
+        lane = dr.arange(mi.UInt32, n * spp)
+        local = lane // spp + p0
+        pixel = (local // w + r0) * camera.width + local % w + c0
+        k = lane % spp
+        rays = generate_rays(camera, pixel, k, spp, mi.UInt32(AUX_SEED))
+        a, nrm = _first_diffuse_hit(view, mi.Ray3f(rays))
+        a_np = np.asarray(a, np.float64).reshape(3, n, spp)  # Dr.Jit: channel-major
+        n_np = np.asarray(nrm, np.float64).reshape(3, n, spp)
+        albedo[p0:p0 + n] = a_np.mean(axis=2).T
+        normal[p0:p0 + n] = n_np.mean(axis=2).T
+    return AuxBuffers(albedo.reshape(h, w, 3).astype(np.float32),
+                      normal.reshape(h, w, 3).astype(np.float32))
+
+
+__all__ = ["AUX_SEED", "AuxBuffers", "MAX_SPECULAR", "aux_buffers"]

@@ -1,0 +1,70 @@
+"""The denoiser's method options, shared by every method that produces Monte Carlo noise.
+
+:class:`~arlight.methods.spec.MethodSpec` adds :data:`OPTIONS` to the options of every
+method whose capabilities say ``noisy`` (``onepass``, ``reference``, ``dic``), as frame
+options (denoising never changes what ``prepare`` builds). A deterministic method refuses
+them with :data:`NOT_NOISY`.
+
+Pure data (no NumPy, no Mitsuba): the method contract imports it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from arlight.scene.schema import Field
+
+OPTIONS: dict[str, Field] = {
+    "denoise": Field("choice", "none", "`oidn`: Intel Open Image Denoise on what the method "
+                     "rendered (I_m, and I_r or the delta), composited onto the untouched "
+                     "photograph (docs/methods/denoising.md); `none`: the raw Monte Carlo "
+                     "estimate", choices=("none", "oidn")),
+    "denoise_quality": Field("choice", "high", "OIDN's quality level (`fast` ~3x faster than "
+                             "`high`)", choices=("fast", "balanced", "high")),
+    "denoise_aux": Field("bool", True, "clean first-hit albedo and normal buffers (the first "
+                         "non-specular hit behind mirrors and glass) guide the denoiser"),
+    "denoise_target": Field("choice", "separate", "`separate`: I_m and I_r denoised with the "
+                            "same auxiliary buffers and exposure, delta = D(I_m) − D(I_r); "
+                            "`delta`: the signed delta denoised directly (its positive and "
+                            "negative parts)", choices=("separate", "delta")),
+    "denoise_aux_spp": Field("int", 4, "sub-pixel samples of the auxiliary buffers (box "
+                             "filter; at least 16 on a thin-lens camera)", min=1, max=256),
+}
+"""``denoise``, ``denoise_quality``, ``denoise_aux``, ``denoise_target``,
+``denoise_aux_spp``."""
+
+NAMES = frozenset(OPTIONS)
+
+NOT_NOISY = ("{method} is deterministic (no Monte Carlo noise): the denoiser applies only to "
+             "the Monte Carlo methods (`arlight methods` lists a `denoise` option on them)")
+"""The refusal of a denoise option on a method without Monte Carlo noise."""
+
+
+@dataclass(frozen=True)
+class DenoiseSettings:
+    """The denoise options of one render.
+
+    Attributes:
+        quality: OIDN quality, ``fast`` | ``balanced`` | ``high``.
+        aux: use clean albedo and normal buffers.
+        target: ``separate`` (D(I_m) − D(I_r)) or ``delta`` (the delta itself).
+        aux_spp: sub-pixel samples of the auxiliary buffers.
+    """
+
+    quality: str = "high"
+    aux: bool = True
+    target: str = "separate"
+    aux_spp: int = 4
+
+    @staticmethod
+    def from_options(opts: Any) -> DenoiseSettings | None:
+        """The settings from validated method options; None without ``denoise = oidn``
+        (or on a method without the options)."""
+        if opts.get("denoise", "none") == "none":
+            return None
+        return DenoiseSettings(quality=opts["denoise_quality"], aux=opts["denoise_aux"],
+                               target=opts["denoise_target"], aux_spp=opts["denoise_aux_spp"])
+
+
+__all__ = ["DenoiseSettings", "NAMES", "NOT_NOISY", "OPTIONS"]
