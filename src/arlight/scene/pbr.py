@@ -74,8 +74,12 @@ def image_size(data: bytes) -> tuple[int, int]:
     """(width, height) of an encoded PNG/JPEG image, read from its header only."""
     from PIL import Image
 
-    with Image.open(io.BytesIO(data)) as im:
-        return int(im.size[0]), int(im.size[1])
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            return int(im.size[0]), int(im.size[1])
+    except Image.DecompressionBombError as exc:  # PIL's own bound (179 Mpx) is larger
+        raise ValueError(f"texture is larger than the {MAX_TEXTURE_PIXELS / 1e6:.1f} Mpx "
+                         f"allowed ({exc})") from exc
 
 
 def decode_texture(data: bytes, encoding: str, source: str,
@@ -97,6 +101,8 @@ def decode_texture(data: bytes, encoding: str, source: str,
 
     try:
         w, h = image_size(data)
+    except ValueError:
+        raise
     except Exception as exc:  # PIL raises many kinds for garbage
         raise ValueError(f"not a readable PNG/JPEG image ({exc})") from exc
     if w * h > max_pixels:

@@ -61,7 +61,8 @@ def read_model(path: str | Path, select: str | None = None) -> Model:
     except InputError:
         raise
     except Exception as exc:  # the parsers raise many kinds for garbage
-        raise InputError(f"cannot read the model ({type(exc).__name__}: {exc})",
+        text = " ".join(str(exc).split())  # parsers' messages span lines
+        raise InputError(f"cannot read the model ({type(exc).__name__}: {text})",
                          file=str(p)) from exc
     return model
 

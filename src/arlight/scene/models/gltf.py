@@ -274,6 +274,8 @@ class _Reader:
                 w, h = pbr.image_size(self.image_bytes(j))
             except ModelError:
                 raise
+            except ValueError as exc:
+                raise ModelError(str(exc), f"images[{j}]") from exc
             except Exception as exc:
                 raise ModelError(f"not a readable PNG/JPEG image ({exc})",
                                  f"images[{j}]") from exc
@@ -426,4 +428,4 @@ def _part(r: _Reader, prim: Any, where: str, world: np.ndarray, name: str) -> Mo
         raise ModelError(f"material {mat_name!r} has textures but the primitive has no "
                          "TEXCOORD_0", f"{where}.attributes.TEXCOORD_0")
     return ModelPart(name, vertices, np.ascontiguousarray(faces), uv, normals, tangents,
-                     material, mat_name)
+                     material, mat_name, where)

@@ -55,6 +55,8 @@ class ModelPart:
         material: the part's ``pbr`` parameter table (textures as
             :class:`arlight.scene.pbr.Texture`), as :mod:`arlight.scene.schema` describes.
         material_name: the material's name in the file.
+        where: the part's path in the file for messages (glTF
+            ``meshes[i].primitives[j]``; USD: the prim path).
     """
 
     name: str
@@ -65,6 +67,7 @@ class ModelPart:
     tangents: np.ndarray | None
     material: dict[str, Any]
     material_name: str
+    where: str = ""
 
 
 @dataclass
@@ -89,9 +92,12 @@ def check_model(model: Model) -> None:
     * a part whose triangles all have zero area, or non-finite positions;
     * a bounding box smaller than :data:`MIN_EXTENT_M` or larger than :data:`MAX_EXTENT_M`.
 
-    Degenerate triangles among good ones are dropped by the renderer and allowed; a
-    non-manifold mesh (an edge shared by more than two triangles) renders correctly in a
-    path tracer and is allowed too.
+    * a non-manifold part: an edge (between welded positions) shared by more than two
+      triangles — inside/outside is undefined there, which breaks refraction, the
+      real-time methods' per-vertex transfer and voxelisation.
+
+    Degenerate triangles among good ones are dropped by the renderer and allowed, and so are
+    open boundaries (an edge of one triangle: a leaf, a label).
     """
     if not model.parts:
         raise ModelError("the file has no triangle meshes to load", "meshes")
@@ -99,18 +105,20 @@ def check_model(model: Model) -> None:
     hi = np.full(3, -np.inf)
     for part in model.parts:
         v, f = part.vertices, part.faces
+        at = part.where or part.name
         if not np.all(np.isfinite(v)):
-            raise ModelError("non-finite vertex positions", f"{part.name}.positions")
+            raise ModelError("non-finite vertex positions", f"{at}.positions")
         if len(f) == 0:
-            raise ModelError("no triangles", f"{part.name}.indices")
+            raise ModelError("no triangles", f"{at}.indices")
         if f.min() < 0 or f.max() >= len(v):
             raise ModelError(f"indices reach vertex {int(f.max())} of {len(v)}",
-                             f"{part.name}.indices")
+                             f"{at}.indices")
         p = v[f]
         area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
         if not np.any(area > 0):
             raise ModelError(f"all {len(f)} triangles are degenerate (zero area)",
-                             f"{part.name}.indices")
+                             f"{at}.indices")
+        _check_manifold(part, at)
         lo = np.minimum(lo, v.min(axis=0))
         hi = np.maximum(hi, v.max(axis=0))
     size = float(np.linalg.norm(hi - lo))
@@ -118,3 +126,20 @@ def check_model(model: Model) -> None:
         raise ModelError(f"the model is {size:.3g} m across after unit conversion, outside "
                          f"[{MIN_EXTENT_M:g}, {MAX_EXTENT_M:g}] m: a unit or scale mistake "
                          "(glTF is in metres; USD's metersPerUnit gives its unit)", "scale")
+
+
+def _check_manifold(part: ModelPart, at: str) -> None:
+    """:class:`ModelError` if an edge is shared by more than two non-degenerate triangles
+    (vertices at the same position count as one, so texture seams are not edges)."""
+    _, weld = np.unique(part.vertices, axis=0, return_inverse=True)
+    f = weld.ravel()[part.faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(edges, axis=0, return_counts=True)
+    if counts.size and counts.max() > 2:
+        k = int(np.argmax(counts))
+        a, b = part.vertices[np.argmax(weld.ravel() == uniq[k, 0])], \
+            part.vertices[np.argmax(weld.ravel() == uniq[k, 1])]
+        raise ModelError(f"non-manifold: {int((counts > 2).sum())} edge(s) shared by more "
+                         f"than two triangles (e.g. {int(counts[k])} at {np.round(a, 4).tolist()}"
+                         f"–{np.round(b, 4).tolist()})", f"{at}.indices")
