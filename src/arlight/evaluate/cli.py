@@ -6,6 +6,8 @@
                                                            is not cached yet
     arlight eval --option onepass.reproject=false          an option of one method
     arlight eval --option reproject=false                  ... of every method declaring it
+    arlight eval -m onepass,onepass+denoise=oidn           a method and a variant of it
+                                                           (its own column, same run)
     arlight eval --worlds heldout:24 --width 160           every method on 24 held-out
                                                            generated worlds: distributions
                                                            and the equal-time table
@@ -46,7 +48,9 @@ def _ints(text: str, field: str) -> list[int]:
 
 def eval_command(
     methods: Annotated[str | None, typer.Option("--methods", "-m", help="comma-separated "
-                       "registered methods (default: all, see `arlight methods`)")] = None,
+                       "registered methods (default: all, see `arlight methods`); "
+                       "NAME+key=value[+key=value] is a variant with those options, e.g. "
+                       "onepass+denoise=oidn")] = None,
     scenes: Annotated[str | None, typer.Option("--scenes", "-s", help="comma-separated suite "
                       "scenes (default: all)")] = None,
     quick: Annotated[bool, typer.Option("--quick/--full", help="CI resolution (80 px wide) "
@@ -110,6 +114,7 @@ def eval_command(
         for name, doc in available_methods().items():
             typer.echo(f"method {name:20s} {doc}")
         return
+    from arlight.evaluate.variants import base_method
     from arlight.evaluate.worlds import parse_worlds
 
     known_methods, known_scenes = list(available_methods()), list_scenes()
@@ -119,7 +124,7 @@ def eval_command(
                                                 else known_scenes)
     for field, names, known in (("--methods", method_names, known_methods),
                                 ("--scenes", scene_names, known_scenes)):
-        unknown = [n for n in names if n not in known]
+        unknown = [n for n in names if base_method(n) not in known]
         if unknown:
             raise InputError(f"unknown {', '.join(map(repr, unknown))}; available: "
                              f"{', '.join(known)}", field=field)

@@ -50,6 +50,7 @@ from arlight.errors import InputError
 from arlight.evaluate import metrics as M
 from arlight.evaluate.distribution import LADDER_METHOD, LADDER_SPP, LadderPoint, onepass_at
 from arlight.evaluate.suite import QUICK_WIDTH, SuiteScene, get_scene
+from arlight.evaluate.variants import base_method, split_variant
 from arlight.methods import RenderSettings, get_method
 from arlight.synthetic import SyntheticPhoto, content_key
 from arlight.timing import stage_times
@@ -282,10 +283,10 @@ def method_options(methods: list[str], options: dict[str, Any]) -> dict[str, dic
     specs = {}
     for m in methods:
         try:
-            specs[m] = get_method(m).spec
+            specs[m] = get_method(base_method(m)).spec
         except InputError:
             continue
-    out: dict[str, dict[str, Any]] = {m: {} for m in methods}
+    out: dict[str, dict[str, Any]] = {m: dict(split_variant(m)[1]) for m in methods}
 
     def known() -> str:
         return "; ".join(f"{m}: {', '.join(s.options) or 'none'}" for m, s in specs.items())
@@ -326,7 +327,7 @@ class _SuppliedView:
 def skip_reason(method: str, scene: SuiteScene) -> str:
     """Why ``method`` cannot handle ``scene`` ('' if it can, or if the method is unknown)."""
     try:
-        spec = get_method(method).spec
+        spec = get_method(base_method(method)).spec
     except InputError:
         return ""
     return spec.unsupported_reason(scene.proxy, _SuppliedView(True, scene.proxy.depth)) or ""
@@ -411,7 +412,7 @@ def evaluate_cell(method: str, scene: SuiteScene, photo: SyntheticPhoto,
     cell = CellResult(method=method, scene=scene.name, resolution=scene.resolution,
                       exposure=cam.transfer.exposure, transfer_kind=cam.transfer.kind)
     try:
-        render = get_method(method)
+        render = get_method(base_method(method))
         ar = scene.ar_scene(photo)
         cell.skipped = render.spec.unsupported_reason(ar, ar) or ""
         if cell.skipped:

@@ -187,8 +187,9 @@ class MethodSpec:
     frame_options: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
-        if not self.name or any(c.isspace() or c in ".=," for c in self.name):
-            raise ValueError(f"method name {self.name!r}: no spaces, dots, commas or '='")
+        if not self.name or any(c.isspace() or c in ".=,+" for c in self.name):
+            raise ValueError(f"method name {self.name!r}: no spaces, dots, commas, '=' or "
+                             "'+' (eval's variants)")
         if "\n" in self.description.strip():
             raise ValueError(f"method {self.name!r}: the description must be one line")
         if self.capabilities.noisy:  # the denoiser's options, never preparation options
