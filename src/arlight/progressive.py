@@ -31,6 +31,11 @@ Every other method gets a fresh seed :func:`frame_seed` ``(seed, n)`` per frame 
 estimates). Either way frame ``n`` is bitwise the one-shot render with :func:`frame_settings`
 ``(method, settings, n)``.
 
+**Denoising** (``denoise = oidn`` in the options, :mod:`arlight.denoise`): the frames are
+rendered raw and their layers averaged (:class:`~arlight.denoise.differential.RunningLayers`);
+each step's image is the denoised composite of that running mean (auxiliary buffers traced
+once), so the denoiser's bias falls as the samples add up instead of being averaged in.
+
 :func:`run_cli` is what ``arlight render --progressive`` calls: a progress task,
 snapshots (EXR + PNG) at frames 1, 2, 4, 8, … and at the end, and, given a ground truth, the
 RMSE after every frame printed as it falls and written to ``error.csv`` / ``error.png``.
@@ -47,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arlight.denoise.options import DenoiseSettings
 from arlight.errors import InputError
 from arlight.methods import Method, RenderSettings, get_method
 from arlight.methods.base import Layers
@@ -146,22 +152,56 @@ def refine(scene: ARScene, method: str = "onepass", settings: RenderSettings | N
         raise InputError(f"must be >= 0, got {frames}", field="frames")
     settings = settings or RenderSettings(spp=1)
     fn = progressive_method(method)
+    denoise = DenoiseSettings.from_options(fn.options(settings)) \
+        if hasattr(fn, "options") else None
+    if denoise is not None:  # raw frames; their running mean is denoised (denoising.md)
+        settings = replace(settings, options={**settings.options, "denoise": "none"})
     acc = Accumulator()
     start = time.perf_counter()
     state = fn.prepare(scene.world, settings)
     view = scene.view
+    denoised = _ProgressiveDenoiser(fn, state, scene, denoise) if denoise else None
     n = 0
     while True:
         n += 1
         frame = frame_settings(fn, settings, n)
         layers = fn.render(state, view, frame)
-        image = acc.add(layers.composite)
+        image = acc.add(layers.composite) if denoised is None else denoised.add(layers)
         elapsed = time.perf_counter() - start
         yield RefineStep(n, elapsed, image, layers)
         if frames and n >= frames:
             return
         if time_budget is not None and elapsed >= time_budget:
             return
+
+
+class _ProgressiveDenoiser:
+    """The denoised composite of the running mean of the raw frames; the auxiliary buffers
+    are traced once (the view does not change during refinement)."""
+
+    def __init__(self, fn: Method, state, scene: ARScene, denoise: DenoiseSettings) -> None:
+        from arlight.denoise.differential import RunningLayers
+
+        self.running = RunningLayers()
+        self.denoise = denoise
+        self.aux_view = (getattr(fn, "aux_view", lambda d: None)(state.data)
+                         if denoise.aux and hasattr(state, "data") else None)
+        self.camera = scene.camera
+        self.full = None
+
+    def aux(self, rows: slice, cols: slice):
+        from arlight.denoise.aux import aux_buffers
+
+        if self.full is None:
+            self.full = aux_buffers(self.aux_view, self.camera, self.denoise.aux_spp)
+        return self.full.crop(rows, cols)
+
+    def add(self, layers: Layers) -> np.ndarray:
+        from arlight.denoise.differential import denoise_layers
+
+        mean = self.running.add(layers)
+        out = denoise_layers(mean, self.denoise, self.aux if self.aux_view else None)
+        return out.composite.astype(np.float64)
 
 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:

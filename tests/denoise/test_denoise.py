@@ -201,3 +201,31 @@ def test_aux_buffers_take_the_first_non_specular_hit():
     # the virtual sphere's albedo appears in the mixed view only
     blue = np.isclose(aux.albedo[..., 2], 0.8, atol=1e-3)
     assert blue.sum() > 10 and not np.isclose(real.albedo[..., 2], 0.8, atol=1e-3).any()
+
+
+def test_progressive_refinement_denoises_the_mean_of_raw_frames():
+    """After 3 refinement frames the image is the denoised composite of the mean of the 3
+    raw frames (averaged here, independently of the refinement loop). Rejects: a mean of
+    denoised frames (the denoiser's bias would never fall), frames rendered denoised."""
+    from arlight.denoise.aux import aux_buffers
+    from arlight.denoise.differential import denoise_layers
+    from arlight.denoise.options import DenoiseSettings
+    from arlight.layers import Layers
+    from arlight.progressive import frame_settings, refine
+
+    scene = textured(load(area_light_scene(W, H)))
+    s = RenderSettings(spp=2, seed=5, options={"denoise": "oidn"})
+    steps = list(refine(scene, "onepass", s, frames=3))
+    m = get_method("onepass")
+    plain = RenderSettings(spp=2, seed=5)
+    raws = [m(scene, frame_settings(m, plain, n)) for n in (1, 2, 3)]
+    mean = {k: np.mean([getattr(r, k).astype(np.float64) for r in raws], axis=0)
+            .astype(np.float32) for k in ("mixed", "real", "delta", "mask")}
+    layers = Layers.assemble(scene.view.frame, mean["mixed"], mean["delta"], mean["mask"],
+                             real=mean["real"])
+    state = m.prepare(scene.world, plain)
+    full = aux_buffers(state.data.views.mixed, scene.camera, 4)
+    want = denoise_layers(layers, DenoiseSettings(),
+                          lambda r, c: full.crop(r, c)).composite
+    assert np.allclose(steps[-1].image, want, atol=1e-6)
+    assert not any(getattr(st.layers, "noisy", None) for st in steps)  # frames are raw

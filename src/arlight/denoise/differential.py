@@ -152,6 +152,34 @@ def denoise_layers(layers: Layers, settings: DenoiseSettings,
     return DenoisedLayers(**{**vars(out), **keep, "stderr": {}})
 
 
+class RunningLayers:
+    """Running means of a method's raw layers over progressive frames (Kán Eq. 4.12 per
+    layer, float64): with ``denoise = oidn`` the refinement denoises the mean of the raw
+    frames, never a mean of denoised frames (whose bias would not fall with more samples).
+    At silhouettes the composite of the mean layers differs from the mean of the composites
+    by the covariance of ``M`` and ``I_m`` over frames (a partial-coverage pixel only)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.sums: dict[str, np.ndarray] = {}
+        self.background: np.ndarray | None = None
+
+    def add(self, layers: Layers) -> Layers:
+        """Fold in one frame's raw layers; returns the layers of the running means."""
+        raw = undenoised(layers)
+        real = raw.real if raw.real is not None else raw.mixed - raw.delta
+        self.count += 1
+        self.background = raw.background
+        for k, v in (("mixed", raw.mixed), ("real", real), ("delta", raw.delta),
+                     ("mask", raw.mask)):
+            v = np.asarray(v, np.float64)
+            self.sums[k] = self.sums[k] + v if k in self.sums else v.copy()
+        m = {k: (v / self.count).astype(np.float32) for k, v in self.sums.items()}
+        return Layers.assemble(self.background, m["mixed"], m["delta"], m["mask"],
+                               real=m["real"], stats={"frames": float(self.count)},
+                               method=raw.method)
+
+
 def undenoised(layers: Layers) -> Layers:
     """The raw Monte Carlo layers behind ``layers`` (``layers`` itself when not
     denoised)."""
@@ -159,7 +187,7 @@ def undenoised(layers: Layers) -> Layers:
     return noisy if noisy is not None else layers
 
 
-__all__ = ["CONTEXT_PX", "DenoisedLayers", "denoise_layers", "footprint", "footprint_radius",
-           "undenoised", "window"]
+__all__ = ["CONTEXT_PX", "DenoisedLayers", "RunningLayers", "denoise_layers", "footprint",
+           "footprint_radius", "undenoised", "window"]
 
 

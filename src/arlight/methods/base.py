@@ -25,6 +25,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from arlight.denoise.options import NAMES as DENOISE_NAMES
 from arlight.denoise.options import DenoiseSettings
 from arlight.errors import InputError
 from arlight.layers import Layers
@@ -263,7 +264,8 @@ RenderFn = Callable[[ARScene, RenderSettings], Layers]
 class FunctionMethod(BaseMethod):
     """A plain ``fn(scene, settings) -> Layers`` as a :class:`Method` (what
     ``@register("name")`` on a function makes): nothing to prepare, the whole call is the
-    stage ``render``; ``settings.options`` reach ``fn`` validated, with defaults."""
+    stage ``render``; ``settings.options`` reach ``fn`` validated, with defaults (the
+    denoiser's options excepted: the base class applies them after ``fn``)."""
 
     def __init__(self, fn: RenderFn, spec: MethodSpec) -> None:
         self.fn = fn
@@ -275,5 +277,6 @@ class FunctionMethod(BaseMethod):
 
     def render_view(self, data: World, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
+        mine = {k: v for k, v in options.items() if k not in DENOISE_NAMES}  # base denoises
         with timer.stage("render"):
-            return self.fn(ARScene.compose(data, view), replace(settings, options=dict(options)))
+            return self.fn(ARScene.compose(data, view), replace(settings, options=mine))
