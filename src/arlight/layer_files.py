@@ -34,7 +34,9 @@ def write_layers(layers: Layers, scene: ARScene, out_dir: str | Path) -> dict[st
 
     Files: ``composite.exr``, ``composite.png``, ``mixed.exr``, ``delta.exr``, ``mask.exr``,
     ``real.exr`` (when the method has it), ``stderr_<layer>.exr`` and ``stats.json``
-    (``seconds``, ``time_<stage>`` seconds, counters).
+    (``seconds``, ``time_<stage>`` seconds, counters). Denoised layers (``denoise = oidn``,
+    :class:`arlight.denoise.differential.DenoisedLayers`) also write the raw estimate,
+    ``noisy_<layer>.exr``, whose standard errors the ``stderr_<layer>.exr`` are.
 
     The files are staged next to ``out_dir`` and swapped in as one set
     (:class:`arlight.staged_output.StagedOutput`): the folder holds the whole previous
@@ -63,6 +65,15 @@ def _write_all(layers: Layers, scene: ARScene, out: Path) -> dict[str, Path]:
         paths[name] = write_exr(out / f"{name}.exr", img)
     for name, img in layers.stderr.items():
         paths[f"stderr_{name}"] = write_exr(out / f"stderr_{name}.exr", img)
+    noisy = getattr(layers, "noisy", None)  # denoised: the raw estimate and its errors too
+    if noisy is not None:
+        raw = {"composite": noisy.composite, "mixed": noisy.mixed, "delta": noisy.delta}
+        if noisy.real is not None:
+            raw["real"] = noisy.real
+        for name, img in raw.items():
+            paths[f"noisy_{name}"] = write_exr(out / f"noisy_{name}.exr", img)
+        for name, img in noisy.stderr.items():
+            paths[f"stderr_{name}"] = write_exr(out / f"stderr_{name}.exr", img)
     png = scene.camera.transfer.to_display(layers.composite, display_dtype(scene))
     paths["composite_png"] = write_png(out / "composite.png", png)
     with atomic_write(out / "stats.json", ".json") as tmp:

@@ -229,3 +229,29 @@ def test_progressive_refinement_denoises_the_mean_of_raw_frames():
                           lambda r, c: full.crop(r, c)).composite
     assert np.allclose(steps[-1].image, want, atol=1e-6)
     assert not any(getattr(st.layers, "noisy", None) for st in steps)  # frames are raw
+
+
+def test_render_writes_the_raw_layers_next_to_the_denoised_ones(tmp_path):
+    """``arlight render --option denoise=oidn`` writes the denoised layers and the raw
+    estimate (``noisy_*.exr``) with its standard errors. Rejects: the raw layers or their
+    errors missing from the output."""
+    import json
+
+    import imageio.v3 as iio
+
+    from arlight.cli import main
+    from arlight.io.images import read_hdr
+
+    d = area_light_scene(32, 24)
+    iio.imwrite(tmp_path / "frame.png", np.full((24, 32, 3), 100, np.uint8))
+    d["frame"] = {"image": "frame.png"}
+    (tmp_path / "s.json").write_text(json.dumps(d))
+    out = tmp_path / "out"
+    assert main(["render", str(tmp_path / "s.json"), "-m", "onepass", "--spp", "4",
+                 "--option", "denoise=oidn", "-o", str(out)]) == 0
+    for name in ("composite", "noisy_composite", "noisy_delta", "noisy_mixed",
+                 "stderr_composite"):
+        assert (out / f"{name}.exr").is_file(), name
+    assert not np.array_equal(read_hdr(out / "composite.exr"),
+                              read_hdr(out / "noisy_composite.exr"))
+    assert json.loads((out / "stats.json").read_text())["denoise_runs"] >= 1
