@@ -24,6 +24,7 @@ import pytest
 from arlight.io.images import write_exr, write_png
 from tests.cli_harness import ARLIGHT, Case, check, clean_env
 from tests.conftest import area_light_scene
+from tests.scene.model_cases import model_cases
 
 
 def _leaves(node, path=()):
@@ -109,6 +110,7 @@ def _build(root: Path) -> list[Case]:
     for name, data in raw.items():
         (root / name).write_bytes(data)
         cases.append(Case(f"validate-raw-{name}", ["validate", str(root / name)], [name]))
+    cases += model_cases(root)  # glTF / USD models and pbr materials (issue #34)
     cases.append(Case("validate-missing", ["validate", str(root / "nope.toml")], ["nope.toml"]))
     cases.append(Case("validate-folder", ["validate", str(root)], [root.name]))
     d = json.loads(json.dumps(scene))
