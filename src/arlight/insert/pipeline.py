@@ -53,7 +53,8 @@ class InsertRequest:
         calib: calibration file (OpenCV YAML/XML or JSON) or a :class:`Calibration`.
         marker: target description (:func:`parse_marker`) or a :class:`MarkerSpec`.
         light: ``--light`` value (:func:`arlight.insert.lighting.light_tables`).
-        object: mesh file (PLY/OBJ/...) of the virtual object.
+        object: mesh file (PLY/OBJ/...) of the virtual object, or a glTF/GLB, USD/USDZ model
+            (with its own PBR materials; ``color`` is then not used).
         at: where the bottom centre of the object's bounding box goes (m, board frame,
             +Y up; ``Y = 0`` stands on the board).
         scale: uniform scale of the mesh.

@@ -125,6 +125,7 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
     elif str(poses) != "marker":
         pose_list = camera_poses(poses, n, axes)
     names = {s.name: s for s in scene.shapes}
+    names.update({s.group: s for s in scene.shapes if s.group})  # a model moves as one
     obj = [{} for _ in range(n)] if objects is None else object_transforms(objects, n, names)
     if str(poses) == "marker":
         if calib is None or marker is None:
