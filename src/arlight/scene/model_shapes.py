@@ -37,6 +37,9 @@ def part_mesh(part: ModelPart, flat_default: bool) -> MeshData:
 
 def part_material(model_file: str, part: ModelPart) -> Material:
     """The part's ``pbr`` material, named ``<file name>:<material name>``."""
+    from arlight.scene.pbr import warn_unrendered
+
+    warn_unrendered(part.material, f"{model_file}: {part.where or part.name}.material")
     return Material(f"{Path(model_file).name}:{part.material_name}", "pbr", part.material)
 
 

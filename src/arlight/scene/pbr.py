@@ -150,7 +150,20 @@ def finish_pbr(fail: Callable[[str, str], InputError], params: dict[str, Any],
                 raise fail(f"{field}.{key}", f"{exc} ({value})") from exc
     if out["alpha_mode"] == "mask" and not 0.0 <= out["alpha_cutoff"] <= 1.0:
         raise fail(f"{field}.alpha_cutoff", f"must be in [0, 1], got {out['alpha_cutoff']}")
+    warn_unrendered(out, field)
     return out
+
+
+def warn_unrendered(params: dict[str, Any], where: str) -> None:
+    """Warn (:class:`arlight.scene.models.ModelWarning`) about what the renderers do not
+    draw yet: emission (``emissive`` > 0) — the object is rendered without it."""
+    import warnings
+
+    from arlight.scene.models.part import ModelWarning
+
+    if max(params.get("emissive", [0.0])) > 0:
+        warnings.warn(f"{where}: emissive: emission is not rendered yet (the object is shaded "
+                      "without it)", ModelWarning, stacklevel=3)
 
 
 def has_textures(params: dict[str, Any]) -> bool:

@@ -150,7 +150,9 @@ SHAPE_TYPES: dict[str, dict[str, Field]] = {
                         "becomes `transform.translate`)", "m", **_LEN),
     },
     "mesh": {
-        "file": Field("path", REQUIRED, "PLY, OBJ, glTF/GLB, STL or OFF file (read by trimesh)"),
+        "file": Field("path", REQUIRED, "PLY, OBJ, glTF/GLB, STL or OFF file (read by "
+                      "trimesh, geometry only: `type = \"model\"` reads glTF and USD files "
+                      "with their materials)"),
         "normals": Field("choice", "auto", "shading normals: `file` (the vertex normals stored "
                          "in a PLY/OBJ file; an error if it has none), `recompute` (smooth, "
                          "angle-weighted, welded across split vertices), `flat` (face normals); "
