@@ -171,6 +171,10 @@ SHAPE_TYPES: dict[str, dict[str, Field]] = {
     },
 }
 
+EXPANDED_SHAPE_TYPES = ("model",)
+"""Shape types that expand into other shapes on load (a model into its ``mesh`` parts):
+they never reach a renderer."""
+
 SHAPE_COMMON: dict[str, Field] = {
     "name": Field("str", None, "unique name (default: `shape<i>`)"),
     "role": Field("choice", REQUIRED, "`real` (proxy of the real world) or `virtual`",
