@@ -9,6 +9,7 @@ the model file (``meshes[0].primitives[1].attributes.TEXCOORD_0``, ``/Root/Body.
 
 from __future__ import annotations
 
+import sys
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,6 +38,24 @@ class ModelError(ValueError):
 class ModelWarning(UserWarning):
     """Something in a model file that arlight loads only partly (animation, skinning,
     morph targets: the static pose is loaded)."""
+
+
+def _show_model_warning(message, category, filename, lineno, file=None, line=None):
+    """Python's warning display, except that a :class:`ModelWarning` is one line,
+    ``warning: <file>: <field>: <message>`` (no source location: the model file is the
+    place to look)."""
+    if isinstance(category, type) and issubclass(category, ModelWarning):
+        stream = file if file is not None else sys.stderr
+        try:
+            stream.write(f"warning: {message}\n")
+        except OSError:
+            pass
+        return
+    _SHOW_WARNING(message, category, filename, lineno, file, line)
+
+
+_SHOW_WARNING = warnings.showwarning
+warnings.showwarning = _show_model_warning
 
 
 @dataclass(frozen=True)
