@@ -321,6 +321,10 @@ def _insert_cases(root: Path) -> list[Case]:
            ("marker-dict", {"--marker": "charuco:5x7:0.04:0.02:DICT_NOPE"}, "DICT_NOPE"),
            ("marker-form", {"--marker": "charuco:5:0.04"}, "--marker"),
            ("object-missing", {"--object": str(root / "nomesh.obj")}, "nomesh.obj"),
+           ("object-draco-glb", {"--object": str(root / "models" / "draco.glb")},
+            "KHR_draco_mesh_compression"),  # written by model_cases (issue #34)
+           ("object-usd-texture", {"--object": str(root / "models" / "mt.usda")},
+            "inputs:file"),
            ("scale-nan", {"--scale": "nan"}, "--scale"),
            ("method-option", {"--option": "bogus=1"}, "bogus")]
     cases = []
