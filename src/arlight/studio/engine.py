@@ -134,6 +134,9 @@ class Session:
     pending_drag: tuple[float, float] | None = None
     exposure: float = 0.0
     layer: str = "composite"
+    denoise: bool = False  # OIDN on the frames of a Monte Carlo method (issue #31)
+    running: Any = None  # RunningLayers of the raw frames while a denoised method refines
+    aux_full: Any = None  # the denoiser's auxiliary buffers of the refined version
     seq: int | None = None  # newest client seq folded into the state
     version: int = 1  # bumped by every change that needs a new render
     display_version: int = 1  # bumped by exposure/layer changes
@@ -168,10 +171,12 @@ class MethodInfo:
     description: str
     progressive: bool
     unsupported: str | None
+    noisy: bool = False  # has the denoiser's options (Monte Carlo noise)
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description,
-                "progressive": self.progressive, "unsupported": self.unsupported}
+                "progressive": self.progressive, "unsupported": self.unsupported,
+                "denoise": self.noisy}
 
 
 def _resized(scene: ARScene, resolution: tuple[int, int] | None, file: str) -> ARScene:
@@ -306,7 +311,8 @@ class Engine:
             if not caps.interactive:
                 continue
             out[name] = MethodInfo(name, m.spec.description, caps.progressive,
-                                   m.spec.unsupported_reason(self.scene, self.scene))
+                                   m.spec.unsupported_reason(self.scene, self.scene),
+                                   bool(caps.noisy))
         if not out:
             raise InputError("no registered method renders interactive frames",
                              field="method")
@@ -604,6 +610,9 @@ class Engine:
                 self.check_method(msg["name"])
                 s.method = msg["name"]
                 s.bump(msg.seq)
+            elif kind == "denoise":
+                s.denoise = msg["on"]
+                s.bump(msg.seq)
             elif kind == "exposure":
                 s.exposure = msg["ev"]
                 s.display_version += 1
@@ -666,7 +675,7 @@ class Engine:
         if not refine:
             version, seq = self._resolve_drag(s)
         with s.lock:
-            method, poses = s.method, dict(s.poses)
+            method, poses, denoise = s.method, dict(s.poses), s.denoise
             n = s.refine + 1 if refine else 1
         t_place = time.perf_counter() - t0
         fn = get_method(method)
@@ -678,8 +687,13 @@ class Engine:
         settings = self.settings
         if progressive:  # frame n of the refinement (onepass: samples continue one sequence)
             settings = frame_settings(fn, self.settings, n)
+        denoise = denoise and self.catalogue[method].noisy
+        if denoise:
+            settings = replace(settings, options={**settings.options, "denoise": "oidn"})
         t1 = time.perf_counter()
         layers = fn.render(state, view, settings)
+        if denoise and progressive:  # denoise the running mean of the raw frames instead
+            layers = self._denoised_mean(s, fn, state, view, settings, layers, n)
         t_render = time.perf_counter() - t1
         with s.lock:
             if s.closed:
@@ -699,11 +713,43 @@ class Engine:
                        "time_place": t_place, "render_s": t_render}
         self._send_frame(s, superseded=stale)
 
+    def _denoised_mean(self, s: Session, fn: Method, state: Prepared, view, settings,
+                       layers: Layers, n: int) -> Layers:
+        """The denoised layers of the running mean of the raw frames 1..n of a progressive
+        method (:class:`arlight.denoise.differential.RunningLayers`); the auxiliary buffers
+        are traced once per refined version (the posed world). Shown as a non-accumulated
+        frame by :meth:`_fold`."""
+        from arlight.denoise.aux import aux_buffers
+        from arlight.denoise.differential import RunningLayers, denoise_layers
+        from arlight.denoise.options import DenoiseSettings
+
+        dn = DenoiseSettings.from_options(fn.options(settings))
+        if n == 1 or s.running is None:
+            s.running, s.aux_full = RunningLayers(), None
+        mean = s.running.add(layers)
+
+        def aux(rows: slice, cols: slice):
+            if s.aux_full is None:
+                data = (fn.pose(state, view.object_transforms, settings)
+                        if view.object_transforms else state.data)
+                s.aux_full = aux_buffers(fn.aux_view(data), self.scene.camera, dn.aux_spp)
+            return s.aux_full.crop(rows, cols)
+
+        use_aux = dn.aux and getattr(fn, "aux_view", None) is not None
+        out = denoise_layers(mean, dn, aux if use_aux else None)
+        out.stats = {**layers.stats, **{k: v for k, v in out.stats.items()
+                                        if k.startswith(("denoise", "footprint"))}}
+        out.running = True  # type: ignore[attr-defined]  # _fold shows it as it is
+        return out
+
     def _fold(self, s: Session, layers: Layers, n: int, progressive: bool
               ) -> tuple[dict[str, np.ndarray], int]:
         """The layers to show after frame ``n``: running means for a progressive method
         (Kán Eq. 4.12; restarted at n = 1), else this frame's (call with ``s.lock``)."""
         current = {k: getattr(layers, k) for k in IMAGE_LAYERS}
+        if getattr(layers, "running", False):  # already the (denoised) running mean
+            s.accumulators = {}
+            return current, n
         if not progressive:
             s.accumulators = {}
             return current, 0

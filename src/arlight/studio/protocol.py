@@ -12,6 +12,8 @@ place      ``object``, ``x``, ``y``: stand the object's anchor on the surface at
 pose       ``object``, optional ``yaw_deg`` (degrees), ``scale`` (factor)
 method     ``name``: switch to a registered interactive method
 exposure   ``ev``: display exposure offset, EV, in [−16, 16]
+denoise    ``on`` (bool): OIDN on the Monte Carlo methods' frames (``denoise = oidn``;
+           progressive refinement denoises the running mean of the raw frames)
 layer      ``name``: composite, mixed, delta, mask or error
 reset      put every object back in its rest pose
 release    the pointer is up (a pick that found an object holds refinement until then)
@@ -58,6 +60,7 @@ FIELDS: dict[str, tuple[set[str], set[str]]] = {  # type -> (required, optional)
     "pose": ({"object"}, {"yaw_deg", "scale"}),
     "method": ({"name"}, set()),
     "exposure": ({"ev"}, set()),
+    "denoise": ({"on"}, set()),
     "layer": ({"name"}, set()),
     "reset": (set(), set()),
     "release": (set(), set()),
@@ -149,6 +152,10 @@ def parse(text: str | bytes, width: int, height: int) -> Message:
         out["ev"] = _number(msg, "ev", *EV_RANGE)
     elif kind == "method":
         out["name"] = _name(msg, "name")
+    elif kind == "denoise":
+        if not isinstance(msg["on"], bool):
+            raise ProtocolError("denoise: on must be true or false")
+        out["on"] = msg["on"]
     elif kind == "layer":
         if msg["name"] not in LAYERS:
             raise ProtocolError(f"layer: unknown layer {json.dumps(msg['name'])[:40]}; "

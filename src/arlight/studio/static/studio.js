@@ -89,6 +89,7 @@ function onInfo(info) {
 function describeMethod() {
   const m = studio.info.methods.find((x) => x.name === $("method").value);
   $("method-desc").textContent = m ? m.description : "";
+  $("denoise").disabled = !(m && m.denoise);  // only the Monte Carlo methods have noise
 }
 
 function syncObjectControls() {
@@ -269,6 +270,8 @@ $("exposure").addEventListener("input", () => {
   send({type: "exposure", ev}, false);
 });
 $("reset").addEventListener("click", () => send({type: "reset"}, true));
+$("denoise").addEventListener("change", () =>
+  send({type: "denoise", on: $("denoise").checked}, true));
 let lastSave = null;  // the name of the save awaiting its reply (an overwrite asks first)
 $("save").addEventListener("click", () => {
   lastSave = $("save-name").value;
