@@ -14,8 +14,9 @@ Per frame:
    * ``A`` — ray-traced ambient occlusion of the virtual objects (Eq. 2.29, ``ao_rays``);
    * ``S`` — GGX specular by filtered importance sampling of the mip-mapped environment
      (Eqs. 4.11–4.23, ``samples`` = 40), for ``phong`` (``α = √(2/(n+2))``),
-     ``roughconductor`` and ``mirror`` materials; point, spot and area lights give diffuse
-     light only;
+     ``roughconductor``, ``mirror`` and ``pbr`` materials (``pbr``: one diffuse and one GGX
+     lobe per shape, :func:`arlight.realtime.ibl_shading.pbr_lobes`; no normal map); point,
+     spot and area lights give diffuse light only;
 3. **real pixels** (:func:`arlight.realtime.oof.shade_real`): ``B · f`` with the
    multiplicative shadow factor of :func:`arlight.realtime.oof.shadow_factor` — shadow rays
    for the reduced lights, the AR object occlusion field for the ambient part;
@@ -50,6 +51,7 @@ from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
     MipEnvironment,
     ambient_occlusion,
+    diffuse_weights,
     environment_map,
     specular_fis,
     specular_tables,
@@ -83,7 +85,10 @@ OPTIONS: dict[str, Field] = {
     **GBUFFER_OPTIONS,
 }
 
-MATERIALS = frozenset({"diffuse", "phong", "roughconductor", "mirror"})
+MATERIALS = frozenset({"diffuse", "phong", "roughconductor", "mirror", "pbr"})
+"""``pbr`` is approximated by one diffuse and one GGX lobe per shape
+(:func:`arlight.realtime.ibl_shading.pbr_lobes`): no normal map, constant metallic and
+roughness (texture means)."""
 SPEC = MethodSpec(
     name="ibl",
     description="Dynamic pipeline (Franke §4.2): SH irradiance, GGX filtered importance "
@@ -129,6 +134,7 @@ class IBLData:
     ks: mi.Color3f
     glossy: bool
     ao_distance: float
+    kd_weight: mi.Float | None = None  # per shape, on the G-buffer albedo (pbr metals)
 
 
 def prepare(world: World, options: Options) -> IBLData:
@@ -146,7 +152,7 @@ def prepare(world: World, options: Options) -> IBLData:
         b = virtual_bounds(world, views.mixed) if world.has_virtual else None
         ao = float(np.linalg.norm(b[1] - b[0])) if b is not None else math.inf
     return IBLData(world, views, lights, ambient_sh(world, lights, options.sh_order, env_img),
-                   env, occluder, field, alpha, ks, glossy, ao)
+                   env, occluder, field, alpha, ks, glossy, ao, diffuse_weights(world))
 
 
 def ambient_irradiance(data: IBLData, n: mi.Vector3f, order: int) -> mi.Color3f:
@@ -172,10 +178,12 @@ def shade_virtual(data: IBLData, gb: GBuffer, view: FrameView, options: Options,
     e_dir = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
     ao = ambient_occlusion(data.occluder, p, n, options.ao_rays, data.ao_distance, seed)
     albedo = dr.gather(mi.Color3f, gb.albedo, idx)
+    shape = dr.gather(mi.Int32, gb.shape, idx)
+    if data.kd_weight is not None:
+        albedo *= dr.gather(mi.Float, data.kd_weight, shape)
     out = albedo * (1.0 / math.pi) * (e_dir + ao * ambient_irradiance(data, n,
                                                                         options.sh_order))
     if data.env is not None and data.glossy:
-        shape = dr.gather(mi.Int32, gb.shape, idx)
         out += specular_fis(data.env, n, dr.gather(mi.Vector3f, gb.to_camera, idx),
                             dr.gather(mi.Float, data.alpha, shape),
                             dr.gather(mi.Color3f, data.ks, shape), options.samples)

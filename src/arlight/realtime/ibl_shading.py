@@ -19,7 +19,9 @@
   Smith's separable GGX ``G = G1(v) G1(l)`` and ``F`` the specular reflectance.
 * :func:`specular_tables` — per world shape the GGX ``α`` and specular reflectance of its
   material (``phong``: ``α = √(2/(n+2))``; ``roughconductor``; ``mirror`` as
-  :data:`MIRROR_ALPHA`), the tables :func:`specular_fis` and the SoG lobes look up.
+  :data:`MIRROR_ALPHA`; ``pbr`` by :func:`pbr_lobes`), the tables :func:`specular_fis` and
+  the SoG lobes look up; :func:`diffuse_weights` the factor on the G-buffer albedo
+  (``pbr``: ``(1 − metallic)(1 − transmission)``).
 * :func:`ggx_d`, :func:`smith_g1` — the GGX normal distribution and Smith masking (the one
   copy; ``dvct``'s direct GGX specular uses them too).
 * :func:`ambient_occlusion` — ray-traced ambient occlusion of the virtual object (thesis
@@ -244,8 +246,46 @@ def specular_tables(world: World) -> tuple[mi.Float, mi.Color3f, bool]:
             alpha[i], ks[i] = float(p["alpha"]), p["reflectance"]
         elif s.material.type == "mirror":
             alpha[i], ks[i] = MIRROR_ALPHA, p["reflectance"]
+        elif s.material.type == "pbr":
+            _, alpha[i], ks[i] = pbr_lobes(p)
     glossy = any(np.any(ks[i]) for i, s in enumerate(world.shapes) if s.is_virtual)
     return mi.Float(alpha), mi.Color3f(ks[:, 0], ks[:, 1], ks[:, 2]), glossy
+
+
+def _texture_mean(tex, channels) -> np.ndarray | float:
+    return 1.0 if tex is None else np.asarray(tex.pixels, np.float64)[..., channels].mean(
+        axis=(0, 1))
+
+
+def pbr_lobes(p: dict) -> tuple[float, float, np.ndarray]:
+    """The ``pbr`` material as one diffuse + one GGX lobe with constants per shape (the
+    texture means): ``(diffuse weight, α, specular reflectance)``.
+
+    The diffuse weight multiplies the G-buffer albedo (Mitsuba's principled BSDF reports its
+    base colour there, texture included): ``(1 − metallic)(1 − transmission)``. The GGX
+    lobe has ``α = roughness²`` (floored at :data:`MIRROR_ALPHA`) and the constant Fresnel
+    ``F0 = (1 − metallic)·((ior − 1)/(ior + 1))² + metallic·base colour`` (the mean base
+    colour). Not modelled: normal maps, occlusion and emission textures, the Fresnel rise
+    at grazing angles, texture variation of metallic and roughness within a shape."""
+    mr = p.get("metallic_roughness_texture")
+    metallic = float(p["metallic"] * _texture_mean(mr, 2))
+    roughness = float(p["roughness"] * _texture_mean(mr, 1))
+    base = np.asarray(p["base_color"], np.float64) * _texture_mean(
+        p.get("base_color_texture"), slice(0, 3))
+    dielectric = ((p["ior"] - 1.0) / (p["ior"] + 1.0)) ** 2
+    f0 = (1.0 - metallic) * dielectric + metallic * base
+    return ((1.0 - metallic) * (1.0 - float(p["transmission"])),
+            max(roughness * roughness, MIRROR_ALPHA), f0)
+
+
+def diffuse_weights(world: World) -> mi.Float:
+    """Per world shape: the factor on its G-buffer albedo (1, except ``pbr``: see
+    :func:`pbr_lobes`), a Dr.Jit table indexed by the G-buffer's shape index."""
+    w = np.ones(max(len(world.shapes), 1), np.float32)
+    for i, s in enumerate(world.shapes):
+        if s.material.type == "pbr":
+            w[i] = pbr_lobes(s.material.params)[0]
+    return mi.Float(w)
 
 
 def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, rays: int,
@@ -279,4 +319,4 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
 
 __all__ = ["ENV_HEIGHT", "MIRROR_ALPHA", "MipEnvironment", "ambient_occlusion",
            "environment_map", "ggx_d", "hammersley", "local_frame", "rot_y", "smith_g1",
-           "specular_fis", "specular_tables"]
+           "specular_fis", "specular_tables", "pbr_lobes", "diffuse_weights"]
