@@ -73,8 +73,8 @@ def _first_diffuse_hit(view: SceneView, ray: mi.Ray3f) -> tuple[mi.Color3f, mi.V
         refl = dr.clip(mi.Color3f(bsdf.eval_diffuse_reflectance(si, done)), 0.0, 1.0)
         albedo = dr.select(done, weight * refl, albedo)
         normal = dr.select(done, si.sh_frame.n, normal)
-        if bounce == MAX_SPECULAR:
-            break
+        if bounce == MAX_SPECULAR or not bool(dr.any(specular)):
+            break  # (no specular hit left: one evaluation instead of MAX_SPECULAR launches)
         active = specular
         bs, w = bsdf.sample(ctx, si, mi.Float(0.999), mi.Point2f(0.5, 0.5), active)
         active &= bs.pdf > 0
