@@ -105,8 +105,9 @@ def assert_same(t, w):
 @pytest.mark.parametrize(("scene", "light_sampling", "sampler"),
                          [("two_lights", "mitsuba", "independent"),
                           ("two_lights", "solid_angle", "sobol"),
+                          ("two_lights", "importance", "sobol"),
                           ("env_mirror", "mitsuba", "sobol"),
-                          ("env_mirror", "solid_angle", "independent")])
+                          ("env_mirror", "importance", "independent")])
 def test_walk_equals_tracer_sample_by_sample(request, scene, light_sampling, sampler):
     """Direct light (paths of 2 vertices): the walk is the tracer's estimator, sample by
     sample, whatever the light selection and the sampler (this replaces a statistical

@@ -13,7 +13,8 @@ and the real view, with the same random numbers — the baseline of the equivale
 of the ray counts), ``sampler`` (``sobol`` | ``independent``), ``replicas`` and
 ``replica_mode`` (the standard errors' independent randomisations), ``sample_offset``
 (progressive frames continuing one sequence, :mod:`arlight.backend.passes`),
-``light_sampling`` (``solid_angle`` | ``mitsuba``, :mod:`arlight.sampling.lights`), ``caustics``
+``light_sampling`` (``importance`` | ``solid_angle`` | ``mitsuba``,
+:mod:`arlight.sampling.lights`), ``caustics``
 (``none`` | ``photons``: differential caustic photon mapping, :mod:`arlight.tracing.photons`)
 with ``photons``, ``photon_radius`` (m), ``ppm_iterations``, ``ppm_alpha``.
 
@@ -88,11 +89,15 @@ OPTIONS: dict[str, Field] = {
     "sample_offset": Field("int", 0, "first sample index drawn in every pixel (a multiple of "
                            "the replicas): progressive frames with one seed and offsets n·spp "
                            "continue one Sobol sequence", min=0, max=2**31 - 1),
-    "light_sampling": Field("choice", "solid_angle", "`solid_angle`: lights chosen by "
-                            "estimated power, rectangular lights sampled by solid angle "
-                            "(spherical rectangles, Ureña 2013); `mitsuba`: the scene's own "
-                            "(uniform choice, rectangles by area)",
-                            choices=("solid_angle", "mitsuba")),
+    "light_sampling": Field("choice", "importance", "`importance`: each light chosen with "
+                            "its estimated contribution at the shading point (power, distance, "
+                            "orientation; pbrt-v4's light-bounds importance, distant and "
+                            "environment lights by their irradiance), rectangles by solid "
+                            "angle, environments with the surface's cosine in mind; "
+                            "`solid_angle`: lights chosen by one global power estimate "
+                            "(rectangles by solid angle); `mitsuba`: the scene's own (uniform "
+                            "choice, rectangles by area)",
+                            choices=("importance", "solid_angle", "mitsuba")),
     "caustics": Field("choice", "none", "`photons`: caustic photon map from point/spot lights "
                       "through glass and mirrors, differential (Kán §4.1.2, "
                       "docs/methods/photons.md); `none`: path tracing only",

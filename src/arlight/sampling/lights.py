@@ -1,24 +1,62 @@
-"""Next-event light sampling: emitters chosen by estimated power, rectangles by solid angle.
+"""Next-event light sampling: which light, and which point on it.
 
 Replaces Mitsuba's ``Scene.sample_emitter_direction`` / ``pdf_emitter_direction`` pair for a
-path tracer (the two must agree for MIS):
+path tracer (the two must agree for MIS). Three ways of choosing the emitter (``selection``):
 
-* **Selection by power** (pbrt-v4's ``PowerLightSampler``): emitter ``i`` is chosen with
-  probability ∝ its estimated power Φ_i (luminance): one-sided area light ``π A L``, sphere
-  ``4π² r² L``, point ``4π I``, spot ``2π (1 − cos θ) I`` (θ the mean of cutoff and beam
-  width), directional ``π R² E`` and constant / environment ``4π² R² L̄`` with ``R`` the
-  scene's bounding radius and ``L̄`` the map's solid-angle mean; Mitsuba picks uniformly.
+* ``"importance"`` (default) — **per shading point** (pbrt-v4's light-bounds importance, as
+  its ``BVHLightSampler`` / ``ExhaustiveLightSampler`` and Cycles' light tree): emitter ``i``
+  is chosen with probability ∝ an upper estimate of the irradiance it can bring to the point
+  ``p`` with normal ``n``:
+
+  - bounded lights (area, sphere, point, spot): ``J cos θ'_e cos θ'_i / max(d², r_b²)`` with
+    ``J`` the light's largest radiant intensity (luminance, W/sr: ``L·A`` for a flat area
+    light, ``L·π r²`` for a sphere, ``I`` for point and spot), ``d`` the distance to the
+    centre of its bounding sphere (radius ``r_b``), ``θ'_e`` the smallest angle between the
+    light's emission cone and ``p`` and ``θ'_i`` the smallest angle between ``±n`` and the
+    light, both widened by the angle ``θ_b`` the bounding sphere subtends (pbrt-v4
+    ``LightBounds::Importance``). It is zero only where the light cannot reach ``p``: behind
+    a one-sided flat light's plane, outside a spot's cone;
+  - a directional light: its irradiance ``E |n · ω_l|``;
+  - a constant or environment emitter: the irradiance of its first-order (linear)
+    approximation ``L(ω) ≈ L̄ + a·ω`` on the better-lit side, ``π L̄ + 2π/3 |a · n|``
+    (``L̄`` and ``a`` integrated once over the sphere with the emitter's own sampling).
+
+  None of these depend on the scene's size: distant and local lights are weighed by what
+  they bring to the point (Cycles' distant/local split by estimated contribution). A share
+  ``uniform_mix`` of the selection is uniform over the lights, ``p_i = (1 − ε) imp_i / Σ imp
+  + ε / N`` (defensive sampling: occlusion is not in the estimate, so a shadowed point keeps
+  sampling the lights that do reach it). Cost: ``O(N)`` per sample (one weighted-reservoir
+  pass over the emitters to sample, one sum to evaluate the pdf); a light tree would make it
+  ``O(log N)`` for scenes with hundreds of lights, which ours do not have.
+* ``"power"`` — one global estimate of each emitter's power (pbrt-v4's
+  ``PowerLightSampler``): one-sided area light ``π A L``, sphere ``4π² r² L``, point ``4π I``,
+  spot ``2π (1 − cos θ) I``, directional ``π R² E`` and constant / environment ``4π² R² L̄``
+  with ``R`` the scene's bounding radius — which lets a large scene's sky take nearly every
+  sample from a small bright light (issue #35).
+* ``"uniform"`` — every emitter equally (Mitsuba).
+
+Where a point on the light is drawn:
+
 * **Spherical rectangles** (Ureña, Fajardo & King, *An Area-Preserving Parametrization for
   Spherical Rectangles*, EGSR 2013, Alg. 1): a rectangular area light (``rectangle`` shape
   with an ``area`` emitter and orthogonal edges) is sampled uniformly in the solid angle it
-  subtends, pdf ``1/S``, instead of uniformly in area (pdf ``d²/(A cos θ_l)``, which varies
-  wildly across a large light close to the shading point). Where the solid angle is tiny
-  (``S < min_solid_angle``: the float32 angle sum ``S = Σγ_i − 2π`` loses precision) the
-  emitter's own area sampling is used; the choice depends only on the reference point and
-  the light, so sampling and pdf agree.
-* Other emitters (spheres — Mitsuba samples their cone already —, point, spot, directional,
-  constant, envmap with its importance sampling) use the emitter's ``sample_direction`` /
-  ``pdf_direction``.
+  subtends, pdf ``1/S``, instead of uniformly in area (pdf ``d²/(A cos θ_l)``). Where the
+  solid angle is tiny (``S < min_solid_angle``: the float32 angle sum ``S = Σγ_i − 2π``
+  loses precision) the emitter's own area sampling is used; the choice depends only on the
+  reference point and the light, so sampling and pdf agree.
+* **Environments with the cosine in mind** (``selection="importance"``): a constant emitter
+  is sampled cosine-weighted about the shading normal turned towards the side the path
+  arrived from (pdf ``cos θ / π``; none of its samples below the horizon); an environment
+  map with the one-sample mixture ``env_cosine · cos θ / π + (1 − env_cosine) · p_map``
+  (its own importance sampling keeps the sun). Light from behind the surface (rough glass)
+  is left to BSDF sampling, whose MIS weight there is one.
+* Other emitters (spheres — Mitsuba samples their cone —, point, spot, directional) use the
+  emitter's ``sample_direction`` / ``pdf_direction``.
+
+The shading context of a vertex (:func:`light_context`) is its position and geometric
+normal turned towards the arriving path; :meth:`LightSampler.sample` and
+:meth:`LightSampler.pdf` must see the same context for MIS (the tracer keeps it as the
+previous vertex's interaction).
 """
 
 from __future__ import annotations
@@ -32,6 +70,18 @@ import numpy as np
 MIN_SOLID_ANGLE = 1e-2
 """Solid angle (sr) below which a rectangle falls back to area sampling (see module doc)."""
 
+SELECTIONS = ("importance", "power", "uniform")
+UNIFORM_MIX = 0.1
+"""Share of the importance selection spread evenly over the lights that can reach a point."""
+ENV_COSINE = 0.5
+"""Share of an environment map's samples drawn cosine-weighted about the shading normal."""
+ENV_INTEGRAL_SAMPLES = 1 << 16
+"""Directions (stratified, the emitter's own importance sampling) integrating ``L̄`` and
+``a`` of an environment once per scene."""
+
+KIND_LOCAL, KIND_DISTANT, KIND_INFINITE = 0, 1, 2
+NO_LIGHT = 0xFFFFFFFF
+
 
 def _lum(rgb) -> float:
     c = np.asarray(rgb, np.float64).reshape(-1)
@@ -44,8 +94,24 @@ def _value(params: mi.SceneParameters, key: str):
     return np.array(params[key], dtype=np.float64) if key in params else None
 
 
-def emitter_power(emitter: mi.Emitter, shape: mi.Shape | None, radius: float) -> float:
-    """Estimated power (luminance, W) of one emitter (see the module docstring)."""
+def _matrix(params: mi.SceneParameters, key: str = "to_world") -> np.ndarray:
+    m = np.array(params[key].matrix, dtype=np.float64)
+    return m.reshape(4, 4) if m.size == 16 else m[..., 0]
+
+
+def _spot_angles(emitter: mi.Emitter) -> tuple[float, float]:
+    """(beam width, cutoff) of a Mitsuba spot light, radians."""
+    p = mi.traverse(emitter)
+    cut = float(np.array(p["cutoff_angle"]).reshape(-1)[0]) if "cutoff_angle" in p else 20.0
+    beam = float(np.array(p["beam_width"]).reshape(-1)[0]) if "beam_width" in p else cut * 0.75
+    return math.radians(min(beam, cut)), math.radians(cut)
+
+
+def emitter_power(emitter: mi.Emitter, shape: mi.Shape | None, radius: float,
+                  env_mean: float | None = None) -> float:
+    """Estimated power (luminance, W) of one emitter for ``selection="power"`` (see the
+    module docstring); ``radius`` (m) is the scene's bounding radius, ``env_mean`` an
+    infinite emitter's ``L̄`` when already known (:func:`environment_moments`)."""
     name = emitter.class_name()
     p = mi.traverse(emitter)
     if name == "AreaLight" and shape is not None:
@@ -55,36 +121,181 @@ def emitter_power(emitter: mi.Emitter, shape: mi.Shape | None, radius: float) ->
     if name == "PointLight":
         return 4 * math.pi * _lum(_value(p, "intensity.value"))
     if name == "SpotLight":
-        inten = _lum(_value(p, "intensity.value"))
-        text = str(emitter)
-        cut = _parse(text, "cutoff_angle", 20.0)
-        beam = _parse(text, "beam_width", cut * 0.75)
-        return 2 * math.pi * (1 - math.cos(math.radians(0.5 * (cut + beam)))) * inten
+        beam, cut = _spot_angles(emitter)
+        return 2 * math.pi * (1 - math.cos(0.5 * (cut + beam))) * _lum(_value(p, "intensity.value"))
     if name == "DirectionalEmitter":
         return math.pi * radius**2 * _lum(_value(p, "irradiance.value"))
-    if name == "ConstantBackgroundEmitter":
-        return 4 * math.pi**2 * radius**2 * _lum(_value(p, "radiance.value"))
-    if name == "EnvironmentMapEmitter":
-        data = np.array(p["data"], dtype=np.float64) if "data" in p else None
-        scale = float(np.array(p["scale"]).reshape(-1)[0]) if "scale" in p else 1.0
-        if data is None:
-            return 4 * math.pi**2 * radius**2
-        h = data.shape[0]
-        sin_t = np.sin((np.arange(h) + 0.5) / h * math.pi)[:, None]
-        rgb = data[..., :3] if data.ndim == 3 else data[..., None]
-        mean = (rgb * sin_t[..., None]).sum(axis=(0, 1)) / (sin_t.sum() * data.shape[1])
-        return 4 * math.pi**2 * radius**2 * scale * _lum(mean)
+    if name in ("ConstantBackgroundEmitter", "EnvironmentMapEmitter"):
+        mean = environment_moments(emitter)[0] if env_mean is None else env_mean
+        return 4 * math.pi**2 * radius**2 * mean
     return 1.0  # unknown emitter: a neutral weight (still unbiased)
 
 
-def _parse(text: str, key: str, default: float) -> float:
-    for line in text.splitlines():
-        if key in line and "=" in line:
-            try:
-                return float(line.split("=")[1].strip().rstrip(","))
-            except ValueError:
-                return default
-    return default
+def environment_moments(emitter: mi.Emitter, n: int = ENV_INTEGRAL_SAMPLES
+                        ) -> tuple[float, np.ndarray]:
+    """Mean radiance ``L̄`` (luminance, W/(sr·m²)) of an infinite emitter over the sphere and
+    the vector ``a`` of its linear approximation ``L(ω) ≈ L̄ + a·ω`` (least squares:
+    ``a = 3/(4π) ∫ L(ω) ω dω``), both integrated with the emitter's own importance sampling
+    over a stratified ``√n × √n`` grid (the map's texels, a sun included, are found by its
+    own sampling, not missed by a fixed grid)."""
+    side = max(int(math.isqrt(n)), 1)
+    g = (np.arange(side, dtype=np.float64) + 0.5) / side
+    u = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2).astype(np.float32)
+    it = dr.zeros(mi.Interaction3f, len(u))
+    ds, w = emitter.sample_direction(it, mi.Point2f(u[:, 0], u[:, 1]), True)
+    lum = mi.luminance(w) + dr.zeros(mi.Float, len(u))
+    lum = np.array(dr.select(dr.isfinite(lum), lum, 0.0), np.float64)
+    d = np.stack([np.array(ds.d[c] + dr.zeros(mi.Float, len(u)), np.float64) for c in range(3)], 1)
+    mean = float(lum.mean() / (4 * math.pi))
+    a = 3.0 * (lum[:, None] * d).mean(axis=0) / (4 * math.pi)
+    return mean, a
+
+
+class LightTable:
+    """The emitters of one scene as light bounds (NumPy rows in the order of
+    ``scene.emitters()``; Dr.Jit copies as attributes with the same names).
+
+    Attributes (``N`` emitters):
+        kind: ``KIND_LOCAL`` | ``KIND_DISTANT`` | ``KIND_INFINITE``.
+        center, radius: bounding sphere of a local light (m).
+        axis: unit emission axis (local lights: flat lights' normal, spots' direction) or
+            the unit direction *towards* a directional light, or ``a/|a|`` of an
+            environment.
+        theta_o, theta_e: emission cone half-angle about ``axis`` and the fall-off spread
+            beyond it (radians; ``theta_o = π`` emits everywhere).
+        one_sided: flat one-sided emitters (zero behind their plane).
+        intensity: ``J`` (local, W/sr), ``E`` (directional, W/m²) or ``π L̄`` (infinite).
+        linear: ``2π/3 |a|`` of an infinite emitter (W/m²), else 0.
+        cap: largest irradiance a local light can give (``π L`` for area lights, W/m²;
+            ``inf`` for points).
+        power: the global power estimate of ``selection="power"`` (W).
+    """
+
+    def __init__(self, scene: mi.Scene, shapes: dict[int, mi.Shape], ids: np.ndarray):
+        emitters = list(scene.emitters())
+        n = len(emitters)
+        bbox = scene.bbox()
+        radius_scene = float(dr.norm(bbox.max - bbox.min)) / 2 if bbox.valid() else 1.0
+        self.kind = np.zeros(n, np.uint32)
+        self.center = np.zeros((n, 3))
+        self.radius = np.zeros(n)
+        self.axis = np.zeros((n, 3))
+        self.axis[:, 2] = 1.0
+        self.theta_o = np.full(n, math.pi)
+        self.theta_e = np.full(n, math.pi / 2)
+        self.one_sided = np.zeros(n, bool)
+        self.intensity = np.zeros(n)
+        self.linear = np.zeros(n)
+        self.cap = np.full(n, np.inf)
+        self.power = np.ones(n)
+        for i, (em, reg) in enumerate(zip(emitters, ids, strict=True)):
+            sh = shapes.get(int(reg))
+            self._describe(i, em, sh)
+            env_mean = self.intensity[i] / math.pi if self.kind[i] == KIND_INFINITE else None
+            self.power[i] = max(emitter_power(em, sh, max(radius_scene, 1e-3), env_mean), 0.0)
+
+    def _describe(self, i: int, em: mi.Emitter, sh: mi.Shape | None) -> None:
+        name = em.class_name()
+        p = mi.traverse(em)
+        if name == "AreaLight" and sh is not None:
+            lum = _lum(_value(p, "radiance.value")) if "radiance.value" in p else 1.0
+            area = float(dr.sum(sh.surface_area())[0])
+            b = sh.bbox()
+            lo, hi = np.array(b.min, np.float64).ravel(), np.array(b.max, np.float64).ravel()
+            self.center[i] = 0.5 * (lo + hi)
+            self.radius[i] = 0.5 * float(np.linalg.norm(hi - lo))
+            self.cap[i] = math.pi * lum
+            cls = sh.class_name()
+            if cls in ("Rectangle", "Disk"):
+                m = _matrix(mi.traverse(sh))
+                nrm = np.linalg.inv(m[:3, :3]).T @ np.array([0.0, 0.0, 1.0])
+                self.axis[i] = nrm / np.linalg.norm(nrm)
+                self.theta_o[i], self.theta_e[i] = 0.0, math.pi / 2
+                self.one_sided[i] = True
+                self.intensity[i] = lum * area
+            elif cls == "Sphere":
+                self.intensity[i] = lum * area / 4  # L·πr²
+            else:  # a mesh: no emission cone, projected area at most half its area
+                self.intensity[i] = lum * area / 2
+        elif name in ("PointLight", "SpotLight"):
+            self.intensity[i] = _lum(_value(p, "intensity.value"))
+            if name == "PointLight":
+                self.center[i] = np.array(p["position"], np.float64).ravel()[:3]
+            else:
+                m = _matrix(p)
+                self.center[i] = m[:3, 3]
+                ax = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+                self.axis[i] = ax / np.linalg.norm(ax)
+                beam, cut = _spot_angles(em)
+                self.theta_o[i], self.theta_e[i] = beam, cut - beam
+        elif name == "DirectionalEmitter":
+            self.kind[i] = KIND_DISTANT
+            m = _matrix(p)
+            d = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+            self.axis[i] = -d / np.linalg.norm(d)
+            self.intensity[i] = _lum(_value(p, "irradiance.value"))
+        elif name in ("ConstantBackgroundEmitter", "EnvironmentMapEmitter"):
+            self.kind[i] = KIND_INFINITE
+            mean, a = environment_moments(em)
+            norm_a = float(np.linalg.norm(a))
+            if norm_a > 0:
+                self.axis[i] = a / norm_a
+            self.intensity[i] = math.pi * mean
+            self.linear[i] = 2 * math.pi / 3 * norm_a
+        else:  # unknown emitter: treated as infinite with a unit weight (still unbiased)
+            self.kind[i] = KIND_INFINITE
+            self.intensity[i] = 1.0
+
+    def importance(self, p: np.ndarray, n: np.ndarray | None = None) -> np.ndarray:
+        """The importance of every light at points ``p`` (M, 3) with normals ``n`` (M, 3;
+        zero or None: no orientation) as an (M, N) NumPy array in float64 — the reference
+        the Dr.Jit version (:meth:`LightSampler.importance`) is tested against."""
+        p = np.atleast_2d(np.asarray(p, np.float64))
+        n = np.zeros_like(p) if n is None else np.atleast_2d(np.asarray(n, np.float64))
+        has_n = np.linalg.norm(n, axis=1) > 0
+        out = np.zeros((len(p), len(self.kind)))
+        for i, k in enumerate(self.kind):
+            if k == KIND_DISTANT:
+                c = np.abs(n @ self.axis[i])
+                out[:, i] = self.intensity[i] * np.where(has_n, c, 1.0)
+                continue
+            if k == KIND_INFINITE:
+                c = np.abs(n @ self.axis[i])
+                out[:, i] = self.intensity[i] + self.linear[i] * np.where(has_n, c, 1.0)
+                continue
+            v = p - self.center[i]
+            d2 = np.einsum("ij,ij->i", v, v)
+            dist = np.sqrt(d2)
+            r = self.radius[i]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                wo = v / dist[:, None]
+                theta_b = np.where(dist > r, np.arcsin(np.clip(r / dist, 0, 1)), math.pi)
+            theta_w = np.arccos(np.clip(wo @ self.axis[i], -1, 1))
+            theta_x = np.maximum(theta_w - self.theta_o[i] - theta_b, 0.0)
+            emit = np.where(theta_x <= self.theta_e[i], np.cos(np.minimum(theta_x, math.pi / 2)),
+                            0.0)
+            if self.one_sided[i]:
+                emit = np.where(v @ self.axis[i] > 0, emit, 0.0)
+            theta_i = np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", n, wo)), 0, 1))
+            recv = np.where(has_n, np.cos(np.maximum(theta_i - theta_b, 0.0)), 1.0)
+            d2c = np.maximum(d2, max(r * r, 1e-12))
+            out[:, i] = np.minimum(self.intensity[i] * emit * recv / d2c, self.cap[i])
+        return out
+
+
+def light_context(si: mi.SurfaceInteraction3f) -> mi.Interaction3f:
+    """The shading context of a surface vertex for light selection: its position and its
+    geometric normal turned towards the side the path arrived from (``si.wi``)."""
+    it = mi.Interaction3f(si)
+    it.n = _arrival_normal(si)
+    return it
+
+
+def _arrival_normal(it: mi.Interaction3f) -> mi.Vector3f:
+    if isinstance(it, mi.SurfaceInteraction3f):
+        w = it.to_world(it.wi)
+        return dr.select(dr.dot(it.n, w) < 0, -it.n, it.n)
+    return mi.Vector3f(it.n)
 
 
 def spherical_rectangle(o: mi.Point3f, s: mi.Point3f, ex: mi.Vector3f, ey: mi.Vector3f,
@@ -135,45 +346,99 @@ def rectangle_solid_angle(o: mi.Point3f, s: mi.Point3f, ex: mi.Vector3f,
     return spherical_rectangle(o, s, ex, ey, mi.Point2f(0.5, 0.5))[1]
 
 
+def _padded(a: np.ndarray) -> np.ndarray:
+    """``a`` with one zero row appended. Every per-light table is at least two entries wide:
+    a one-entry Dr.Jit array is read as a scalar, and the kernels' hash then depends on how
+    that scalar's buffer was allocated, so each newly built scene compiled the tracer anew
+    (seconds per frame; issue #35). The extra row is never selected."""
+    a = np.asarray(a)
+    return np.concatenate([a, np.zeros((1, *a.shape[1:]), a.dtype)])
+
+
+def _f32(a: np.ndarray) -> mi.Float:
+    return mi.Float(np.ascontiguousarray(_padded(a), np.float32))
+
+
+def _v3(a: np.ndarray, cls=mi.Vector3f):
+    return cls(*(_f32(a[:, c]) for c in range(3)))
+
+
 class LightSampler:
-    """Emitter selection by power and solid-angle sampling of rectangles for one scene.
+    """Emitter selection and light sampling for one scene (see the module docstring).
 
     Args:
         scene: the Mitsuba scene whose emitters are sampled.
+        selection: ``"importance"`` | ``"power"`` | ``"uniform"``.
         solid_angle: sample rectangular area lights by solid angle (False: by area, as
             Mitsuba).
-        by_power: choose emitters by estimated power (False: uniformly, as Mitsuba).
-        pmf: selection probabilities to use instead (e.g. another view's, for identical
-            sampling of the same lights; ignored when the emitter count differs).
+        uniform_mix: share of the importance selection spread evenly (``"importance"``;
+            default :data:`UNIFORM_MIX`).
+        env_cosine: share of an environment map's samples drawn cosine-weighted (a constant
+            emitter's are all cosine-weighted; ``"importance"`` only; default
+            :data:`ENV_COSINE`).
+        min_solid_angle: below this solid angle (sr) a rectangle is sampled by area.
     """
 
-    def __init__(self, scene: mi.Scene, solid_angle: bool = True, by_power: bool = True,
-                 min_solid_angle: float = MIN_SOLID_ANGLE, pmf: np.ndarray | None = None):
+    def __init__(self, scene: mi.Scene, selection: str = "importance", solid_angle: bool = True,
+                 uniform_mix: float | None = None, env_cosine: float | None = None,
+                 min_solid_angle: float = MIN_SOLID_ANGLE):
+        if selection not in SELECTIONS:
+            raise ValueError(f"unknown light selection {selection!r} (expected one of "
+                             f"{SELECTIONS})")
         self.scene = scene
+        self.selection = selection
+        # the module's constants read at construction (benchmarks/tune_light_selection.py
+        # sets them on training worlds)
+        self.uniform_mix = float(UNIFORM_MIX if uniform_mix is None else uniform_mix)
+        self.env_cosine = float(ENV_COSINE if env_cosine is None else env_cosine)
         self.min_solid_angle = float(min_solid_angle)
         emitters = list(scene.emitters())
         self.n = len(emitters)
-        self.ptrs = scene.emitters_dr()
-        ids = np.array(dr.reinterpret_array(mi.UInt32, self.ptrs), dtype=np.int64)
+        ids = np.array(dr.reinterpret_array(mi.UInt32, scene.emitters_dr()), dtype=np.int64)
+        self.ptrs = dr.reinterpret_array(mi.EmitterPtr, mi.UInt32(_padded(ids.astype(np.uint32))))
         shapes = {}
         for sh in scene.shapes():
             if sh.is_emitter():
                 shapes[int(np.array(dr.reinterpret_array(mi.UInt32,
                                                          mi.EmitterPtr(sh.emitter())))[0])] = sh
-        bbox = scene.bbox()
-        radius = float(dr.norm(bbox.max - bbox.min)) / 2 if bbox.valid() else 1.0
-        power = np.ones(self.n)
-        rect = np.zeros(self.n, bool)
-        s = np.zeros((self.n, 3))
-        ex = np.zeros((self.n, 3))
-        ey = np.zeros((self.n, 3))
-        normal = np.zeros((self.n, 3))
-        for i, (em, reg) in enumerate(zip(emitters, ids, strict=True)):
+        self.table = LightTable(scene, shapes, ids)
+        self._rectangles(emitters, ids, shapes, solid_angle)
+        power = self.table.power if selection == "power" else np.ones(self.n)
+        if not np.any(power > 0):
+            power = np.ones(self.n)
+        self.pmf_np = power / power.sum() if self.n else power
+        self.distr = mi.DiscreteDistribution(_f32(self.pmf_np)) if self.n else None
+        self.pmf = _f32(self.pmf_np)
+        t = self.table
+        self.kind = mi.UInt32(_padded(t.kind))
+        self.center, self.axis = _v3(t.center, mi.Point3f), _v3(t.axis)
+        self.radius, self.theta_o, self.theta_e = _f32(t.radius), _f32(t.theta_o), \
+            _f32(t.theta_e)
+        self.one_sided = mi.Bool(_padded(t.one_sided))
+        self.intensity, self.linear = _f32(t.intensity), _f32(t.linear)
+        self.cap = _f32(np.minimum(t.cap, 3e38))
+        self.constant = mi.Bool(_padded(np.array(
+            [e.class_name() == "ConstantBackgroundEmitter" for e in emitters], bool)))
+        size = max(int(ids.max()) + 1 if self.n else 1, 2)
+        index = np.zeros(size, np.uint32)
+        index[ids] = np.arange(self.n, dtype=np.uint32)
+        self.index_of = mi.UInt32(index)
+        # Opaque, not literals: a one-light scene's tables (and its emitter pointer, which
+        # differs each time the scene is built) would otherwise be baked into the kernels
+        # as constants, and every rebuilt scene would compile the tracer anew (seconds).
+        dr.make_opaque(self.ptrs, self.pmf, self.kind, self.center, self.axis, self.radius,
+                       self.theta_o, self.theta_e, self.one_sided, self.intensity, self.linear,
+                       self.cap, self.constant, self.index_of, self.is_rect, self.s, self.ex,
+                       self.ey, self.normal)
+
+    def _rectangles(self, emitters, ids, shapes, solid_angle: bool) -> None:
+        n = self.n
+        rect = np.zeros(n, bool)
+        s, ex, ey, normal = (np.zeros((n, 3)) for _ in range(4))
+        for i, reg in enumerate(ids):
             sh = shapes.get(int(reg))
-            power[i] = max(emitter_power(em, sh, max(radius, 1e-3)), 0.0)
             if solid_angle and sh is not None and sh.class_name() == "Rectangle":
-                m = np.array(mi.traverse(sh)["to_world"].matrix, dtype=np.float64)
-                m = m.reshape(4, 4) if m.size == 16 else m[..., 0]
+                m = _matrix(mi.traverse(sh))
                 a, b = m[:3, 0] * 2.0, m[:3, 1] * 2.0
                 if abs(a @ b) <= 1e-4 * np.linalg.norm(a) * np.linalg.norm(b):
                     rect[i] = True
@@ -181,25 +446,113 @@ class LightSampler:
                     ex[i], ey[i] = a, b
                     nrm = np.linalg.inv(m[:3, :3]).T @ np.array([0.0, 0.0, 1.0])
                     normal[i] = nrm / np.linalg.norm(nrm)  # Mitsuba's emitting side
-        if not by_power or not np.any(power > 0):
-            power = np.ones(self.n)
-        power = np.where(power > 0, power, 0.0)
-        if pmf is not None and len(pmf) == self.n:
-            power = np.asarray(pmf, np.float64)
-        self.pmf_np = power / power.sum() if self.n else power
         self.rect_np = rect
-        self.distr = mi.DiscreteDistribution(mi.Float(self.pmf_np.astype(np.float32))) \
-            if self.n else None
-        self.pmf = mi.Float(self.pmf_np.astype(np.float32))
-        self.is_rect = mi.Bool(rect)
-        self.s = mi.Point3f(*(s[:, c].astype(np.float32) for c in range(3)))
-        self.ex = mi.Vector3f(*(ex[:, c].astype(np.float32) for c in range(3)))
-        self.ey = mi.Vector3f(*(ey[:, c].astype(np.float32) for c in range(3)))
-        self.normal = mi.Vector3f(*(normal[:, c].astype(np.float32) for c in range(3)))
-        size = int(ids.max()) + 1 if self.n else 1
-        table = np.zeros(size, np.uint32)
-        table[ids] = np.arange(self.n, dtype=np.uint32)
-        self.index_of = mi.UInt32(table)
+        self.is_rect = mi.Bool(_padded(rect))
+        self.s, self.ex, self.ey = _v3(s, mi.Point3f), _v3(ex), _v3(ey)
+        self.normal = _v3(normal)
+
+    # -- selection ------------------------------------------------------------------------
+
+    def importance(self, i: mi.UInt32, p: mi.Point3f, n: mi.Vector3f,
+                   active: mi.Bool | bool = True) -> mi.Float:
+        """Importance of light ``i`` at ``p`` with normal ``n`` (zero: unoriented): the
+        irradiance bound of the module docstring (:meth:`LightTable.importance` in Dr.Jit)."""
+        g = lambda arr, cls=mi.Float: dr.gather(cls, arr, i, active)  # noqa: E731
+        kind, axis = g(self.kind, mi.UInt32), g(self.axis, mi.Vector3f)
+        intensity = g(self.intensity)
+        has_n = dr.squared_norm(n) > 0
+        c_n = dr.abs(dr.dot(n, axis))
+        distant = intensity * dr.select(has_n, c_n, 1.0)
+        infinite = intensity + g(self.linear) * dr.select(has_n, c_n, 1.0)
+        r = g(self.radius)
+        v = p - g(self.center, mi.Point3f)
+        d2 = dr.squared_norm(v)
+        dist = dr.sqrt(d2)
+        wo = v / dr.maximum(dist, 1e-30)
+        theta_b = dr.select(dist > r, dr.safe_asin(dr.minimum(r / dist, 1.0)), dr.pi)
+        theta_w = dr.safe_acos(dr.dot(wo, axis))
+        theta_x = dr.maximum(theta_w - g(self.theta_o) - theta_b, 0.0)
+        emit = dr.select(theta_x <= g(self.theta_e), dr.cos(dr.minimum(theta_x, 0.5 * dr.pi)),
+                         0.0)
+        emit = dr.select(g(self.one_sided, mi.Bool) & (dr.dot(v, axis) <= 0), 0.0, emit)
+        theta_i = dr.safe_acos(dr.abs(dr.dot(n, wo)))
+        recv = dr.select(has_n, dr.cos(dr.maximum(theta_i - theta_b, 0.0)), 1.0)
+        d2c = dr.maximum(d2, dr.maximum(r * r, 1e-12))
+        local = dr.minimum(intensity * emit * recv / d2c, g(self.cap))
+        out = dr.select(kind == KIND_DISTANT, distant,
+                        dr.select(kind == KIND_INFINITE, infinite, local))
+        return dr.select(active, dr.maximum(out, 0.0), 0.0)
+
+    def _total(self, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool) -> mi.Float:
+        """Σ importance over the lights, per lane."""
+        def body(i, total):
+            return i + 1, total + self.importance(i, p, n, active)
+
+        _, total = dr.while_loop(state=(mi.UInt32(0), dr.zeros(mi.Float, dr.width(p))),
+                                 cond=lambda i, total: i < self.n, body=body,
+                                 label="light_total")
+        return total
+
+    def _pmf(self, imp: mi.Float, total: mi.Float) -> mi.Float:
+        """Selection probability of a light of importance ``imp``: ``(1 − ε) imp / Σ + ε / N``
+        (uniform where no light has importance)."""
+        mix = self.uniform_mix
+        return dr.select(total > 0, (1.0 - mix) * imp / dr.maximum(total, 1e-30)
+                         + mix / self.n, 1.0 / self.n)
+
+    def _select(self, it: mi.Interaction3f, n: mi.Vector3f, ux: mi.Float, active: mi.Bool
+                ) -> tuple[mi.UInt32, mi.Float, mi.Float]:
+        """(light index, its selection probability, ``ux`` reused) per lane: with probability
+        ``ε`` a uniform choice, else one weighted-reservoir pass over the lights (light ``i``
+        replaces the choice with probability ``imp_i / Σ_{j≤i} imp_j``; the uniform number is
+        rescaled at each step, so it is uniform again given the choice)."""
+        if self.selection != "importance" or self.n == 1:
+            idx, u_re, pmf = self.distr.sample_reuse_pmf(ux, active)
+            return idx, pmf, u_re
+        mix, count = self.uniform_mix, float(self.n)
+        uniform = ux < mix
+        ui = dr.select(uniform, ux / mix, (ux - mix) / (1.0 - mix)) * count
+        idx_u = mi.UInt32(dr.minimum(mi.UInt32(ui), self.n - 1))
+        u_uni = ui - mi.Float(idx_u)
+        u_imp = dr.select(uniform, 0.5, (ux - mix) / (1.0 - mix))
+
+        def body(i, total, idx, imp_idx, imp_u, u):
+            imp = self.importance(i, it.p, n, active)
+            total = total + imp
+            prob = dr.select(total > 0, imp / dr.maximum(total, 1e-30), 0.0)
+            take = (imp > 0) & (u < prob)
+            u = dr.select(take, u / dr.maximum(prob, 1e-30),
+                          dr.select(imp > 0, (u - prob) / dr.maximum(1.0 - prob, 1e-30), u))
+            idx = dr.select(take, i, idx)
+            imp_idx = dr.select(take, imp, imp_idx)
+            imp_u = dr.select(i == idx_u, imp, imp_u)
+            return i + 1, total, idx, imp_idx, imp_u, dr.clip(u, 0.0, 0.99999994)
+
+        width = dr.width(it.p)
+        zero = dr.zeros(mi.Float, width)
+        _, total, idx, imp_idx, imp_u, u = dr.while_loop(
+            state=(mi.UInt32(0), zero, dr.full(mi.UInt32, NO_LIGHT, width), zero, zero,
+                   mi.Float(u_imp)),
+            cond=lambda i, *_: i < self.n, body=body, label="light_select")
+        by_uniform = uniform | (total <= 0)  # no light has importance: the uniform choice
+        idx = dr.select(by_uniform, idx_u, idx)
+        imp = dr.select(by_uniform, imp_u, imp_idx)
+        u_re = dr.select(by_uniform, u_uni, u)
+        if_active = active & (idx != NO_LIGHT)
+        pmf = dr.select(if_active, self._pmf(imp, total), 0.0)
+        return dr.select(if_active, idx, 0), pmf, dr.clip(u_re, 0.0, 0.99999994)
+
+    def selection_pmf(self, p: mi.Point3f, n: mi.Vector3f, idx: mi.UInt32, active: mi.Bool
+                      ) -> mi.Float:
+        """Probability that :meth:`sample` chooses light ``idx`` at ``p`` with the arrival
+        normal ``n``."""
+        if self.selection != "importance" or self.n == 1:  # one light: always chosen
+            return dr.gather(mi.Float, self.pmf, idx, active)
+        total = self._total(p, n, active)
+        pmf = self._pmf(self.importance(idx, p, n, active), total)
+        return dr.select(active, pmf, 0.0)
+
+    # -- sampling -------------------------------------------------------------------------
 
     def _index(self, emitter: mi.EmitterPtr, active: mi.Bool) -> mi.UInt32:
         reg = dr.reinterpret_array(mi.UInt32, emitter)
@@ -210,60 +563,100 @@ class LightSampler:
                 dr.gather(mi.Vector3f, self.ex, idx, active),
                 dr.gather(mi.Vector3f, self.ey, idx, active))
 
+    def _cosine_share(self, idx: mi.UInt32, n: mi.Vector3f, active: mi.Bool) -> mi.Float:
+        """Share of an infinite emitter's samples drawn cosine-weighted about ``n``."""
+        if self.selection != "importance":
+            return dr.zeros(mi.Float, dr.width(n))
+        inf = active & (dr.gather(mi.UInt32, self.kind, idx, active) == KIND_INFINITE) \
+            & (dr.squared_norm(n) > 0)
+        const = dr.gather(mi.Bool, self.constant, idx, active)
+        return dr.select(inf, dr.select(const, 1.0, self.env_cosine), 0.0)
+
     def sample(self, it: mi.Interaction3f, u: mi.Point2f, active: mi.Bool
                ) -> tuple[mi.DirectionSample3f, mi.Spectrum]:
         """Like ``scene.sample_emitter_direction(it, u, False, active)``: a direction sample
         (``pdf`` in solid angle, selection included) and the weight ``L / pdf`` (no
-        visibility test)."""
+        visibility test). ``it``: a surface interaction (its normal is turned towards
+        ``wi``) or a context from :func:`light_context`."""
         if self.n == 0:
             return dr.zeros(mi.DirectionSample3f), dr.zeros(mi.Spectrum)
-        idx, ux, pmf = self.distr.sample_reuse_pmf(u.x, active)
-        u2 = mi.Point2f(ux, u.y)
+        n = _arrival_normal(it)
+        ctx = mi.Interaction3f(it)
+        idx, pmf, ux = self._select(ctx, n, u.x, active)
+        active = active & (pmf > 0)
         emitter = dr.gather(mi.EmitterPtr, self.ptrs, idx, active)
+        # environments: cosine-weighted about n with probability c, else their own sampling
+        c = self._cosine_share(idx, n, active)
+        cosine = active & (ux < c)
+        ux = dr.select(cosine, ux / dr.maximum(c, 1e-30),
+                       dr.select(c > 0, (ux - c) / dr.maximum(1.0 - c, 1e-30), ux))
+        ux = dr.clip(ux, 0.0, 0.99999994)
+        u2 = mi.Point2f(ux, u.y)
         rect = active & dr.gather(mi.Bool, self.is_rect, idx, active)
         s, ex, ey = self._rect(idx, rect)
-        p, solid = spherical_rectangle(it.p, s, ex, ey, u2)
+        p, solid = spherical_rectangle(ctx.p, s, ex, ey, u2)
         rect &= solid >= self.min_solid_angle
         other = active & ~rect
-        ds, w = emitter.sample_direction(it, u2, other)
+        ds, w = emitter.sample_direction(ctx, u2, other)
         # the rectangle lanes: direction, emitter radiance, solid-angle pdf
-        d = p - it.p
+        d = p - ctx.p
         dist = dr.norm(d)
         d = d / dist
-        n = dr.gather(mi.Vector3f, self.normal, idx, rect)
+        nl = dr.gather(mi.Vector3f, self.normal, idx, rect)
         si = dr.zeros(mi.SurfaceInteraction3f)
         si.p, si.t = p, dist
-        si.n = n
-        si.sh_frame = mi.Frame3f(n)
+        si.n = nl
+        si.sh_frame = mi.Frame3f(nl)
         si.wi = si.sh_frame.to_local(-d)
         le = emitter.eval(si, rect)
         ds_r = dr.zeros(mi.DirectionSample3f)
-        ds_r.p, ds_r.n, ds_r.d, ds_r.dist = p, n, d, dist
+        ds_r.p, ds_r.n, ds_r.d, ds_r.dist = p, nl, d, dist
         ds_r.pdf = dr.select(solid > 0, 1.0 / solid, 0.0)
         ds_r.delta = mi.Bool(False)
         ds_r.emitter = emitter
         ds = dr.select(rect, ds_r, ds)
         w = dr.select(rect, le * solid, w)
+        # the cosine lanes: a direction about n, the environment's radiance along it
+        mixture = active & (c > 0)
+        d_cos = mi.Frame3f(dr.normalize(dr.select(mixture, n, mi.Vector3f(0, 0, 1)))).to_world(
+            mi.warp.square_to_cosine_hemisphere(u2))
+        ds.d = dr.select(cosine, d_cos, ds.d)
+        ds.p = dr.select(cosine, ctx.p + ds.d * ds.dist, ds.p)
+        ds.n = dr.select(cosine, -ds.d, ds.n)
+        si_e = dr.zeros(mi.SurfaceInteraction3f)
+        si_e.wi = -ds.d
+        le_env = emitter.eval(si_e, mixture)
+        pdf_env = dr.select(c < 1.0, emitter.pdf_direction(ctx, ds, mixture), 0.0)
+        pdf_mix = c * dr.maximum(dr.dot(ds.d, n), 0.0) * dr.inv_pi + (1.0 - c) * pdf_env
+        ds.pdf = dr.select(mixture, pdf_mix, ds.pdf)
+        w = dr.select(mixture, dr.select(pdf_mix > 0, le_env / pdf_mix, 0.0), w)
         ds.pdf = ds.pdf * pmf
         w = dr.select(pmf > 0, w / pmf, 0.0)
         return ds, dr.select(active, w, 0.0)
 
     def pdf(self, it: mi.Interaction3f, ds: mi.DirectionSample3f, active: mi.Bool
             ) -> mi.Float:
-        """Like ``scene.pdf_emitter_direction(it, ds, active)`` for this sampler."""
+        """Like ``scene.pdf_emitter_direction(it, ds, active)`` for this sampler, in the
+        same context ``it`` that :meth:`sample` was given."""
         if self.n == 0:
             return dr.zeros(mi.Float)
         active = active & (dr.reinterpret_array(mi.UInt32, ds.emitter) != 0)
         idx = self._index(ds.emitter, active)
-        pmf = dr.gather(mi.Float, self.pmf, idx, active)
+        n = _arrival_normal(it)
+        ctx = mi.Interaction3f(it)
+        pmf = self.selection_pmf(ctx.p, n, idx, active)
         rect = active & dr.gather(mi.Bool, self.is_rect, idx, active)
         s, ex, ey = self._rect(idx, rect)
-        solid = rectangle_solid_angle(it.p, s, ex, ey)
+        solid = rectangle_solid_angle(ctx.p, s, ex, ey)
         rect &= solid >= self.min_solid_angle
-        pdf_other = ds.emitter.pdf_direction(it, ds, active & ~rect)
+        pdf_other = ds.emitter.pdf_direction(ctx, ds, active & ~rect)
+        c = self._cosine_share(idx, n, active)
+        pdf_other = dr.select(c > 0, c * dr.maximum(dr.dot(ds.d, n), 0.0) * dr.inv_pi
+                              + (1.0 - c) * dr.select(c < 1.0, pdf_other, 0.0), pdf_other)
         pdf = dr.select(rect, dr.select(solid > 0, 1.0 / solid, 0.0), pdf_other)
         return dr.select(active, pdf * pmf, 0.0)
 
 
-__all__ = ["LightSampler", "MIN_SOLID_ANGLE", "emitter_power", "rectangle_solid_angle",
-           "spherical_rectangle"]
+__all__ = ["ENV_COSINE", "LightSampler", "LightTable", "MIN_SOLID_ANGLE", "SELECTIONS",
+           "UNIFORM_MIX", "emitter_power", "environment_moments", "light_context",
+           "rectangle_solid_angle", "spherical_rectangle"]

@@ -57,7 +57,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
-from arlight.sampling.lights import LightSampler
+from arlight.sampling.lights import LightSampler, light_context
 from arlight.sampling.stream import CAMERA_PIXEL, LaneSampler
 from arlight.scene.camera import Camera
 
@@ -84,9 +84,11 @@ class TracerOptions:
         first_emission_depth: vertices at smaller depths collect no emitted radiance (0: all
             do; 1: paths started at an irradiance-cache record gather indirect light only,
             the direct light being the camera's, Kán §4.2 / :mod:`arlight.methods.dic`).
-        light_sampling: ``"mitsuba"`` (the scene's ``sample_emitter_direction``: uniform
-            emitter choice, rectangles by area) or ``"solid_angle"`` (emitters by estimated
-            power, rectangles by solid angle: :mod:`arlight.sampling.lights`).
+        light_sampling: ``"importance"`` (emitters by their estimated contribution at the
+            shading point), ``"solid_angle"`` (by one global power estimate; both sample
+            rectangles by solid angle: :mod:`arlight.sampling.lights`) or ``"mitsuba"`` (the
+            scene's ``sample_emitter_direction``: uniform emitter choice, rectangles by
+            area).
     """
 
     max_depth: int = 8
@@ -95,7 +97,7 @@ class TracerOptions:
     mirror_lower_hemisphere: bool = False
     reproject: bool = True
     first_emission_depth: int = 0
-    light_sampling: str = "mitsuba"
+    light_sampling: str = "importance"
 
 
 @dataclass
@@ -173,39 +175,50 @@ def rand_rr(key: LaneSampler, depth: mi.UInt32) -> mi.Float:
     return rand1(key, depth, DIM_RR)
 
 
-LIGHT_SAMPLING = ("mitsuba", "solid_angle")
+LIGHT_SAMPLING = ("importance", "solid_angle", "mitsuba")
+_SELECTION = {"importance": "importance", "solid_angle": "power"}
+
+
+def light_sampler(view: SceneView, mode: str) -> LightSampler:
+    """The :class:`~arlight.sampling.lights.LightSampler` of ``view`` for ``mode``, built once
+    per view and kept on it (its light table and environment integrals depend only on the
+    world, not on the frame)."""
+    cache = view.__dict__.setdefault("_light_samplers", {})
+    if mode not in cache:
+        cache[mode] = LightSampler(view.scene, selection=_SELECTION[mode])
+    return cache[mode]
 
 
 class LightSelection:
     """Next-event light selection of the mixed (ρ) and real (µ) views — the one place that
     chooses an emitter and a point on it, and gives the matching pdf for MIS. The one-pass
-    tracer and dic's camera walk (:mod:`arlight.tracing.irradiance_shading`) both sample
-    through it.
+    tracer, dic's record tracer and its camera walk
+    (:mod:`arlight.tracing.irradiance_shading`) all sample through it.
 
-    ``mode``: ``"mitsuba"`` (the scene's ``sample_emitter_direction`` /
-    ``pdf_emitter_direction``: uniform emitter choice, rectangles by area) or
-    ``"solid_angle"`` (:class:`~arlight.sampling.lights.LightSampler`: emitters by estimated
-    power, rectangles by solid angle), with one set of selection probabilities for both
-    views (the real view's), so the two views sample their identical lights with identical
-    numbers.
+    ``mode``: ``"importance"`` (:class:`~arlight.sampling.lights.LightSampler`: each light
+    chosen by its estimated contribution at the shading point, rectangles by solid angle,
+    environments with the cosine in mind), ``"solid_angle"`` (the same with one global power
+    estimate per light) or ``"mitsuba"`` (the scene's ``sample_emitter_direction`` /
+    ``pdf_emitter_direction``: uniform emitter choice, rectangles by area). The mixed and real
+    views hold the same lights in the same order, so their samplers choose identical lights
+    with identical numbers (the selection depends only on the lights and the shading context).
     """
 
-    def __init__(self, mixed: SceneView, real: SceneView, mode: str = "mitsuba"):
+    def __init__(self, mixed: SceneView, real: SceneView, mode: str = "importance"):
         if mode not in LIGHT_SAMPLING:
             raise ValueError(f"unknown light sampling {mode!r} (expected one of "
                              f"{LIGHT_SAMPLING})")
         self.mode = mode
         self.lights: dict[int, LightSampler] = {}
-        if mode == "solid_angle":
-            real_ls = LightSampler(real.scene)
-            self.lights[id(real)] = real_ls
-            if mixed is not real:
-                self.lights[id(mixed)] = LightSampler(mixed.scene, pmf=real_ls.pmf_np)
+        if mode != "mitsuba":
+            for view in (real, mixed):
+                self.lights[id(view)] = light_sampler(view, mode)
 
     def sample(self, view: SceneView, it: mi.Interaction3f, u: mi.Point2f,
                active: mi.Bool) -> tuple[mi.DirectionSample3f, mi.Color3f]:
         """Next-event light sample in ``view`` (no visibility test): the direction sample
-        (solid-angle pdf, selection included) and the weight ``L / pdf``."""
+        (solid-angle pdf, selection included) and the weight ``L / pdf``. ``it``: the
+        vertex's surface interaction."""
         ls = self.lights.get(id(view))
         if ls is None:
             return view.scene.sample_emitter_direction(it, u, False, active)
@@ -213,7 +226,9 @@ class LightSelection:
 
     def pdf(self, view: SceneView, it: mi.Interaction3f, ds: mi.DirectionSample3f,
             active: mi.Bool) -> mi.Float:
-        """Solid-angle pdf of :meth:`sample` producing ``ds`` (for MIS)."""
+        """Solid-angle pdf of :meth:`sample` producing ``ds`` (for MIS); ``it``: the surface
+        interaction :meth:`sample` was given, or its :func:`~arlight.sampling.lights.
+        light_context`."""
         ls = self.lights.get(id(view))
         if ls is None:
             return view.scene.pdf_emitter_direction(it, ds, active)
@@ -574,7 +589,7 @@ class OnePassTracer:
         st.ray = dr.select(active_next, si.spawn_ray(si.to_world(bs.wo)), st.ray)
         st.eta = dr.select(active_next, st.eta * bs.eta, st.eta)
         st.beta = dr.select(active_next, st.beta * weight, st.beta)
-        st.prev_si = dr.select(active_next, mi.Interaction3f(si), st.prev_si)
+        st.prev_si = dr.select(active_next, light_context(si), st.prev_si)
         st.prev_pdf = dr.select(active_next, bs.pdf, st.prev_pdf)
         st.prev_delta = dr.select(active_next, delta, st.prev_delta)
         beta_max = dr.max(st.beta)
