@@ -44,12 +44,13 @@ Where a point on the light is drawn:
   solid angle is tiny (``S < min_solid_angle``: the float32 angle sum ``S = Σγ_i − 2π``
   loses precision) the emitter's own area sampling is used; the choice depends only on the
   reference point and the light, so sampling and pdf agree.
-* **Environments with the cosine in mind** (``selection="importance"``): a constant emitter
-  is sampled cosine-weighted about the shading normal turned towards the side the path
-  arrived from (pdf ``cos θ / π``; none of its samples below the horizon); an environment
-  map with the one-sample mixture ``env_cosine · cos θ / π + (1 − env_cosine) · p_map``
-  (its own importance sampling keeps the sun). Light from behind the surface (rough glass)
-  is left to BSDF sampling, whose MIS weight there is one.
+* **Skies with the cosine in mind** (``selection="importance"``): a constant emitter is
+  sampled cosine-weighted about the shading normal turned towards the side the path arrived
+  from (pdf ``cos θ / π``; none of its samples below the horizon); an environment map with
+  the one-sample mixture ``env_cosine · cos θ / π + (1 − env_cosine) · p_map``, where
+  ``env_cosine`` is 0 by default (chosen on training worlds: the map's own importance
+  sampling, which finds its sun, did better than any mixture). Light from behind the
+  surface (rough glass) is left to BSDF sampling, whose MIS weight there is one.
 * Other emitters (spheres — Mitsuba samples their cone —, point, spot, directional) use the
   emitter's ``sample_direction`` / ``pdf_direction``.
 
@@ -73,8 +74,12 @@ MIN_SOLID_ANGLE = 1e-2
 SELECTIONS = ("importance", "power", "uniform")
 UNIFORM_MIX = 0.1
 """Share of the importance selection spread evenly over the lights that can reach a point."""
-ENV_COSINE = 0.5
-"""Share of an environment map's samples drawn cosine-weighted about the shading normal."""
+ENV_COSINE = 0.0
+"""Share of an environment map's samples drawn cosine-weighted about the shading normal.
+Chosen on training worlds (``benchmarks/tune_light_selection.py``, RESULTS.md): any cosine
+share raised onepass's variance there (e.g. 0.70 → 1.34 of reference's at 0.5 on world-0),
+the map's own importance sampling being the better half; a constant sky, whose importance
+sampling is uniform over the sphere, is always sampled cosine-weighted."""
 ENV_INTEGRAL_SAMPLES = 1 << 16
 """Directions (stratified, the emitter's own importance sampling) integrating ``L̄`` and
 ``a`` of an environment once per scene."""
