@@ -417,8 +417,9 @@ class LightSampler:
         t = self.table
         self.kind = mi.UInt32(_padded(t.kind))
         self.center, self.axis = _v3(t.center, mi.Point3f), _v3(t.axis)
-        self.radius, self.theta_o, self.theta_e = _f32(t.radius), _f32(t.theta_o), \
-            _f32(t.theta_e)
+        self.radius = _f32(t.radius)
+        self.cos_o, self.sin_o = _f32(np.cos(t.theta_o)), _f32(np.sin(t.theta_o))
+        self.cos_e = _f32(np.cos(t.theta_e))
         self.one_sided = mi.Bool(_padded(t.one_sided))
         self.intensity, self.linear = _f32(t.intensity), _f32(t.linear)
         self.cap = _f32(np.minimum(t.cap, 3e38))
@@ -432,9 +433,9 @@ class LightSampler:
         # differs each time the scene is built) would otherwise be baked into the kernels
         # as constants, and every rebuilt scene would compile the tracer anew (seconds).
         dr.make_opaque(self.ptrs, self.pmf, self.kind, self.center, self.axis, self.radius,
-                       self.theta_o, self.theta_e, self.one_sided, self.intensity, self.linear,
-                       self.cap, self.constant, self.index_of, self.is_rect, self.s, self.ex,
-                       self.ey, self.normal)
+                       self.cos_o, self.sin_o, self.cos_e, self.one_sided, self.intensity,
+                       self.linear, self.cap, self.constant, self.index_of, self.is_rect,
+                       self.s, self.ex, self.ey, self.normal)
 
     def _rectangles(self, emitters, ids, shapes, solid_angle: bool) -> None:
         n = self.n
@@ -474,14 +475,24 @@ class LightSampler:
         d2 = dr.squared_norm(v)
         dist = dr.sqrt(d2)
         wo = v / dr.maximum(dist, 1e-30)
-        theta_b = dr.select(dist > r, dr.safe_asin(dr.minimum(r / dist, 1.0)), dr.pi)
-        theta_w = dr.safe_acos(dr.dot(wo, axis))
-        theta_x = dr.maximum(theta_w - g(self.theta_o) - theta_b, 0.0)
-        emit = dr.select(theta_x <= g(self.theta_e), dr.cos(dr.minimum(theta_x, 0.5 * dr.pi)),
-                         0.0)
+        # angles without trigonometric calls (pbrt-v4's cosSubClamped / sinSubClamped):
+        # θ_b subtended by the bounding sphere (π inside it), θ_x = max(0, θ_w − θ_o − θ_b)
+        outside = dist > r
+        sin_b = dr.select(outside, r / dr.maximum(dist, 1e-30), 0.0)
+        cos_b = dr.select(outside, dr.safe_sqrt(1.0 - sin_b * sin_b), -1.0)
+        cos_w = dr.dot(wo, axis)
+        sin_w = dr.safe_sqrt(1.0 - cos_w * cos_w)
+        cos_o, sin_o = g(self.cos_o), g(self.sin_o)
+        inside_o = cos_w > cos_o
+        cos_wo = dr.select(inside_o, 1.0, cos_w * cos_o + sin_w * sin_o)
+        sin_wo = dr.select(inside_o, 0.0, sin_w * cos_o - cos_w * sin_o)
+        cos_x = dr.select(cos_wo > cos_b, 1.0, cos_wo * cos_b + sin_wo * sin_b)
+        emit = dr.select(cos_x >= g(self.cos_e), dr.maximum(cos_x, 0.0), 0.0)
         emit = dr.select(g(self.one_sided, mi.Bool) & (dr.dot(v, axis) <= 0), 0.0, emit)
-        theta_i = dr.safe_acos(dr.abs(dr.dot(n, wo)))
-        recv = dr.select(has_n, dr.cos(dr.maximum(theta_i - theta_b, 0.0)), 1.0)
+        cos_i = dr.abs(dr.dot(n, wo))
+        sin_i = dr.safe_sqrt(1.0 - cos_i * cos_i)
+        recv = dr.select(has_n, dr.select(cos_i > cos_b, 1.0, cos_i * cos_b + sin_i * sin_b),
+                         1.0)
         d2c = dr.maximum(d2, dr.maximum(r * r, 1e-12))
         local = dr.minimum(intensity * emit * recv / d2c, g(self.cap))
         out = dr.select(kind == KIND_DISTANT, distant,

@@ -50,6 +50,8 @@ from arlight.tracing.onepass import (
     HitRules,
     LightSelection,
     as_sampler,
+    hit_emitter,
+    hit_sample,
     mis_weight,
     rand_bsdf,
     rand_lobe,
@@ -216,9 +218,9 @@ class CameraWalk:
         (power heuristic, as the one-pass tracer), and the role of what the ray hit."""
         scene = view.scene
         si_b = scene.ray_intersect(ray, mi.RayFlags.All, False, active)
-        ds = mi.DirectionSample3f(scene, si=si_b, ref=si)
+        ds = hit_sample(view, si_b, si)
         em_pdf = self.light_selection.pdf(view, si, ds, active)
-        le = throughput * mis_weight(bs.pdf, em_pdf) * si_b.emitter(scene).eval(si_b, active)
+        le = throughput * mis_weight(bs.pdf, em_pdf) * ds.emitter.eval(si_b, active)
         return dr.select(active, le, 0.0), view.hit_role(si_b)
 
     def _vertex(self, view: SceneView, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
@@ -226,9 +228,8 @@ class CameraWalk:
                 lm: mi.Color3f | None, lr: mi.Color3f, to_real: mi.Bool, to_mixed: bool,
                 c: dict[str, mi.UInt32]):
         """Shade one walk vertex in ``view``; returns the advanced walk and the radiances."""
-        scene = view.scene
         # emission: every vertex of the walk is seen by the camera or through delta bounces
-        le = beta * si.emitter(scene).eval(si, active)
+        le = beta * hit_emitter(view, si).eval(si, active)
         if to_mixed:
             lm = lm + le
         lr = lr + dr.select(to_real, le, 0.0)

@@ -189,6 +189,32 @@ def light_sampler(view: SceneView, mode: str) -> LightSampler:
     return cache[mode]
 
 
+def hit_emitter(view: SceneView, si: mi.SurfaceInteraction3f) -> mi.EmitterPtr:
+    """The emitter a ray found: the hit shape's, or the scene's environment on a miss — as
+    ``si.emitter(scene)``, whose environment pointer Mitsuba writes into the kernel as a
+    constant. That constant is the environment's registry id, new each time a scene is
+    built, so every newly built scene compiled the tracer again (seconds per render; issue
+    #35). Here the pointer is read from an opaque array kept on the view."""
+    env = view.__dict__.get("_environment")
+    if env is None:
+        em = view.scene.environment()
+        reg = int(np.array(dr.reinterpret_array(mi.UInt32, mi.EmitterPtr(em)))[0]) \
+            if em is not None else 0
+        env = dr.reinterpret_array(mi.EmitterPtr, mi.UInt32(np.array([reg, 0], np.uint32)))
+        dr.make_opaque(env)
+        view.__dict__["_environment"] = env
+    miss = dr.gather(mi.EmitterPtr, env, mi.UInt32(0))
+    return dr.select(si.is_valid(), si.shape.emitter(), miss)
+
+
+def hit_sample(view: SceneView, si: mi.SurfaceInteraction3f, ref: mi.Interaction3f
+               ) -> mi.DirectionSample3f:
+    """``mi.DirectionSample3f(scene, si, ref)`` with the emitter of :func:`hit_emitter`."""
+    ds = mi.DirectionSample3f(view.scene, si=si, ref=ref)
+    ds.emitter = hit_emitter(view, si)
+    return ds
+
+
 class LightSelection:
     """Next-event light selection of the mixed (ρ) and real (µ) views — the one place that
     chooses an emitter and a point on it, and gives the matching pdf for MIS. The one-pass
@@ -531,7 +557,7 @@ class OnePassTracer:
         # -- emitter hit (area light or environment on a miss), MIS vs the previous BSDF
         if self.opts.mirror_lower_hemisphere:
             si.wi = dr.select(valid, si.wi, mi.Vector3f(si.wi.x, -dr.abs(si.wi.y), si.wi.z))
-        ds = mi.DirectionSample3f(scene, si=si, ref=st.prev_si)
+        ds = hit_sample(view, si, st.prev_si)
         em_pdf = self.light_selection.pdf(view, st.prev_si, ds, active & ~st.prev_delta)
         mis = mis_weight(st.prev_pdf, em_pdf)
         if self.miss_only:
