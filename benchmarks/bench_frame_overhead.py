@@ -67,8 +67,8 @@ def child(src: Path, seed: int, args, method: str) -> dict:
            str(args.frames), method]
     out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True,
                          cwd=str(src.parent)).stdout
-    line = next(x for x in out.splitlines() if x.startswith("RESULT"))
-    return json.loads(line[len("RESULT"):])
+    line = next(x for x in out.splitlines() if "RESULT" in x)
+    return json.loads(line.split("RESULT", 1)[1])
 
 
 def summary(r: dict) -> dict:

@@ -181,7 +181,11 @@ def test_rmse_falls_as_inverse_sqrt_n():
             errs[step.frame] = rmse(step.image, gt)
     n = np.array(sorted(errs), dtype=float)
     slope = np.polyfit(np.log(n), np.log([errs[k] for k in sorted(errs)]), 1)[0]
-    assert -0.65 < slope < -0.35, slope
+    # plain Monte Carlo falls as n^-0.5; the frames continue one Owen-scrambled Sobol
+    # sequence, and with lights chosen by importance (issue #35) the error falls faster
+    # (-0.67 measured). Frames that restart instead of accumulating give ~0, frames whose
+    # samples repeat (offsets ignored) flatten after the first: both are far outside.
+    assert -0.85 < slope < -0.35, slope
 
 
 def test_time_budget_stops(tmp_path):

@@ -82,7 +82,10 @@ def test_option_types_defaults_and_command_line_strings():
                                      "photon_radius": 0.01, "ppm_iterations": 1,
                                      "ppm_alpha": 0.7, "sampler": "sobol",
                                      "replicas": 16, "replica_mode": "blocks",
-                                     "light_sampling": "importance", "sample_offset": 0}
+                                     "light_sampling": "importance", "sample_offset": 0,
+                                     "denoise": "none", "denoise_quality": "high",
+                                     "denoise_aux": True, "denoise_aux_spp": 4,
+                                     "denoise_target": "separate"}
     opts = spec.parse_options({"reproject": "false", "mode": "twopass"})
     assert opts.reproject is False and opts["mode"] == "twopass" and opts.env_mode == "mis"
     assert spec.parse_options({"reproject": "TRUE"}).reproject is True

@@ -65,7 +65,12 @@ WORLDS = {
 }
 
 
-@pytest.mark.parametrize("name", list(WORLDS))
+@pytest.mark.parametrize("name", [
+    "small-light-large-ground",
+    # ~20 s each; the sampler-level MIS tests (tests/sampling/test_lights.py) cover every
+    # light type, an environment map and a sun in the fast tier
+    pytest.param("many-lights", marks=pytest.mark.slow),
+    pytest.param("environment-and-sun", marks=pytest.mark.slow)])
 def test_importance_selection_agrees_with_reference(name):
     scene = make(WORLDS[name], 0.2)
     s = dict(spp=256, max_depth=5, rr_depth=4)
