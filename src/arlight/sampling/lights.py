@@ -499,16 +499,6 @@ class LightSampler:
                         dr.select(kind == KIND_INFINITE, infinite, local))
         return dr.select(active, dr.maximum(out, 0.0), 0.0)
 
-    def _total(self, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool) -> mi.Float:
-        """Σ importance over the lights, per lane."""
-        def body(i, total):
-            return i + 1, total + self.importance(i, p, n, active)
-
-        _, total = dr.while_loop(state=(mi.UInt32(0), dr.zeros(mi.Float, dr.width(p))),
-                                 cond=lambda i, total: i < self.n, body=body,
-                                 label="light_total")
-        return total
-
     def _pmf(self, imp: mi.Float, total: mi.Float) -> mi.Float:
         """Selection probability of a light of importance ``imp``: ``(1 − ε) imp / Σ + ε / N``
         (uniform where no light has importance)."""
@@ -564,9 +554,16 @@ class LightSampler:
         normal ``n``."""
         if self.selection != "importance" or self.n == 1:  # one light: always chosen
             return dr.gather(mi.Float, self.pmf, idx, active)
-        total = self._total(p, n, active)
-        pmf = self._pmf(self.importance(idx, p, n, active), total)
-        return dr.select(active, pmf, 0.0)
+
+        def body(i, total, imp_idx):  # Σ imp and light idx's own, in one pass
+            imp = self.importance(i, p, n, active)
+            return i + 1, total + imp, dr.select(i == idx, imp, imp_idx)
+
+        zero = dr.zeros(mi.Float, dr.width(p))
+        _, total, imp = dr.while_loop(state=(mi.UInt32(0), zero, zero),
+                                      cond=lambda i, *_: i < self.n, body=body,
+                                      label="light_pmf")
+        return dr.select(active, self._pmf(imp, total), 0.0)
 
     # -- sampling -------------------------------------------------------------------------
 
