@@ -208,7 +208,9 @@ def flicker(n_frames: int = 8) -> dict[str, list[tuple[str, float, float, float]
     sequence renders every frame with seed 0 (Kán's fixed random sequence); the static one
     with a new seed per frame (with one seed its frames would be identical, flicker 0 with
     or without the denoiser): a live camera on a still scene."""
-    from arlight.sequence.job import _PREPARED, prepared
+    from bench_sequence import render_frames
+
+    from arlight.sequence.job import _PREPARED
     from arlight.sequence.synthetic_video import (
         sequence_job,
         sequence_metrics,
@@ -228,14 +230,7 @@ def flicker(n_frames: int = 8) -> dict[str, list[tuple[str, float, float, float]
                                                               options=dict(opts)),
                                vary_seed=vary)
             _PREPARED.clear()
-            comps, times = [], []
-            for fr in seq.input_frames():
-                method, state, _ = prepared(job)
-                view = job.view(fr, seq.depths[fr.index])
-                t0 = time.perf_counter()
-                layers = method.render(state, view, job.frame_settings(fr.index))
-                times.append(time.perf_counter() - t0)
-                comps.append(layers.composite)
+            comps, times, _ = render_frames(job, seq)
             m = sequence_metrics(comps, seq)
             rows.append((f"{label} {spp} spp", m["psnr"], m["flicker"],
                          statistics.median(times[1:]) * 1e3))

@@ -56,13 +56,24 @@ def renders(method: str, scene, spp: int, seeds: int, max_depth: int, options: d
     return np.stack(out), t / seeds
 
 
-def world_row(seed: int, args) -> dict:
+def load_world(seed: int, width: int):
+    """(generated world, its proxy with the synthetic photograph, the pixels measured: not
+    directly seen lights, brighter than 64× the photograph's median luminance)."""
     gw = generate(seed)
-    world, proxy = gw.scenes(args.width)
+    world, proxy = gw.scenes(width)
     photo = synthesize(world, spp=64, seed=1)
-    scene = proxy.with_frame(photo.frame)
     lum = luminance(photo.frame)
-    keep = lum <= 64 * max(float(np.median(lum)), 1e-6)
+    return gw, proxy.with_frame(photo.frame), lum <= 64 * max(float(np.median(lum)), 1e-6)
+
+
+def per_sample_variance(stack: np.ndarray, spp: int) -> np.ndarray:
+    """Per-pixel variance of one sample, (H, W): the variance across the renders of
+    ``stack`` (seeds, H, W, 3), channel mean, times their spp."""
+    return stack.var(axis=0, ddof=1).mean(axis=-1) * spp
+
+
+def world_row(seed: int, args) -> dict:
+    gw, scene, keep = load_world(seed, args.width)
     row: dict = {"world": gw.name, "describe": gw.describe(), "var": {}, "sec": {}}
     base = {"reproject": False}
     stacks = {}
@@ -71,8 +82,7 @@ def world_row(seed: int, args) -> dict:
                                                  args.max_depth, {**base, "light_sampling": mode})
     stacks["reference"], row["sec"]["reference"] = renders("reference", scene, args.spp,
                                                            args.seeds, args.max_depth, {})
-    var = {name: st.var(axis=0, ddof=1).mean(axis=-1) * args.spp
-           for name, st in stacks.items()}
+    var = {name: per_sample_variance(st, args.spp) for name, st in stacks.items()}
     # the firefly tail: pixels among the top TAIL of any method's variance (a few caustic
     # paths, e.g. the sun through a mirror, that 4 seeds cannot estimate: one pixel can hold
     # 85-99 % of an image's summed variance and swing the mean ratio 100-fold between runs)

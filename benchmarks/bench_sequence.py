@@ -51,6 +51,22 @@ N_FRAMES = 32
 GT_SPP = 128
 
 
+def render_frames(job, seq) -> tuple[list[np.ndarray], list[float], float]:
+    """Every frame of ``seq`` rendered as :func:`arlight.sequence.job.render_frame` does
+    (the world prepared once), keeping the float composites (the PNG codes are lossy):
+    (composites, seconds per frame, seconds of preparation)."""
+    comps, times, prep = [], [], 0.0
+    for fr in seq.input_frames():
+        method, state, p = prepared(job)
+        prep += p
+        view = job.view(fr, seq.depths[fr.index])
+        t0 = time.perf_counter()
+        layers = method.render(state, view, job.frame_settings(fr.index))
+        times.append(time.perf_counter() - t0)
+        comps.append(layers.composite)
+    return comps, times, prep
+
+
 def quality(seq, spp: int) -> str:
     rows = []
     floor = sequence_metrics(seq.frames, seq)
@@ -61,16 +77,7 @@ def quality(seq, spp: int) -> str:
         try:
             job = sequence_job(seq, name, RenderSettings(spp=spp, seed=0), vary_seed=vary)
             _PREPARED.clear()
-            comps, times, prep = [], [], 0.0
-            for fr in seq.input_frames():
-                # as render_frame, keeping the float composite (the PNG codes are lossy)
-                method, state, p = prepared(job)
-                prep += p
-                view = job.view(fr, seq.depths[fr.index])
-                t0 = time.perf_counter()
-                layers = method.render(state, view, job.frame_settings(fr.index))
-                times.append(time.perf_counter() - t0)
-                comps.append(layers.composite)
+            comps, times, prep = render_frames(job, seq)
             m = sequence_metrics(comps, seq)
             rows.append((label, m, statistics.median(times), prep, ""))
         except Exception as exc:  # noqa: BLE001 - a failing method is a row, not a crash

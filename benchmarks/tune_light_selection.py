@@ -17,12 +17,11 @@ import argparse
 import itertools
 
 import numpy as np
-from bench_light_selection import luminance, renders
+from bench_light_selection import load_world, per_sample_variance, renders
 from results import cpu_pressure, publish
 
 import arlight.sampling.lights as lights
-from arlight.evaluate.worlds import generate, parse_worlds, split_of
-from arlight.synthetic import synthesize
+from arlight.evaluate.worlds import parse_worlds, split_of
 
 HEADING = "## Light selection constants chosen on training worlds (issue #35)"
 
@@ -45,19 +44,14 @@ def main() -> None:
     ratios: dict[tuple[float, float], list[float]] = {g: [] for g in grid}
     names = []
     for seed in seeds:
-        gw = generate(seed)
-        world, proxy = gw.scenes(args.width)
-        photo = synthesize(world, spp=64, seed=1)
-        scene = proxy.with_frame(photo.frame)
-        lum = luminance(photo.frame)
-        keep = lum <= 64 * max(float(np.median(lum)), 1e-6)
+        gw, scene, keep = load_world(seed, args.width)
         ref, _ = renders("reference", scene, args.spp, args.seeds, 8, {})
-        v_ref = float((ref.var(axis=0, ddof=1).mean(-1) * args.spp)[keep].mean())
+        v_ref = float(per_sample_variance(ref, args.spp)[keep].mean())
         names.append(f"{gw.name}: {gw.describe()}")
         for mix, cos in grid:
             lights.UNIFORM_MIX, lights.ENV_COSINE = mix, cos
             st, _ = renders("onepass", scene, args.spp, args.seeds, 8, {"reproject": False})
-            v = float((st.var(axis=0, ddof=1).mean(-1) * args.spp)[keep].mean())
+            v = float(per_sample_variance(st, args.spp)[keep].mean())
             ratios[(mix, cos)].append(v / max(v_ref, 1e-30))
             print(gw.name, mix, cos, round(ratios[(mix, cos)][-1], 3), flush=True)
     lines = [HEADING, "",

@@ -63,6 +63,17 @@ class Case:
         return list(self.keep) if isinstance(self.keep, list) else [self.keep]
 
 
+def previous_output(root: Path, name: str) -> Path:
+    """A folder holding an earlier arlight output (manifest + composite): a bad-input case
+    writing there must leave it untouched."""
+    prev = root / name
+    prev.mkdir()
+    (prev / "composite.png").write_bytes(b"old composite")
+    (prev / ".arlight-output.json").write_text(json.dumps({"writer": "render",
+                                                           "files": ["composite.png"]}))
+    return prev
+
+
 def snapshot(path: Path) -> dict[str, bytes]:
     """Every file under ``path`` (or ``path`` itself) by relative name, with its bytes."""
     if path.is_file():

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from arlight.io.images import write_exr, write_png
-from tests.cli_harness import ARLIGHT, Case, check, clean_env
+from tests.cli_harness import ARLIGHT, Case, check, clean_env, previous_output
 from tests.conftest import area_light_scene
 from tests.scene.model_cases import model_cases
 
@@ -68,16 +68,6 @@ def _wrong_values(value):
     return []
 
 
-def _previous_output(root: Path, name: str) -> Path:
-    """A folder holding an earlier arlight output (manifest + composite)."""
-    prev = root / name
-    prev.mkdir()
-    (prev / "composite.png").write_bytes(b"old composite")
-    (prev / ".arlight-output.json").write_text(json.dumps({"writer": "render",
-                                                           "files": ["composite.png"]}))
-    return prev
-
-
 def _build(root: Path) -> list[Case]:
     cases: list[Case] = []
     scene = area_light_scene(16, 12)
@@ -97,7 +87,7 @@ def _build(root: Path) -> list[Case]:
             f.write_text(json.dumps(d))
             fld = _field_text(path)
             if n % 7 == 0:  # some through render, with an existing output folder
-                prev = _previous_output(root, f"prev_mut{n:03d}")
+                prev = previous_output(root, f"prev_mut{n:03d}")
                 cases.append(Case(f"render-scene-{fld}-{tag}", ["render", str(f), "--spp", "1",
                                   "-o", str(prev)], [f.name, fld], keep=prev))
             else:
@@ -126,7 +116,7 @@ def _build(root: Path) -> list[Case]:
     d = json.loads(json.dumps(scene))
     d["camera"]["resolution"] = [40000, 30000]
     (root / "huge.json").write_text(json.dumps(d))
-    prev = _previous_output(root, "prev_huge")
+    prev = previous_output(root, "prev_huge")
     cases.append(Case("render-huge-resolution", ["render", str(root / "huge.json"), "-o",
                       str(prev)], ["--force"], keep=prev))
 
@@ -139,18 +129,18 @@ def _build(root: Path) -> list[Case]:
     for cmd in ("render", "synth"):
         for opt, vals in bad_values.items():
             for v in vals:
-                prev = _previous_output(root, f"prev_{cmd}{opt}{v}".replace("-", "_"))
+                prev = previous_output(root, f"prev_{cmd}{opt}{v}".replace("-", "_"))
                 cases.append(Case(f"{cmd}-{opt}={v}", [cmd, str(good), opt, v, "-o", str(prev)],
                                   [opt], keep=prev))
     for opt, v in [("--time", "-5"), ("--time", "0"), ("--time", "nan"), ("--time", "inf"),
                    ("--frames", "-1"), ("--frames", "x"), ("--method", "nope"),
                    ("--option", "bogus"), ("--option", "reproject=maybe"), ("--bogus", "1")]:
-        prev = _previous_output(root, f"prev_prog{opt}{v}".replace("-", "_"))
+        prev = previous_output(root, f"prev_prog{opt}{v}".replace("-", "_"))
         cases.append(Case(f"render-progressive-{opt}={v}", ["render", str(good), "--progressive",
                           "-m", "onepass", opt, v, "-o", str(prev)],
                           [opt.lstrip("-").split("=")[0] if opt != "--option" else "option"],
                           keep=prev))
-    prev = _previous_output(root, "prev_gt")
+    prev = previous_output(root, "prev_gt")
     cases.append(Case("render-progressive-missing-gt", ["render", str(good), "--progressive",
                       "-m", "onepass", "--frames", "1", "--ground-truth", str(root / "gt.exr"),
                       "-o", str(prev)], ["gt.exr"], keep=prev))
@@ -269,7 +259,7 @@ def _build(root: Path) -> list[Case]:
             d[key] = value
         f = root / f"lj_{name}.json"
         f.write_text(json.dumps(d))
-        png = _previous_output(root, f"prev_show_{name}") / "composite.png"
+        png = previous_output(root, f"prev_show_{name}") / "composite.png"
         cases.append(Case(f"light-show-{name}", ["light", "show", str(f), "-o", str(png)],
                           [f.name], keep=png))
     for name, data in {"broken": "{broken", "array": "[1]", "empty": "", "arcore-short":
@@ -330,7 +320,7 @@ def _insert_cases(root: Path) -> list[Case]:
     cases = []
     for name, change, needle in bad:
         args = {**good, **change}
-        prev = _previous_output(root, f"prev_insert_{name}".replace("-", "_"))
+        prev = previous_output(root, f"prev_insert_{name}".replace("-", "_"))
         argv = ["insert", args.pop("photo")]
         for k, v in args.items():
             argv += [k, v]

@@ -15,18 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from arlight.io.images import write_png
-from tests.cli_harness import Case
+from tests.cli_harness import Case, previous_output
 from tests.conftest import area_light_scene
 from tests.scene.model_files import GLB, gltf, png_header_only, usda
-
-
-def _previous_output(root: Path, name: str) -> Path:
-    prev = root / name
-    prev.mkdir()
-    (prev / "composite.png").write_bytes(b"old composite")
-    (prev / ".arlight-output.json").write_text(json.dumps({"writer": "render",
-                                                           "files": ["composite.png"]}))
-    return prev
 
 
 def _models(root: Path) -> list[tuple[str, Path, str]]:
@@ -68,7 +59,7 @@ def model_cases(root: Path) -> list[Case]:
         f.write_text(json.dumps(d))
         cases.append(Case(f"validate-model-{name}", ["validate", str(f)], [needle]))
         if i % 3 == 0:  # some through render, with an existing output folder
-            prev = _previous_output(root, f"prev_model_{name}".replace("-", "_"))
+            prev = previous_output(root, f"prev_model_{name}".replace("-", "_"))
             cases.append(Case(f"render-model-{name}", ["render", str(f), "--spp", "1", "-o",
                                                      str(prev)], [needle], keep=prev))
     # a selection that matches nothing; pbr materials in scene files
