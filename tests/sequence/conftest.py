@@ -38,9 +38,12 @@ class Tiny:
 
 
 def make_tiny(folder: Path, n: int = 8, width: int = 32, height: int = 24,
-              virtual: bool = True) -> Tiny:
+              virtual: bool = True, scene: dict | None = None) -> Tiny:
+    """``n`` frames of ``width``×``height`` in ``folder``: the scene (``scene``, a scene dict
+    with a virtual shape ``ball`` when ``virtual``; default: :func:`area_light_scene`), PNG
+    frames, an orbiting camera's poses file and the ball's keyframed motion."""
     folder.mkdir(parents=True, exist_ok=True)
-    d = area_light_scene(width, height, virtual=virtual)
+    d = scene if scene is not None else area_light_scene(width, height, virtual=virtual)
     scene = folder / "scene.json"
     scene.write_text(json.dumps(d))
     sc = parse_scene(d)

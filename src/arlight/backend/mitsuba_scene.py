@@ -55,6 +55,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.interrupts import shielded, test_point
+from arlight.io.images import to_bitmap
 from arlight.jit import ensure_variant
 from arlight.scene.camera import Camera
 from arlight.scene.model import ARScene, Light, Material, Shape
@@ -478,7 +479,7 @@ def _load_transform(value: np.ndarray | Node) -> mi.ScalarTransform4f:
 
 _VALUE_LOADERS: dict[str, Callable[[Any], Any]] = {
     "to_world": _load_transform,
-    "bitmap": lambda a: mi.Bitmap(a),
+    "bitmap": to_bitmap,  # copies read-only arrays (a world unpickled by Ray)
 }
 """Property name -> conversion of its plain-data value into a Mitsuba value."""
 

@@ -36,6 +36,19 @@ def _bitmap_module():
     return mi
 
 
+def to_bitmap(array: np.ndarray, pixel_format=None):
+    """A ``mitsuba.Bitmap`` holding a copy of ``array`` (``(H, W)`` or ``(H, W, C)``).
+
+    Mitsuba's binding refuses read-only and non-contiguous arrays (``TypeError``:
+    "incompatible function arguments"); arrays that come out of Ray's object store (a
+    world's environment map in a ``sequence --ray`` worker, layers returned to the driver)
+    are read-only. Those are copied first; any other array is handed over as it is (the
+    Bitmap copies it anyway)."""
+    mi = _bitmap_module()
+    arr = np.require(array, requirements=("C", "W"))
+    return mi.Bitmap(arr) if pixel_format is None else mi.Bitmap(arr, pixel_format)
+
+
 def is_hdr_path(path: str | Path) -> bool:
     return Path(path).suffix.lower() in HDR_SUFFIXES
 
@@ -135,7 +148,7 @@ def write_exr(path: str | Path, image: np.ndarray) -> Path:
         arr = arr[..., 0]
     with atomic_write(path, ".exr") as tmp:
         fmt = mi.Bitmap.PixelFormat.Y if arr.ndim == 2 else mi.Bitmap.PixelFormat.RGB
-        mi.Bitmap(arr, fmt).write(str(tmp))
+        to_bitmap(arr, fmt).write(str(tmp))
     return Path(path)
 
 
