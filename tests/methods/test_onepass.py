@@ -291,3 +291,44 @@ def test_sample_offsets_continue_one_sequence(mode):
         x, y, z = (getattr(r, layer) for r in (a, b, c))
         np.testing.assert_allclose(0.5 * (x + y), z, rtol=1e-4, atol=1e-6)
     assert not np.allclose(a.mixed, b.mixed, rtol=1e-3)
+
+
+def traced_kernels(render) -> set[str]:
+    """Hashes of the large kernels (≥ 100 operations: the tracer's, not the small
+    reductions whose block size is the spp) that ``render()`` launches. Hashes identify the
+    code, whether it came from Dr.Jit's memory or disk cache or was compiled."""
+    import drjit as dr
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        render()
+    finally:
+        history = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return {k["hash"] for k in history
+            if k.get("type") == dr.KernelType.JIT and k.get("operation_count", 0) >= 100}
+
+
+def test_moved_camera_and_other_spp_reuse_the_compiled_tracer():
+    """Camera pose, intrinsics, resolution and spp reach the kernels as opaque values: the
+    tracer compiled for one frame serves a moved camera, another image size and another spp
+    (rejects any of them baked into the kernel as a literal — each frame of a moving camera,
+    or each spp of a benchmark, then paid a new LLVM compilation: seconds)."""
+    import dataclasses
+
+    from arlight.scene.model import FrameView
+
+    scene = make(table_scene())
+    method = get_method("onepass")
+    state = method.prepare(scene.world)
+    view = scene.view
+    first = traced_kernels(lambda: method.render(state, view, RenderSettings(spp=4, seed=1)))
+    pose = view.camera.world_from_camera.copy()
+    pose[:3, 3] += [0.05, -0.02, 0.03]
+    moved = dataclasses.replace(view.camera.resized(36, 24), world_from_camera=pose,
+                                fx=view.camera.fx * 0.8)
+    frame = np.full((24, 36, 3), 0.25, np.float32)
+    second = traced_kernels(lambda: method.render(state, FrameView(moved, frame=frame),
+                                                  RenderSettings(spp=9, seed=2)))
+    assert first and second
+    assert second <= first, f"{len(second - first)} tracer kernels new for the moved camera"

@@ -85,15 +85,25 @@ def generate_rays(camera: Camera, pixel: mi.UInt32, k: mi.UInt32, spp: int,
     return rays_from_samples(camera, pixel, off, lens_u)
 
 
+def opaque(x: float) -> mi.Float:
+    """``x`` as an opaque Dr.Jit scalar: read from memory by the kernel, not compiled into
+    it, so a kernel that uses it serves any value (a moved camera, another resolution, another
+    spp) without compiling again (seconds on the CPU)."""
+    return dr.opaque(mi.Float, float(x))
+
+
 def rays_from_samples(camera: Camera, pixel: mi.UInt32, off: mi.Point2f,
                       lens_u: mi.Point2f | None) -> mi.RayDifferential3f:
     """World-space camera rays through ``pixel`` at offsets ``off`` ∈ [0,1)² inside the
     pixel, with lens samples ``lens_u`` ∈ [0,1)² (ignored for a pinhole; needed otherwise).
+    The camera's pose, intrinsics and width enter the kernel as opaque values
+    (:func:`opaque`): a moving camera reuses the compiled tracer.
     """
-    col = mi.Float(pixel % camera.width)
-    row = mi.Float(pixel // camera.width)
-    dx = (col + off.x - camera.cx) / camera.fx
-    dy = (row + off.y - camera.cy) / camera.fy
+    width = dr.opaque(mi.UInt32, camera.width)
+    col = mi.Float(pixel % width)
+    row = mi.Float(pixel // width)
+    dx = (col + off.x - opaque(camera.cx)) / opaque(camera.fx)
+    dy = (row + off.y - opaque(camera.cy)) / opaque(camera.fy)
     d = mi.Vector3f(dx, dy, 1.0)
     o = mi.Vector3f(0.0)
     if camera.aperture_radius > 0:
@@ -102,13 +112,14 @@ def rays_from_samples(camera: Camera, pixel: mi.UInt32, off: mi.Point2f,
             lens = mi.warp.square_to_uniform_disk_concentric(u)
         else:
             lens = mi.Point2f(2.0 * u.x - 1.0, 2.0 * u.y - 1.0)
-        o = mi.Vector3f(lens.x * camera.aperture_radius, lens.y * camera.aperture_radius, 0.0)
-        d = d * camera.focus_distance - o
+        radius = opaque(camera.aperture_radius)
+        o = mi.Vector3f(lens.x * radius, lens.y * radius, 0.0)
+        d = d * opaque(camera.focus_distance) - o
     d = dr.normalize(d)
     m = camera.world_from_camera
-    rot = [[float(m[r][c]) for c in range(3)] for r in range(3)]
+    rot = [[opaque(m[r][c]) for c in range(3)] for r in range(3)]
     world_d = mi.Vector3f(*(rot[r][0] * d.x + rot[r][1] * d.y + rot[r][2] * d.z
                             for r in range(3)))
-    world_o = mi.Point3f(*(rot[r][0] * o.x + rot[r][1] * o.y + rot[r][2] * o.z + float(m[r][3])
-                           for r in range(3)))
+    world_o = mi.Point3f(*(rot[r][0] * o.x + rot[r][1] * o.y + rot[r][2] * o.z
+                           + opaque(m[r][3]) for r in range(3)))
     return mi.RayDifferential3f(world_o, world_d)

@@ -221,11 +221,13 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             n = g * m  # this pass: replicas [r0, r0 + g), samples [j0, j0 + m) of each
             lanes = n * n_pix
             idx = dr.arange(mi.UInt32, lanes)
-            pixel = idx // n
-            t = idx % n  # replica-major within the pixel
-            replica = t // m + dr.opaque(mi.UInt32, r0)
-            j = t % m + dr.opaque(mi.UInt32, j0)  # sample index within the replica
-            k = j * n_rep + replica  # sample index within the pixel
+            # opaque, not literals: one compiled kernel serves every spp and pass plan
+            n_u, m_u, rep_u = (dr.opaque(mi.UInt32, x) for x in (n, m, n_rep))
+            pixel = idx // n_u
+            t = idx % n_u  # replica-major within the pixel
+            replica = t // m_u + dr.opaque(mi.UInt32, r0)
+            j = t % m_u + dr.opaque(mi.UInt32, j0)  # sample index within the replica
+            k = j * rep_u + replica  # sample index within the pixel
             seed_u = dr.opaque(mi.UInt32, seed)
             cmj_u = dr.opaque(mi.UInt32, cmj_seed)
             pass_seed = dr.opaque(mi.UInt32, (seed * 0x9E3779B1 + k0 * 0x85EBCA77) & 0xFFFFFFFF)
@@ -235,11 +237,11 @@ def run_passes(camera: Camera, spp: int, kernel: Kernel, seed: int = 0,
             else:
                 if scramble_replicas:  # sample offset/R + j of replica r's own sequence
                     stream = LaneSampler.for_samples(sampler, pixel, replica,
-                                                     j + offset_u // n_rep, seed_u)
+                                                     j + offset_u // rep_u, seed_u)
                 else:  # block r of one sequence: index offset + r·spp/R + j
+                    block = dr.opaque(mi.UInt32, spp // n_rep)
                     stream = LaneSampler.for_samples(sampler, pixel, mi.UInt32(0),
-                                                     offset_u + replica * (spp // n_rep) + j,
-                                                     seed_u)
+                                                     offset_u + replica * block + j, seed_u)
                 if sampler != "independent":
                     lens = stream.next_2d(CAMERA_LENS) if camera.aperture_radius > 0 else None
                     rays = rays_from_samples(camera, pixel,
