@@ -46,7 +46,7 @@ Units: lengths in metres (scene units), angles in degrees where Mitsuba takes de
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import drjit as dr
@@ -254,8 +254,7 @@ _MITSUBA_TYPE = {"rectangle": "rectangle", "box": "cube", "disk": "disk", "spher
 def _primitive(shape: Shape) -> Node:
     m = np.asarray(shape.to_world, dtype=np.float64) @ _PRIMITIVE_CANONICAL[shape.type](
         shape.params)
-    return {"type": _MITSUBA_TYPE[shape.type], "to_world": m,
-            "bsdf": describe_material(shape.material)}
+    return {"type": _MITSUBA_TYPE[shape.type], "to_world": m}
 
 
 def _mesh(shape: Shape) -> Node:
@@ -274,20 +273,26 @@ def _mesh(shape: Shape) -> Node:
         normals = n.astype(np.float32)
     return {"type": "mesh", "vertices": v, "faces": faces,
             "uv": None if data.uv is None else np.asarray(data.uv),
-            "normals": normals, "bsdf": describe_material(shape.material)}
+            "normals": normals}
 
 
 SHAPES: dict[str, Callable[[Shape], Node]] = {
     "mesh": _mesh, **{t: _primitive for t in _PRIMITIVE_CANONICAL}}
-"""Shape type -> shape node (world-space geometry plus its BSDF node)."""
+"""Shape type -> geometry node (world-space geometry, no BSDF)."""
 
 
-def describe_shape(shape: Shape) -> Node:
-    """Shape node of one shape (see :data:`SHAPES`)."""
+def describe_geometry(shape: Shape) -> Node:
+    """Geometry node of one shape (see :data:`SHAPES`): its shape node without the BSDF,
+    all that changes when the shape moves."""
     translate = SHAPES.get(shape.type)
     if translate is None:
         raise ValueError(f"unknown shape type {shape.type!r}")
     return translate(shape)
+
+
+def describe_shape(shape: Shape) -> Node:
+    """Shape node of one shape: its geometry (:func:`describe_geometry`) and BSDF."""
+    return {**describe_geometry(shape), "bsdf": describe_material(shape.material)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -507,6 +512,31 @@ def _load_shape(name: str, node: Node) -> mi.Shape:
     return obj
 
 
+def geometry_params(node: Node) -> dict[str, Any]:
+    """Mitsuba parameter values (as :func:`mitsuba.traverse` names them) of a geometry node
+    (:func:`describe_geometry`): a ``"mesh"`` node's vertex buffers, a sphere's, rectangle's
+    or disk's ``to_world``, a cube's buffers as Mitsuba's own ``cube`` computes them (a
+    throw-away cube, never part of a scene). Setting them on a loaded shape of the same type
+    makes it bitwise the shape :func:`load_object` would load from ``node``."""
+    kind = node["type"]
+    if kind == "mesh":
+        v, faces, uv, normals = node["vertices"], node["faces"], node["uv"], node["normals"]
+        out: dict[str, Any] = {
+            "vertex_positions": dr.ravel(mi.Point3f(v[:, 0], v[:, 1], v[:, 2])),
+            "faces": dr.ravel(mi.Vector3u(faces[:, 0], faces[:, 1], faces[:, 2]))}
+        if uv is not None:
+            out["vertex_texcoords"] = dr.ravel(mi.Point2f(uv[:, 0], uv[:, 1]))
+        if normals is not None:
+            out["vertex_normals"] = dr.ravel(
+                mi.Normal3f(normals[:, 0], normals[:, 1], normals[:, 2]))
+        return out
+    if kind == "cube":  # a mesh whose buffers Mitsuba computes from to_world
+        params = mi.traverse(mi.load_dict(plugin_dict(node)))
+        return {k: type(params[k])(params[k]) for k in
+                ("vertex_positions", "faces", "vertex_normals", "vertex_texcoords")}
+    return {"to_world": _load_transform(node["to_world"])}
+
+
 def _load_mesh(name: str, node: Node) -> mi.Mesh:
     v, faces, uv, normals = node["vertices"], node["faces"], node["uv"], node["normals"]
     props = mi.Properties()
@@ -515,13 +545,8 @@ def _load_mesh(name: str, node: Node) -> mi.Mesh:
                    has_vertex_normals=normals is not None,
                    has_vertex_texcoords=uv is not None)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(v[:, 0], v[:, 1], v[:, 2]))
-    params["faces"] = dr.ravel(mi.Vector3u(faces[:, 0], faces[:, 1], faces[:, 2]))
-    if uv is not None:
-        params["vertex_texcoords"] = dr.ravel(mi.Point2f(uv[:, 0], uv[:, 1]))
-    if normals is not None:
-        params["vertex_normals"] = dr.ravel(
-            mi.Normal3f(normals[:, 0], normals[:, 1], normals[:, 2]))
+    for key, value in geometry_params(node).items():
+        params[key] = value
     params.update()
     mesh.set_id(name)  # registry lookup uses this id
     return mesh
@@ -591,13 +616,77 @@ class SceneView:
         valid = si.is_valid()
         return dr.select(valid, dr.gather(mi.Int32, self.shape_index, reg, valid), -1)
 
+    def set_geometry(self, geometry: dict[str, dict[str, Any]]) -> None:
+        """Give loaded shapes new geometry in place: ``{object name: geometry_params(...)}``
+        (:func:`geometry_params`); the scene's acceleration structure is rebuilt once.
+
+        The scene object, its shapes and their registry ids stay (no kernel that baked them
+        is recompiled, no second scene is built). Light samplers cached on the view are kept:
+        only non-emitting shapes may be moved this way.
+        """
+        params = self.__dict__.get("_params")
+        if params is None:  # traversing once is enough: the parameters are references
+            params = self.__dict__["_params"] = mi.traverse(self.scene)
+        for name, values in geometry.items():
+            for key, value in values.items():
+                params[f"{name}.{key}"] = value
+        params.update()
+
 
 @dataclass
 class SceneViews:
-    """The real-only (µ) and mixed (ρ) views of an AR scene."""
+    """The real-only (µ) and mixed (ρ) views of an AR scene.
+
+    Attributes:
+        real: the real-only view (µ).
+        mixed: the mixed view (ρ); the same object as ``real`` without virtual shapes.
+        shapes: the shapes as the views hold them now (index = shape name in the views);
+            :meth:`place` moves them.
+    """
 
     real: SceneView
     mixed: SceneView
+    shapes: list[Shape] = field(default_factory=list)
+
+    def moved(self, shapes: list[Shape]) -> set[int]:
+        """Indices of the shapes whose pose in ``shapes`` differs from the loaded one.
+
+        Raises:
+            ValueError: ``shapes`` is not a re-posing of the loaded shapes (another count,
+                or a shape with another type, mesh, material or parameters).
+        """
+        if len(shapes) != len(self.shapes):
+            raise ValueError(f"{len(shapes)} shapes, the views hold {len(self.shapes)}")
+        moved: set[int] = set()
+        for i, (old, new) in enumerate(zip(self.shapes, shapes, strict=True)):
+            if old is new or np.array_equal(old.to_world, new.to_world):
+                continue
+            if (old.name, old.type, old.role) != (new.name, new.type, new.role) or \
+                    old.params is not new.params or old.material is not new.material or \
+                    old.mesh is not new.mesh:
+                raise ValueError(f"shape {i} ({new.name!r}) changed more than its pose")
+            moved.add(i)
+        return moved
+
+    def place(self, shapes: list[Shape]) -> set[int]:
+        """Move the loaded shapes to ``shapes`` in place and return the indices of those that
+        moved (:meth:`moved`): ``shapes`` is this world posed (:meth:`World.posed`: the same
+        shapes, other ``to_world``). Each view then traces bitwise what
+        :func:`build_views` of the posed world would build
+        (tests/methods/test_pose_incremental.py)."""
+        moved = self.moved(shapes)
+        if not moved:
+            self.shapes = list(shapes)
+            return moved
+        geometry = {str(i): geometry_params(describe_geometry(shapes[i])) for i in moved}
+        views = [self.mixed] if self.mixed is self.real else [self.real, self.mixed]
+        for view in views:
+            here = {name for name in geometry if view is self.mixed
+                    or not self.shapes[int(name)].is_virtual}
+            if here:
+                view.set_geometry({name: geometry[name] for name in here})
+        self.shapes = list(shapes)
+        return moved
 
 
 def load_view(view: Node, roles: dict[str, int]) -> SceneView:
@@ -635,4 +724,4 @@ def build_views(scene: ARScene) -> SceneViews:
     desc = describe_views(scene)
     real = load_view(desc["real"], roles)
     mixed = load_view(desc["mixed"], roles) if scene.has_virtual else real
-    return SceneViews(real=real, mixed=mixed)
+    return SceneViews(real=real, mixed=mixed, shapes=list(scene.shapes))

@@ -16,12 +16,13 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from arlight.methods.spec import MethodSpec, Options
 from arlight.scene.load import RENDER_DEFAULTS
 from arlight.scene.model import ARScene, FrameView, World
 from arlight.timing import StageTimer
+
+if TYPE_CHECKING:
+    from arlight.backend.mitsuba_scene import SceneViews
 
 
 @dataclass
@@ -99,6 +103,20 @@ class Method(Protocol):
         """Layers of one frame of the prepared world."""
         ...
 
+    def _render_posed(self, state: Prepared, view: FrameView, opts: Options,
+                      settings: RenderSettings, timer: StageTimer) -> Layers:
+        """Pose the state for ``view`` (stage ``pose``), render and denoise it."""
+        data = state.data
+        if view.object_transforms or self.incremental_pose:
+            with timer.stage("pose"):
+                data = self.pose(state, view.object_transforms, settings)
+            view = replace(view, object_transforms={})
+        layers = self.render_view(data, view, opts, settings, timer)
+        denoise = DenoiseSettings.from_options(opts)
+        if denoise is not None:
+            layers = self.denoise(layers, data, view, denoise, timer)
+        return layers
+
     def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
         """One-shot: prepare and render ``scene``."""
         ...
@@ -121,6 +139,10 @@ class Prepared:
     options: Options
     data: Any
     seconds: float
+    lock: threading.RLock = field(default_factory=threading.RLock, repr=False, compare=False)
+    """Held while a method with ``incremental_pose`` poses the state and renders it."""
+    last: Any = field(default=None, repr=False, compare=False)
+    """The data of the last incremental pose (:func:`posed_data`), None before the first."""
 
 
 class BaseMethod(ABC):
@@ -139,6 +161,11 @@ class BaseMethod(ABC):
     """
 
     spec: ClassVar[MethodSpec]
+    incremental_pose: ClassVar[bool] = False
+    """True when :meth:`pose` moves the prepared state *in place* (Mitsuba shapes moved
+    through their parameters, caches of the moved object updated): :meth:`render` then
+    poses every frame — to the rest pose when the view moves nothing — and renders under the
+    state's lock, so a state always renders the pose its view asks for."""
 
     # ------------------------------------------------------------------ hooks
     @abstractmethod
@@ -152,7 +179,11 @@ class BaseMethod(ABC):
 
     def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
              settings: RenderSettings) -> Any:
-        """Data for the world posed by ``transforms`` (default: prepare it again)."""
+        """Data for the world posed by ``transforms`` (default: prepare it again).
+
+        A method with ``incremental_pose`` updates ``state.data`` in place instead and
+        returns it (``transforms`` empty: back to the rest pose); its renders must then be
+        bitwise those of ``prepare(state.world.posed(transforms))``."""
         return self.prepare_world(state.world.posed(transforms), state.options, settings)
 
     def aux_view(self, data: Any) -> Any:
@@ -227,8 +258,21 @@ class BaseMethod(ABC):
                              "prepare again", field="options")
         self.check_supported(state.world, view)
         timer = StageTimer()
+        if self.incremental_pose:
+            with state.lock:
+                layers = self._render_posed(state, view, opts, settings, timer)
+        else:
+            layers = self._render_posed(state, view, opts, settings, timer)
+        layers.stats.update(timer.stats())
+        layers.stats["seconds"] = time.perf_counter() - t0
+        layers.method = self.spec.name
+        return layers
+
+    def _render_posed(self, state: Prepared, view: FrameView, opts: Options,
+                      settings: RenderSettings, timer: StageTimer) -> Layers:
+        """Pose the state for ``view`` (stage ``pose``), render and denoise it."""
         data = state.data
-        if view.object_transforms:
+        if view.object_transforms or self.incremental_pose:
             with timer.stage("pose"):
                 data = self.pose(state, view.object_transforms, settings)
             view = replace(view, object_transforms={})
@@ -236,9 +280,6 @@ class BaseMethod(ABC):
         denoise = DenoiseSettings.from_options(opts)
         if denoise is not None:
             layers = self.denoise(layers, data, view, denoise, timer)
-        layers.stats.update(timer.stats())
-        layers.stats["seconds"] = time.perf_counter() - t0
-        layers.method = self.spec.name
         return layers
 
     def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
@@ -256,6 +297,37 @@ class BaseMethod(ABC):
 
     def __repr__(self) -> str:
         return f"<method {self.spec.name!r} ({type(self).__name__})>"
+
+
+def place_views(views: SceneViews, world: World, transforms: dict[str, np.ndarray], *,
+                real_moves: bool = False) -> World | None:
+    """Move ``views`` (prepared for ``world``) in place to ``world.posed(transforms)`` and
+    return that posed world — or None, leaving the views as they were, when the move cannot
+    be done in place: ``transforms`` moves a real shape and ``real_moves`` is False (the
+    caller keeps real-only solutions that would then be stale), or the views hold another
+    world. The caller then prepares the posed world from scratch."""
+    posed = world.posed(transforms)
+    try:
+        moved = views.moved(posed.shapes)
+    except ValueError:
+        return None
+    if not real_moves and any(not posed.shapes[i].is_virtual for i in moved):
+        return None
+    views.place(posed.shapes)
+    return posed
+
+
+def posed_data(state: Prepared, move: Callable[[Any], Any | None],
+               prepare: Callable[[], Any]) -> Any:
+    """An incremental pose: ``move(previous)`` updates the data of the last pose (the
+    prepared data before the first) in place and returns the posed data, or None when it
+    cannot (a real shape moved); then ``prepare()`` prepares the posed world from scratch.
+    The result is remembered as ``state.last`` for the next frame."""
+    out = move(state.last if state.last is not None else state.data)
+    if out is None:
+        return prepare()
+    state.last = out
+    return out
 
 
 RenderFn = Callable[[ARScene, RenderSettings], Layers]

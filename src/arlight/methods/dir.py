@@ -36,7 +36,14 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
-from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    Prepared,
+    RenderSettings,
+    place_views,
+    posed_data,
+)
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
@@ -251,12 +258,26 @@ class DIRMethod(BaseMethod):
 
     spec = SPEC
 
+    incremental_pose = True
+
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> DIRData:
         views = build_views(world)
         lights = reduce_lights(world, env_lights=options.env_lights,
                                area_grid=options.area_grid)
         return DIRData(world, views, lights, scene_bounds(views.mixed))
+
+    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
+             settings: RenderSettings) -> DIRData:
+        """The shapes moved in place (the lights do not depend on them), the bounds
+        measured again; nothing else is kept between frames."""
+        def move(data: DIRData) -> DIRData | None:
+            posed = place_views(data.views, state.world, transforms, real_moves=True)
+            return None if posed is None else DIRData(posed, data.views, data.lights,
+                                                      scene_bounds(data.views.mixed))
+
+        return posed_data(state, move, lambda: self.prepare_world(
+            state.world.posed(transforms), state.options, settings))
 
     def render_view(self, data: DIRData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

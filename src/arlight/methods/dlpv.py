@@ -35,14 +35,21 @@ Stats: ``time_gbuffer``, ``time_rsm``, ``time_inject_rho``, ``time_inject_delta_
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
-from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    Prepared,
+    RenderSettings,
+    place_views,
+    posed_data,
+)
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
@@ -51,6 +58,7 @@ from arlight.realtime.rsm import (
     RealMaps,
     RSMPair,
     check_memory,
+    moved_maps,
     real_maps,
     rsm_pair,
 )
@@ -170,6 +178,25 @@ def prepare(world: World, options: Options) -> DLPVData:
     return DLPVData(world, views, lights, grid, k_delta, maps, k_rho)
 
 
+def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], options: Options
+         ) -> DLPVData | None:
+    """``data`` (prepared for ``world`` in any pose) moved in place to
+    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views, the volume
+    follows the objects' bounds, the proxy's RSMs are kept (cast again only for directional
+    lights when the snapped volume moved, :func:`~arlight.realtime.rsm.moved_maps`). Bitwise
+    the data :func:`prepare` makes of the posed world; None (nothing changed) when a real
+    shape moves."""
+    posed = place_views(data.views, world, transforms)
+    if posed is None:
+        return None
+    if data.grid is None or data.real_maps is None:
+        return replace(data, world=posed)
+    bounds = virtual_bounds(posed, data.views.mixed)
+    grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
+    return replace(data, world=posed, grid=grid,
+                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds))
+
+
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
                  indirect: bool = True) -> list[mi.Bool]:
     """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``. Texels that see
@@ -286,10 +313,19 @@ class DLPVMethod(BaseMethod):
     """Delta Light Propagation Volumes (Franke 2013)."""
 
     spec = SPEC
+    incremental_pose = True
 
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> DLPVData:
         return prepare(world, options)
+
+    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
+             settings: RenderSettings) -> DLPVData:
+        """:func:`pose` from the last posed data; a moved real shape prepares again."""
+        return posed_data(state, lambda data: pose(data, state.world, transforms,
+                                                   state.options),
+                          lambda: self.prepare_world(state.world.posed(transforms),
+                                                     state.options, settings))
 
     def render_view(self, data: DLPVData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

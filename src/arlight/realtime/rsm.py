@@ -295,13 +295,41 @@ class RSMState(Protocol):
     real_maps: RealMaps | None
 
 
+def _coverage(grid: Grid) -> tuple[np.ndarray, float]:
+    """(centre, radius) a directional light's map covers: the volume's bounding sphere, m."""
+    return grid.centre, grid.size * np.sqrt(3.0) / 2.0
+
+
+def same_grid(a: Grid | None, b: Grid | None) -> bool:
+    """Whether two grids are the same cells (same count, size and origin, bitwise)."""
+    return (a is not None and b is not None and a.n == b.n and a.cell == b.cell
+            and np.array_equal(a.origin, b.origin))
+
+
 def real_maps(views: SceneViews, lights: LightSet, grid: Grid, res: int,
               box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
     """Every reduced light's RSM rays (directional maps cover the volume's bounding sphere)
     and ``R_µ`` cast into the real-only view."""
-    bounds = (grid.centre, grid.size * np.sqrt(3.0) / 2.0)
-    rays = [light_rays(lt, res, bounds) for lt in lights.lights]
+    rays = [light_rays(lt, res, _coverage(grid)) for lt in lights.lights]
     return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box)
+
+
+def moved_maps(maps: RealMaps, views: SceneViews, old: Grid, grid: Grid,
+               box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
+    """``real_maps(views, maps.lights, grid, maps.res, box)`` after the virtual objects
+    moved and the proxy did not (incremental pose, issue #32): a light's rays and ``R_µ`` are
+    kept unless they depend on the grid — a directional light's map covers the volume — and
+    the grid moved from ``old`` to ``grid``; those are cast again. Bit for bit the maps
+    :func:`real_maps` casts (the same rays into the same real-only view)."""
+    moved = not same_grid(old, grid)
+    rays, mu = [], []
+    for lt, r, m in zip(maps.lights.lights, maps.rays, maps.mu, strict=True):
+        if moved and lt.kind == "directional":
+            r = light_rays(lt, maps.res, _coverage(grid))
+            m = render_rsm(views.real, r)
+        rays.append(r)
+        mu.append(m)
+    return RealMaps(maps.lights, maps.res, rays, mu, box)
 
 
 def rsm_pair(data: RSMState) -> list[RSMPair]:
@@ -319,5 +347,6 @@ def rsm_pair(data: RSMState) -> list[RSMPair]:
 
 
 __all__ = ["LightRays", "RSM", "RSMPair", "RSMState", "RealMaps", "check_memory", "concat_rays",
-           "light_rays", "real_maps", "render_rsm", "render_rsm_pair", "render_rsm_pair_reusing",
-           "replace_texels", "rsm_pair", "rsm_subset", "shared_texels", "subset_rays"]
+           "light_rays", "moved_maps", "real_maps", "render_rsm", "render_rsm_pair",
+           "render_rsm_pair_reusing", "replace_texels", "rsm_pair", "rsm_subset", "same_grid",
+           "shared_texels", "subset_rays"]
