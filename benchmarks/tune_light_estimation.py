@@ -24,17 +24,29 @@ worlds (issue #30).
   given to the method (option ``light``) through the harness. ``τ`` is chosen by the
   **median changed-region PSNR over the training rooms** (ties: the old value).
 
+* **probeless on light setups** (``--part setups``, issue #33): the ridge and the
+  reconstruction's Taubin smoothing (:data:`arlight.probeless.reconstruct.SMOOTH_ITERATIONS`)
+  on the modelled room of ``bench_probeless.py`` (8 frames, 160×120, static and moving
+  camera, reconstructed with the TSDF, ART4), where the true SH of each frame is known
+  exactly. **Training setups**: the room under the real HDR maps (``studio_small_03``,
+  ``rooitou_park``, the bundled ``lebombo``); **held-out**: Gruber's own light, the animated
+  SH cap light. Chosen by the median over training sequences of the mean upper-hemisphere
+  error (ties: the smaller value); the held-out setups are reported, old and new constants
+  in the same run, and inform nothing.
+
 Old and new values run on the same held-out worlds in the same run. Per-world results are
 cached (``~/.cache/arlight/tune_light``), so a rerun only re-tabulates. Usage:
 
     .venv/bin/python benchmarks/tune_light_estimation.py [--train 12] [--heldout 24]
-        [--rooms-train 8] [--rooms-heldout 12] [--part probeless|nearfield|all] [--write]
+        [--rooms-train 8] [--rooms-heldout 12] [--part probeless|nearfield|setups|all]
+        [--write]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -427,6 +439,90 @@ def nearfield_seeds(split: str, first: int, rooms: int) -> list[int]:
     return seeds
 
 
+SETUPS_HEADING = ("## Probeless: ridge and reconstruction smoothing chosen on training light "
+                  "setups, reported on Gruber's (issue #33)")
+SMOOTHINGS = [0, 10, 30, 100]
+SETUP_RIDGES = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2]
+OLD_SETUP = (0, 3e-3)  # no smoothing, ridge 3e-3: the constants before issue #33
+
+
+def setup_sequences(split: str) -> dict[str, tuple[str, Path | None]]:
+    """Light setups (label -> (kind, HDR file)) of the ``training`` or ``heldout`` split."""
+    if split == "heldout":
+        return {"Gruber SH cap light": ("sh", None)}
+    pano = Path(__file__).resolve().parents[1] / "src/arlight/data/light/panoramas"
+    return {"HDR studio_small_03": ("hdr", pano / "studio_small_03_512x256.hdr"),
+            "HDR rooitou_park": ("hdr", pano / "rooitou_park_512x256.hdr"),
+            "HDR lebombo": ("hdr", None)}
+
+
+def setup_scores(kind: str, hdr: Path | None, moving: bool, frames_n: int = 8
+                 ) -> dict[tuple[int, float], tuple[float, float]]:
+    """Mean over frames of (upper-hemisphere error, dot) of ART4 per (smoothing, ridge)."""
+    from arlight.backend.mitsuba_scene import build_views
+    from arlight.probeless.estimate import estimate_light
+    from arlight.probeless.experiment import upper_hemisphere_error
+    from arlight.probeless.pipeline import Pipeline
+    from arlight.probeless.reconstruct import reconstruct
+    from arlight.probeless.synthetic_rgbd import ALBEDO, render_sequence
+    from arlight.scene.model import World
+
+    frames = render_sequence(kind, n=frames_n, moving=moving, spp=64, hdr=hdr)
+    out = {}
+    for smooth in SMOOTHINGS:
+        mesh = reconstruct([f.rgbd for f in frames], albedo=ALBEDO, smooth_iterations=smooth)
+        pipe = Pipeline(build_views(World(shapes=[mesh], lights=[])), "ART4", shapes=[mesh])
+        obs = [pipe.process(f.rgbd.camera, f.rgbd.colour, f.rgbd.depth,
+                            shade=False).observations for f in frames]
+        for ridge in SETUP_RIDGES:
+            fits = [estimate_light(*o, ridge=ridge) for o in obs]
+            out[(smooth, ridge)] = (
+                float(np.mean([upper_hemisphere_error(ft.sh, f.true_sh)
+                               for ft, f in zip(fits, frames, strict=True)])),
+                float(np.mean([ft.direction @ f.true_direction
+                               for ft, f in zip(fits, frames, strict=True)])))
+    return out
+
+
+def setups_section() -> str:
+    """Choose (smoothing, ridge) on the training setups; report both splits."""
+    t0 = time.perf_counter()
+    res: dict[str, dict[str, dict]] = {}
+    for split in ("training", "heldout"):
+        res[split] = {}
+        for label, (kind, hdr) in setup_sequences(split).items():
+            for moving in (False, True):
+                name = f"{label}, {'moving' if moving else 'static'}"
+                res[split][name] = setup_scores(kind, hdr, moving)
+                print(f"setups {name} done", file=sys.stderr, flush=True)
+    keys = [(s, r) for s in SMOOTHINGS for r in SETUP_RIDGES]
+    train_med = {k: float(np.median([v[k][0] for v in res["training"].values()]))
+                 for k in keys}
+    best = min(keys, key=lambda k: (round(train_med[k], 4), k))
+    lines = [SETUPS_HEADING, "",
+             "`.venv/bin/python benchmarks/tune_light_estimation.py --part setups --write` — "
+             "the modelled room of `bench_probeless.py` (8 frames, 160×120, 64 spp, TSDF 2 m "
+             "at 268³, ART4); training: the room under three real HDR maps, static and moving "
+             "camera (6 sequences); held-out: Gruber's animated SH cap light, static and "
+             "moving. Upper-hemisphere error (RMS radiance error over upward directions / "
+             "true RMS there), mean over frames; chosen by the training median.", "",
+             "| Taubin passes | ridge | training median upper error | "
+             + " | ".join(f"held-out {n}: upper / dot" for n in res["heldout"]) + " |",
+             "|---|---|---|" + "---|" * len(res["heldout"])]
+    for k in keys:
+        mark = " (chosen)" if k == best else " (before #33)" if k == OLD_SETUP else ""
+        lines.append(f"| {k[0]}{mark} | {k[1]:g} | {train_med[k]:.3f} | "
+                     + " | ".join(f"{v[k][0]:.3f} / {v[k][1]:.4f}"
+                                  for v in res["heldout"].values()) + " |")
+    lines += ["", "Per training sequence at the chosen constants (upper error / dot): "
+              + "; ".join(f"{n} {v[best][0]:.3f} / {v[best][1]:.4f}"
+                          for n, v in res["training"].items())
+              + f". Training choice: **{best[0]} Taubin passes, ridge {best[1]:g}**. "
+              f"Load: `uptime` {os.getloadavg()[0]:.2f} (1 min), CPU pressure (PSI some "
+              f"avg60) {cpu_pressure() or 'n/a'} %; run {time.perf_counter() - t0:.0f} s."]
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--train", type=int, default=12)
@@ -436,9 +532,13 @@ def main() -> None:
     ap.add_argument("--nearfield-heldout", default="",
                     help="explicit held-out seeds for nearfield (e.g. 1000001,1000004) "
                          "instead of the first --heldout plus --rooms-heldout")
-    ap.add_argument("--part", choices=("probeless", "nearfield", "all"), default="all")
+    ap.add_argument("--part", choices=("probeless", "nearfield", "setups", "all"),
+                    default="all")
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args()
+    if args.part == "setups":
+        publish(setups_section(), args.write)
+        return
     t0 = time.perf_counter()
     text = [HEADING, ""]
     parts: list[str] = []
