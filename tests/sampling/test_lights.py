@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import arlight
+from arlight.sampling import lights
 from arlight.sampling.lights import LightSampler, rectangle_solid_angle
 
 
@@ -159,15 +160,20 @@ def _contexts(n: int, seed: int = 0, normal=None):
     return it, p, nr
 
 
-@pytest.mark.parametrize("env", ["constant", "envmap"])
-def test_importance_selection_frequency_equals_its_pmf(env):
+@pytest.mark.parametrize("env,unrolled", [("constant", True), ("envmap", True),
+                                          ("envmap", False)])
+def test_importance_selection_frequency_equals_its_pmf(env, unrolled, monkeypatch):
     """At each of a few shading contexts, the share of 100 000 samples choosing each emitter
     (rectangle, sphere, point, spot, sun, sky) equals ``selection_pmf`` (5 binomial SE), and the
     pmf sums to one. Rejects a sampler whose pdf is not the probability it sampled with (MIS
     weights that do not sum to one): e.g. the defensive share or the reservoir's rescaling
-    done differently in ``sample`` and ``pdf``."""
+    done differently in ``sample`` and ``pdf``. Both the per-light code (``unrolled``) and
+    the loop over the light table (``MAX_UNROLLED`` = 0) are checked."""
+    if not unrolled:
+        monkeypatch.setattr(lights, "MAX_UNROLLED", 0)
     scene = _all_lights(env)
     ls = LightSampler(scene)
+    assert ls.unrolled == unrolled
     _, p, nr = _contexts(6, 3)
     n = 100_000
     for k in range(len(p)):
@@ -181,8 +187,9 @@ def test_importance_selection_frequency_equals_its_pmf(env):
         idx = np.array(ls._index(ds.emitter, mi.Bool(True)))
         chosen = np.array(dr.reinterpret_array(mi.UInt32, ds.emitter)) != 0
         freq = np.bincount(idx[chosen], minlength=ls.n) / n
-        pk, nk = mi.Point3f(*map(float, p[k])), mi.Vector3f(*map(float, nr[k]))
-        pmf = np.array([ls.selection_pmf(pk, nk, mi.UInt32(i), mi.Bool(True))[0]
+        ctx = dr.zeros(mi.Interaction3f, 1)
+        ctx.p, ctx.n = mi.Point3f(*map(float, p[k])), mi.Vector3f(*map(float, nr[k]))
+        pmf = np.array([ls.selection_pmf(ctx, mi.UInt32(i), mi.Bool(True))[0]
                         for i in range(ls.n)])
         assert abs(pmf.sum() - 1) < 1e-5, pmf
         se = np.sqrt(pmf * (1 - pmf) / n) + 1e-6
@@ -233,14 +240,22 @@ def test_selection_does_not_depend_on_the_scene_size():
 
 
 def test_drjit_importance_matches_the_numpy_one():
-    """The Dr.Jit importance (used to sample) equals the float64 NumPy one, every light."""
+    """The Dr.Jit importance (used to sample) equals the float64 NumPy one (acos/asin rather
+    than the cos/sin subtraction), every light: read from the table per lane and evaluated
+    per light by its kind's formula (``importances``; rejects e.g. a light given another
+    kind's formula, or the bounds of another row)."""
     scene = _all_lights("envmap")
     ls = LightSampler(scene)
+    assert ls.unrolled
     it, p, nr = _contexts(2000, 11)
     want = ls.table.importance(p, nr)
+    per_light = ls.importances(it)
+    assert len(per_light) == ls.n
     for i in range(ls.n):
+        tol = {"rtol": 2e-3, "atol": 1e-6 * want[:, i].max()}
         got = np.array(ls.importance(mi.UInt32(i), it.p, it.n, mi.Bool(True)))
-        np.testing.assert_allclose(got, want[:, i], rtol=2e-3, atol=1e-6 * want[:, i].max())
+        np.testing.assert_allclose(got, want[:, i], **tol)
+        np.testing.assert_allclose(np.array(per_light[i]), want[:, i], **tol)
 
 
 @pytest.mark.parametrize("env,sky_only", [("constant", False), ("envmap", False),

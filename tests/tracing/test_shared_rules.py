@@ -121,10 +121,10 @@ def test_walk_equals_tracer_sample_by_sample(request, scene, light_sampling, sam
 def _swapped_sample(orig):
     """Another light selection: the selection number shifted by one half (each sample picks
     another light; still uniform, so still unbiased)."""
-    def sample(self, view, it, u, active):
+    def sample(self, view, it, u, active, imps=None):
         ux = u.x + 0.5
         return orig(self, view, it, mi.Point2f(dr.select(ux >= 1.0, ux - 1.0, ux), u.y),
-                    active)
+                    active, imps)
     return sample
 
 

@@ -63,6 +63,7 @@ previous vertex's interaction).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
@@ -368,6 +369,100 @@ def _v3(a: np.ndarray, cls=mi.Vector3f):
     return cls(*(_f32(a[:, c]) for c in range(3)))
 
 
+MAX_UNROLLED = 16
+"""Up to this many lights the importance selection evaluates each light by its own code:
+its kind picks the formula when the kernel is built, and its bounds are scalars instead of
+per-lane table reads (``LightSampler.importances``). More lights: one loop over the table."""
+
+
+@dataclass
+class Bounds:
+    """Light bounds in Dr.Jit (the columns of :class:`LightTable`): one entry per light
+    (the whole table, or one light's opaque scalars), or gathered per lane."""
+
+    kind: mi.UInt32
+    center: mi.Point3f
+    axis: mi.Vector3f
+    radius: mi.Float
+    cos_o: mi.Float
+    sin_o: mi.Float
+    cos_e: mi.Float
+    one_sided: mi.Bool
+    intensity: mi.Float
+    linear: mi.Float
+    cap: mi.Float
+
+    @staticmethod
+    def of(t: LightTable, row: int | None = None) -> Bounds:
+        """Row ``row`` of ``t`` as opaque Dr.Jit scalars, or (None) the whole table padded
+        to two wide (:func:`_padded`) as opaque arrays: not compiled into the kernels, so a
+        rebuilt or moved light reuses them."""
+        if row is None:
+            f = lambda a: mi.Float(np.ascontiguousarray(_padded(a), np.float32))  # noqa: E731
+            u = lambda a: mi.UInt32(_padded(a))  # noqa: E731
+            flag = lambda a: mi.Bool(_padded(a))  # noqa: E731
+        else:
+            f = lambda a: dr.opaque(mi.Float, float(np.asarray(a)[row]))  # noqa: E731
+            u = lambda a: dr.opaque(mi.UInt32, int(np.asarray(a)[row]))  # noqa: E731
+            flag = lambda a: dr.opaque(mi.Bool, bool(np.asarray(a)[row]))  # noqa: E731
+        v = lambda a, cls=mi.Vector3f: cls(*(f(a[:, c]) for c in range(3)))  # noqa: E731
+        b = Bounds(kind=u(t.kind), center=v(t.center, mi.Point3f), axis=v(t.axis),
+                   radius=f(t.radius), cos_o=f(np.cos(t.theta_o)), sin_o=f(np.sin(t.theta_o)),
+                   cos_e=f(np.cos(t.theta_e)), one_sided=flag(t.one_sided),
+                   intensity=f(t.intensity), linear=f(t.linear),
+                   cap=f(np.minimum(t.cap, 3e38)))
+        dr.make_opaque(*(getattr(b, k) for k in b.__dataclass_fields__))
+        return b
+
+    def gather(self, i: mi.UInt32, active: mi.Bool | bool) -> Bounds:
+        """The bounds of light ``i`` per lane."""
+        return Bounds(**{k: dr.gather(type(getattr(self, k)), getattr(self, k), i, active)
+                         for k in self.__dataclass_fields__})
+
+
+def bounds_importance(b: Bounds, p: mi.Point3f, n: mi.Vector3f, kind: int | None = None
+                      ) -> mi.Float:
+    """Importance of the light(s) ``b`` at ``p`` with normal ``n`` (zero: unoriented): the
+    irradiance bound of the module docstring (:meth:`LightTable.importance` in Dr.Jit).
+    ``kind`` (a ``KIND_*``): the light's kind known when the kernel is built, so only its
+    formula is traced; None: all three, chosen per lane by ``b.kind``."""
+    has_n = dr.squared_norm(n) > 0
+    out = None
+    if kind in (None, KIND_DISTANT, KIND_INFINITE):
+        c_n = dr.select(has_n, dr.abs(dr.dot(n, b.axis)), 1.0)
+        distant = b.intensity * c_n
+        infinite = b.intensity + b.linear * c_n
+        out = {KIND_DISTANT: distant, KIND_INFINITE: infinite}.get(kind)
+    if kind in (None, KIND_LOCAL):
+        r = b.radius
+        v = p - b.center
+        d2 = dr.squared_norm(v)
+        dist = dr.sqrt(d2)
+        wo = v / dr.maximum(dist, 1e-30)
+        # angles without trigonometric calls (pbrt-v4's cosSubClamped / sinSubClamped):
+        # θ_b subtended by the bounding sphere (π inside it), θ_x = max(0, θ_w − θ_o − θ_b)
+        outside = dist > r
+        sin_b = dr.select(outside, r / dr.maximum(dist, 1e-30), 0.0)
+        cos_b = dr.select(outside, dr.safe_sqrt(1.0 - sin_b * sin_b), -1.0)
+        cos_w = dr.dot(wo, b.axis)
+        sin_w = dr.safe_sqrt(1.0 - cos_w * cos_w)
+        inside_o = cos_w > b.cos_o
+        cos_wo = dr.select(inside_o, 1.0, cos_w * b.cos_o + sin_w * b.sin_o)
+        sin_wo = dr.select(inside_o, 0.0, sin_w * b.cos_o - cos_w * b.sin_o)
+        cos_x = dr.select(cos_wo > cos_b, 1.0, cos_wo * cos_b + sin_wo * sin_b)
+        emit = dr.select(cos_x >= b.cos_e, dr.maximum(cos_x, 0.0), 0.0)
+        emit = dr.select(b.one_sided & (dr.dot(v, b.axis) <= 0), 0.0, emit)
+        cos_i = dr.abs(dr.dot(n, wo))
+        sin_i = dr.safe_sqrt(1.0 - cos_i * cos_i)
+        recv = dr.select(has_n, dr.select(cos_i > cos_b, 1.0, cos_i * cos_b + sin_i * sin_b),
+                         1.0)
+        d2c = dr.maximum(d2, dr.maximum(r * r, 1e-12))
+        local = dr.minimum(b.intensity * emit * recv / d2c, b.cap)
+        out = local if kind == KIND_LOCAL else dr.select(
+            b.kind == KIND_DISTANT, distant, dr.select(b.kind == KIND_INFINITE, infinite, local))
+    return dr.maximum(out, 0.0)
+
+
 class LightSampler:
     """Emitter selection and light sampling for one scene (see the module docstring).
 
@@ -415,14 +510,12 @@ class LightSampler:
         self.distr = mi.DiscreteDistribution(_f32(self.pmf_np)) if self.n else None
         self.pmf = _f32(self.pmf_np)
         t = self.table
-        self.kind = mi.UInt32(_padded(t.kind))
-        self.center, self.axis = _v3(t.center, mi.Point3f), _v3(t.axis)
-        self.radius = _f32(t.radius)
-        self.cos_o, self.sin_o = _f32(np.cos(t.theta_o)), _f32(np.sin(t.theta_o))
-        self.cos_e = _f32(np.cos(t.theta_e))
-        self.one_sided = mi.Bool(_padded(t.one_sided))
-        self.intensity, self.linear = _f32(t.intensity), _f32(t.linear)
-        self.cap = _f32(np.minimum(t.cap, 3e38))
+        self.bounds = Bounds.of(t)
+        self.kind = self.bounds.kind
+        self.unrolled = selection == "importance" and 1 < self.n <= MAX_UNROLLED
+        # per light: its kind (a Python int: picks the formula) and its opaque scalars
+        self.light_bounds = [(int(t.kind[i]), Bounds.of(t, i)) for i in range(self.n)
+                             ] if self.unrolled else []
         self.constant = mi.Bool(_padded(np.array(
             [e.class_name() == "ConstantBackgroundEmitter" for e in emitters], bool)))
         size = max(int(ids.max()) + 1 if self.n else 1, 2)
@@ -432,9 +525,7 @@ class LightSampler:
         # Opaque, not literals: a one-light scene's tables (and its emitter pointer, which
         # differs each time the scene is built) would otherwise be baked into the kernels
         # as constants, and every rebuilt scene would compile the tracer anew (seconds).
-        dr.make_opaque(self.ptrs, self.pmf, self.kind, self.center, self.axis, self.radius,
-                       self.cos_o, self.sin_o, self.cos_e, self.one_sided, self.intensity,
-                       self.linear, self.cap, self.constant, self.index_of, self.is_rect,
+        dr.make_opaque(self.ptrs, self.pmf, self.constant, self.index_of, self.is_rect,
                        self.s, self.ex, self.ey, self.normal)
 
     def _rectangles(self, emitters, ids, shapes, solid_angle: bool) -> None:
@@ -461,43 +552,21 @@ class LightSampler:
 
     def importance(self, i: mi.UInt32, p: mi.Point3f, n: mi.Vector3f,
                    active: mi.Bool | bool = True) -> mi.Float:
-        """Importance of light ``i`` at ``p`` with normal ``n`` (zero: unoriented): the
-        irradiance bound of the module docstring (:meth:`LightTable.importance` in Dr.Jit)."""
-        g = lambda arr, cls=mi.Float: dr.gather(cls, arr, i, active)  # noqa: E731
-        kind, axis = g(self.kind, mi.UInt32), g(self.axis, mi.Vector3f)
-        intensity = g(self.intensity)
-        has_n = dr.squared_norm(n) > 0
-        c_n = dr.abs(dr.dot(n, axis))
-        distant = intensity * dr.select(has_n, c_n, 1.0)
-        infinite = intensity + g(self.linear) * dr.select(has_n, c_n, 1.0)
-        r = g(self.radius)
-        v = p - g(self.center, mi.Point3f)
-        d2 = dr.squared_norm(v)
-        dist = dr.sqrt(d2)
-        wo = v / dr.maximum(dist, 1e-30)
-        # angles without trigonometric calls (pbrt-v4's cosSubClamped / sinSubClamped):
-        # θ_b subtended by the bounding sphere (π inside it), θ_x = max(0, θ_w − θ_o − θ_b)
-        outside = dist > r
-        sin_b = dr.select(outside, r / dr.maximum(dist, 1e-30), 0.0)
-        cos_b = dr.select(outside, dr.safe_sqrt(1.0 - sin_b * sin_b), -1.0)
-        cos_w = dr.dot(wo, axis)
-        sin_w = dr.safe_sqrt(1.0 - cos_w * cos_w)
-        cos_o, sin_o = g(self.cos_o), g(self.sin_o)
-        inside_o = cos_w > cos_o
-        cos_wo = dr.select(inside_o, 1.0, cos_w * cos_o + sin_w * sin_o)
-        sin_wo = dr.select(inside_o, 0.0, sin_w * cos_o - cos_w * sin_o)
-        cos_x = dr.select(cos_wo > cos_b, 1.0, cos_wo * cos_b + sin_wo * sin_b)
-        emit = dr.select(cos_x >= g(self.cos_e), dr.maximum(cos_x, 0.0), 0.0)
-        emit = dr.select(g(self.one_sided, mi.Bool) & (dr.dot(v, axis) <= 0), 0.0, emit)
-        cos_i = dr.abs(dr.dot(n, wo))
-        sin_i = dr.safe_sqrt(1.0 - cos_i * cos_i)
-        recv = dr.select(has_n, dr.select(cos_i > cos_b, 1.0, cos_i * cos_b + sin_i * sin_b),
-                         1.0)
-        d2c = dr.maximum(d2, dr.maximum(r * r, 1e-12))
-        local = dr.minimum(intensity * emit * recv / d2c, g(self.cap))
-        out = dr.select(kind == KIND_DISTANT, distant,
-                        dr.select(kind == KIND_INFINITE, infinite, local))
-        return dr.select(active, dr.maximum(out, 0.0), 0.0)
+        """Importance of light ``i`` (per lane) at ``p`` with normal ``n`` (zero: unoriented):
+        :func:`bounds_importance` of the gathered bounds."""
+        return dr.select(active, bounds_importance(self.bounds.gather(i, active), p, n), 0.0)
+
+    def importances(self, it: mi.Interaction3f, active: mi.Bool | bool = True
+                    ) -> list[mi.Float]:
+        """The importance of every light at the shading context ``it`` (a surface
+        interaction or its :func:`light_context`), each light by its own code
+        (``unrolled``: ``1 < N ≤`` :data:`MAX_UNROLLED` under ``"importance"``); ``[]``
+        otherwise. A tracer may keep them with the vertex and hand them back to
+        :meth:`sample` and, at the next vertex, to :meth:`pdf` (the same context): the
+        selection is then evaluated once per vertex."""
+        n = _arrival_normal(it)
+        return [dr.select(active, bounds_importance(b, it.p, n, kind), 0.0)
+                for kind, b in self.light_bounds]
 
     def _pmf(self, imp: mi.Float, total: mi.Float) -> mi.Float:
         """Selection probability of a light of importance ``imp``: ``(1 − ε) imp / Σ + ε / N``
@@ -506,12 +575,25 @@ class LightSampler:
         return dr.select(total > 0, (1.0 - mix) * imp / dr.maximum(total, 1e-30)
                          + mix / self.n, 1.0 / self.n)
 
-    def _select(self, it: mi.Interaction3f, n: mi.Vector3f, ux: mi.Float, active: mi.Bool
-                ) -> tuple[mi.UInt32, mi.Float, mi.Float]:
+    @staticmethod
+    def _reservoir_step(i, imp, total, idx, imp_idx, imp_u, u, idx_u):
+        """Light ``i`` of importance ``imp`` offered to the reservoir: it replaces the choice
+        with probability ``imp / Σ_{j≤i} imp_j`` and ``u`` is rescaled to stay uniform."""
+        total = total + imp
+        prob = dr.select(total > 0, imp / dr.maximum(total, 1e-30), 0.0)
+        take = (imp > 0) & (u < prob)
+        u = dr.select(take, u / dr.maximum(prob, 1e-30),
+                      dr.select(imp > 0, (u - prob) / dr.maximum(1.0 - prob, 1e-30), u))
+        idx = dr.select(take, i, idx)
+        imp_idx = dr.select(take, imp, imp_idx)
+        imp_u = dr.select(i == idx_u, imp, imp_u)
+        return total, idx, imp_idx, imp_u, dr.clip(u, 0.0, 0.99999994)
+
+    def _select(self, it: mi.Interaction3f, n: mi.Vector3f, ux: mi.Float, active: mi.Bool,
+                imps: list[mi.Float] | None = None) -> tuple[mi.UInt32, mi.Float, mi.Float]:
         """(light index, its selection probability, ``ux`` reused) per lane: with probability
-        ``ε`` a uniform choice, else one weighted-reservoir pass over the lights (light ``i``
-        replaces the choice with probability ``imp_i / Σ_{j≤i} imp_j``; the uniform number is
-        rescaled at each step, so it is uniform again given the choice)."""
+        ``ε`` a uniform choice, else one weighted-reservoir pass over the lights
+        (:meth:`_reservoir_step`). ``imps``: :meth:`importances` at ``it``, when known."""
         if self.selection != "importance" or self.n == 1:
             idx, u_re, pmf = self.distr.sample_reuse_pmf(ux, active)
             return idx, pmf, u_re
@@ -521,25 +603,21 @@ class LightSampler:
         idx_u = mi.UInt32(dr.minimum(mi.UInt32(ui), self.n - 1))
         u_uni = ui - mi.Float(idx_u)
         u_imp = dr.select(uniform, 0.5, (ux - mix) / (1.0 - mix))
-
-        def body(i, total, idx, imp_idx, imp_u, u):
-            imp = self.importance(i, it.p, n, active)
-            total = total + imp
-            prob = dr.select(total > 0, imp / dr.maximum(total, 1e-30), 0.0)
-            take = (imp > 0) & (u < prob)
-            u = dr.select(take, u / dr.maximum(prob, 1e-30),
-                          dr.select(imp > 0, (u - prob) / dr.maximum(1.0 - prob, 1e-30), u))
-            idx = dr.select(take, i, idx)
-            imp_idx = dr.select(take, imp, imp_idx)
-            imp_u = dr.select(i == idx_u, imp, imp_u)
-            return i + 1, total, idx, imp_idx, imp_u, dr.clip(u, 0.0, 0.99999994)
-
         width = dr.width(it.p)
         zero = dr.zeros(mi.Float, width)
-        _, total, idx, imp_idx, imp_u, u = dr.while_loop(
-            state=(mi.UInt32(0), zero, dr.full(mi.UInt32, NO_LIGHT, width), zero, zero,
-                   mi.Float(u_imp)),
-            cond=lambda i, *_: i < self.n, body=body, label="light_select")
+        state = (zero, dr.full(mi.UInt32, NO_LIGHT, width), zero, zero, mi.Float(u_imp))
+        if self.unrolled:
+            for i, imp in enumerate(imps or self.importances(it, active)):
+                state = self._reservoir_step(mi.UInt32(i), imp, *state, idx_u)
+            total, idx, imp_idx, imp_u, u = state
+        else:
+            def body(i, *st):
+                imp = self.importance(i, it.p, n, active)
+                return i + 1, *self._reservoir_step(i, imp, *st, idx_u)
+
+            _, total, idx, imp_idx, imp_u, u = dr.while_loop(
+                state=(mi.UInt32(0), *state), cond=lambda i, *_: i < self.n, body=body,
+                label="light_select")
         by_uniform = uniform | (total <= 0)  # no light has importance: the uniform choice
         idx = dr.select(by_uniform, idx_u, idx)
         imp = dr.select(by_uniform, imp_u, imp_idx)
@@ -548,21 +626,27 @@ class LightSampler:
         pmf = dr.select(if_active, self._pmf(imp, total), 0.0)
         return dr.select(if_active, idx, 0), pmf, dr.clip(u_re, 0.0, 0.99999994)
 
-    def selection_pmf(self, p: mi.Point3f, n: mi.Vector3f, idx: mi.UInt32, active: mi.Bool
-                      ) -> mi.Float:
-        """Probability that :meth:`sample` chooses light ``idx`` at ``p`` with the arrival
-        normal ``n``."""
+    def selection_pmf(self, it: mi.Interaction3f, idx: mi.UInt32, active: mi.Bool,
+                      imps: list[mi.Float] | None = None) -> mi.Float:
+        """Probability that :meth:`sample` chooses light ``idx`` in the shading context
+        ``it``; ``imps``: :meth:`importances` there, when known."""
         if self.selection != "importance" or self.n == 1:  # one light: always chosen
             return dr.gather(mi.Float, self.pmf, idx, active)
+        zero = dr.zeros(mi.Float, dr.width(it.p))
+        if self.unrolled:
+            total, imp = zero, zero
+            for i, imp_i in enumerate(imps or self.importances(it, active)):
+                total, imp = total + imp_i, dr.select(idx == i, imp_i, imp)
+        else:
+            n = _arrival_normal(it)
 
-        def body(i, total, imp_idx):  # Σ imp and light idx's own, in one pass
-            imp = self.importance(i, p, n, active)
-            return i + 1, total + imp, dr.select(i == idx, imp, imp_idx)
+            def body(i, total, imp_idx):  # Σ imp and light idx's own, in one pass
+                imp = self.importance(i, it.p, n, active)
+                return i + 1, total + imp, dr.select(i == idx, imp, imp_idx)
 
-        zero = dr.zeros(mi.Float, dr.width(p))
-        _, total, imp = dr.while_loop(state=(mi.UInt32(0), zero, zero),
-                                      cond=lambda i, *_: i < self.n, body=body,
-                                      label="light_pmf")
+            _, total, imp = dr.while_loop(state=(mi.UInt32(0), zero, zero),
+                                          cond=lambda i, *_: i < self.n, body=body,
+                                          label="light_pmf")
         return dr.select(active, self._pmf(imp, total), 0.0)
 
     # -- sampling -------------------------------------------------------------------------
@@ -585,17 +669,19 @@ class LightSampler:
         const = dr.gather(mi.Bool, self.constant, idx, active)
         return dr.select(inf, dr.select(const, 1.0, self.env_cosine), 0.0)
 
-    def sample(self, it: mi.Interaction3f, u: mi.Point2f, active: mi.Bool
+    def sample(self, it: mi.Interaction3f, u: mi.Point2f, active: mi.Bool,
+               imps: list[mi.Float] | None = None
                ) -> tuple[mi.DirectionSample3f, mi.Spectrum]:
         """Like ``scene.sample_emitter_direction(it, u, False, active)``: a direction sample
         (``pdf`` in solid angle, selection included) and the weight ``L / pdf`` (no
         visibility test). ``it``: a surface interaction (its normal is turned towards
-        ``wi``) or a context from :func:`light_context`."""
+        ``wi``) or a context from :func:`light_context`; ``imps``: :meth:`importances` at
+        ``it``, when already evaluated."""
         if self.n == 0:
             return dr.zeros(mi.DirectionSample3f), dr.zeros(mi.Spectrum)
         n = _arrival_normal(it)
         ctx = mi.Interaction3f(it)
-        idx, pmf, ux = self._select(ctx, n, u.x, active)
+        idx, pmf, ux = self._select(ctx, n, u.x, active, imps)
         active = active & (pmf > 0)
         emitter = dr.gather(mi.EmitterPtr, self.ptrs, idx, active)
         # environments: cosine-weighted about n with probability c, else their own sampling
@@ -647,17 +733,18 @@ class LightSampler:
         w = dr.select(pmf > 0, w / pmf, 0.0)
         return ds, dr.select(active, w, 0.0)
 
-    def pdf(self, it: mi.Interaction3f, ds: mi.DirectionSample3f, active: mi.Bool
-            ) -> mi.Float:
+    def pdf(self, it: mi.Interaction3f, ds: mi.DirectionSample3f, active: mi.Bool,
+            imps: list[mi.Float] | None = None) -> mi.Float:
         """Like ``scene.pdf_emitter_direction(it, ds, active)`` for this sampler, in the
-        same context ``it`` that :meth:`sample` was given."""
+        same context ``it`` that :meth:`sample` was given (``imps``: the
+        :meth:`importances` it was given, if any)."""
         if self.n == 0:
             return dr.zeros(mi.Float)
         active = active & (dr.reinterpret_array(mi.UInt32, ds.emitter) != 0)
         idx = self._index(ds.emitter, active)
         n = _arrival_normal(it)
         ctx = mi.Interaction3f(it)
-        pmf = self.selection_pmf(ctx.p, n, idx, active)
+        pmf = self.selection_pmf(ctx, idx, active, imps)
         rect = active & dr.gather(mi.Bool, self.is_rect, idx, active)
         s, ex, ey = self._rect(idx, rect)
         solid = rectangle_solid_angle(ctx.p, s, ex, ey)
@@ -670,6 +757,7 @@ class LightSampler:
         return dr.select(active, pdf * pmf, 0.0)
 
 
-__all__ = ["ENV_COSINE", "LightSampler", "LightTable", "MIN_SOLID_ANGLE", "SELECTIONS",
-           "UNIFORM_MIX", "emitter_power", "environment_moments", "light_context",
-           "rectangle_solid_angle", "spherical_rectangle"]
+__all__ = ["Bounds", "ENV_COSINE", "LightSampler", "LightTable", "MAX_UNROLLED",
+           "MIN_SOLID_ANGLE", "SELECTIONS", "UNIFORM_MIX", "bounds_importance",
+           "emitter_power", "environment_moments", "light_context", "rectangle_solid_angle",
+           "spherical_rectangle"]

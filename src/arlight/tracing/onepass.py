@@ -113,14 +113,17 @@ class _Path:
     prev_pdf: mi.Float
     prev_delta: mi.Bool
     spec_virtual: mi.Bool
+    prev_imps: list[mi.Float]  # the light importances at prev_si (LightSelection.importances)
 
     @staticmethod
-    def start(rays: mi.Ray3f, active: bool) -> _Path:
+    def start(rays: mi.Ray3f, active: bool, lights: int = 0) -> _Path:
+        """Paths starting on ``rays``; ``lights``: how many importances a vertex keeps."""
         n = dr.width(rays.d)
         return _Path(ray=mi.Ray3f(rays), beta=dr.full(mi.Color3f, 1.0, n),
                      eta=dr.full(mi.Float, 1.0, n), active=dr.full(mi.Bool, active, n),
                      prev_si=dr.zeros(mi.Interaction3f, n), prev_pdf=dr.full(mi.Float, 1.0, n),
-                     prev_delta=dr.full(mi.Bool, True, n), spec_virtual=dr.full(mi.Bool, False, n))
+                     prev_delta=dr.full(mi.Bool, True, n), spec_virtual=dr.full(mi.Bool, False, n),
+                     prev_imps=[dr.zeros(mi.Float, n) for _ in range(lights)])
 
 
 def mis_weight(pdf_a: mi.Float, pdf_b: mi.Float) -> mi.Float:
@@ -240,26 +243,37 @@ class LightSelection:
         if mode != "mitsuba":
             for view in (real, mixed):
                 self.lights[id(view)] = light_sampler(view, mode)
+        # importances a path vertex keeps for the next vertex's pdf (the same in both views)
+        self.kept = max((len(ls.light_bounds) for ls in self.lights.values()), default=0)
+
+    def importances(self, view: SceneView, it: mi.Interaction3f, active: mi.Bool
+                    ) -> list[mi.Float]:
+        """The light importances at the vertex ``it`` (``[]`` where the sampler has no
+        per-light code): computed once, handed to :meth:`sample` here and to :meth:`pdf`
+        at the next vertex, whose context is this vertex's ``light_context``."""
+        ls = self.lights.get(id(view))
+        return ls.importances(it, active) if ls is not None and self.kept else []
 
     def sample(self, view: SceneView, it: mi.Interaction3f, u: mi.Point2f,
-               active: mi.Bool) -> tuple[mi.DirectionSample3f, mi.Color3f]:
+               active: mi.Bool, imps: list[mi.Float] | None = None
+               ) -> tuple[mi.DirectionSample3f, mi.Color3f]:
         """Next-event light sample in ``view`` (no visibility test): the direction sample
         (solid-angle pdf, selection included) and the weight ``L / pdf``. ``it``: the
-        vertex's surface interaction."""
+        vertex's surface interaction; ``imps``: :meth:`importances` there, if known."""
         ls = self.lights.get(id(view))
         if ls is None:
             return view.scene.sample_emitter_direction(it, u, False, active)
-        return ls.sample(it, u, active)
+        return ls.sample(it, u, active, imps or None)
 
     def pdf(self, view: SceneView, it: mi.Interaction3f, ds: mi.DirectionSample3f,
-            active: mi.Bool) -> mi.Float:
+            active: mi.Bool, imps: list[mi.Float] | None = None) -> mi.Float:
         """Solid-angle pdf of :meth:`sample` producing ``ds`` (for MIS); ``it``: the surface
         interaction :meth:`sample` was given, or its :func:`~arlight.sampling.lights.
-        light_context`."""
+        light_context`; ``imps``: the importances :meth:`sample` was given, if any."""
         ls = self.lights.get(id(view))
         if ls is None:
             return view.scene.pdf_emitter_direction(it, ds, active)
-        return ls.pdf(it, ds, active)
+        return ls.pdf(it, ds, active, imps or None)
 
 
 class HitRules:
@@ -420,8 +434,8 @@ class OnePassTracer:
         to_real_const = onepass and self.same_views
         kind = "mixed" if view is self.mixed else "real"
         zero_u = dr.zeros(mi.UInt32, n)
-        state = (_Path.start(rays, True), dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n),
-                 dr.zeros(mi.Float, n), mi.UInt32(zero_u),
+        state = (_Path.start(rays, True, self.light_selection.kept), dr.zeros(mi.Color3f, n),
+                 dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n), mi.UInt32(zero_u),
                  [mi.UInt32(zero_u) for _ in RAY_TYPES], dr.full(mi.Bool, False, n),
                  mi.UInt32(zero_u))
 
@@ -481,7 +495,7 @@ class OnePassTracer:
         if m == 0:
             return lr
         zero_u = dr.zeros(mi.UInt32, m)
-        state = (_Path.start(rays_b, True),
+        state = (_Path.start(rays_b, True, self.light_selection.kept),
                  dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u), mi.UInt32(zero_u),
                  mi.UInt32(zero_u))
 
@@ -560,7 +574,8 @@ class OnePassTracer:
         if self.opts.mirror_lower_hemisphere:
             si.wi = dr.select(valid, si.wi, mi.Vector3f(si.wi.x, -dr.abs(si.wi.y), si.wi.z))
         ds = hit_sample(view, si, st.prev_si)
-        em_pdf = self.light_selection.pdf(view, st.prev_si, ds, active & ~st.prev_delta)
+        em_pdf = self.light_selection.pdf(view, st.prev_si, ds, active & ~st.prev_delta,
+                                          st.prev_imps)
         mis = mis_weight(st.prev_pdf, em_pdf)
         if self.miss_only:
             mis = dr.select(self._is_env(ds.emitter), 1.0, mis)
@@ -577,8 +592,9 @@ class OnePassTracer:
             reproj &= depth + 1 < self.opts.max_depth
         bsdf = si.bsdf()
         active_em = (active_next | reproj) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        imps = self.light_selection.importances(view, si, active_next | reproj)
         ds, em_weight = self.light_selection.sample(view, si, rand_nee(key, depth),
-                                                     active_em)
+                                                     active_em, imps)
         active_em &= ds.pdf != 0.0
         if self.miss_only:
             active_em &= ~self._is_env(ds.emitter)
@@ -620,6 +636,8 @@ class OnePassTracer:
         st.prev_si = dr.select(active_next, light_context(si), st.prev_si)
         st.prev_pdf = dr.select(active_next, bs.pdf, st.prev_pdf)
         st.prev_delta = dr.select(active_next, delta, st.prev_delta)
+        st.prev_imps = [dr.select(active_next, a, b) for a, b in zip(imps, st.prev_imps,
+                                                                      strict=True)]
         beta_max = dr.max(st.beta)
         active_next &= beta_max != 0
         rr = active_next & (depth >= self.opts.rr_depth)
