@@ -30,9 +30,20 @@ Faults (long versions of tests/lightserver):
 A live run follows: the server executes the pipeline (``NearFieldServer.update``) per update
 on fisheye frames recorded first (cornell proxy, ceiling light on a circle), 16 clients.
 
+Pipeline stages (issue #32; ``--stages-only`` runs just these): ``NearFieldServer.update``
+at ``arlight serve-light --source pipeline``'s defaults (cornell proxy, six 64² px fisheyes of
+the default rig, 128² atlas, τ 0.9, 16 VALs, SH for 1 object) on recorded frames, and at
+Rohmer's 1024² atlas. In one process and interleaved: an update with the projection cache
+emptied first (``uncached``: the camera→texel weights and visibility recomputed, as every
+update did before issue #32) and the next update (``cached``: the images sampled at the cached
+taps). Median per stage over ``--stage-updates`` pairs, next to Rohmer's Table 1 (GPU, 2010,
+1024² atlas, 4 cameras); the first update of the first server (Dr.Jit compiles its kernels
+then) is shown on its own. The uncached / cached ratio is a same-run ratio.
+
 Usage: ``python benchmarks/bench_lightserver.py [--write] [--seconds 8] [--rate 20]
-[--clients 1,4,16,64] [--repeats 3] [--skip-pipeline] [--skip-faults]`` (``--write``
-updates the section of RESULTS.md; about 6 minutes with the defaults).
+[--clients 1,4,16,64] [--repeats 3] [--skip-pipeline] [--skip-faults] [--stages-only]
+[--stage-updates 7] [--stage-atlases 128,1024]`` (``--write`` updates the sections of
+RESULTS.md; about 7 minutes with the defaults, ``--stages-only`` about 1 minute).
 """
 
 from __future__ import annotations
@@ -52,6 +63,7 @@ import numpy as np
 from results import cpu_pressure, publish
 
 SECTION = "## Light server: one server, many clients (issue 18)"
+STAGE_SECTION = "## Light server: pipeline stages, projection cached per rig and proxy (issue #32)"
 MAX_PROCS = 4
 ROOT = Path(__file__).resolve().parents[1]
 LIVE_SCENE = ROOT / "src/arlight/data/scenes/cornell-near-field/proxy.toml"
@@ -153,14 +165,14 @@ def collect(out, ps, timeout=60.0):
 
 # -- load ------------------------------------------------------------------------------------
 
-def record_frames(folder: Path, frames: int = 4) -> float:
-    """Synthesise ``frames`` fisheye frames of the cornell proxy with its ceiling light on a
-    circle (the pipeline's input); returns the seconds per frame."""
+def record_frames(folder: Path, frames: int = 4, camera: int = LIVE_CAMERA) -> float:
+    """Synthesise ``frames`` fisheye frames (``camera``² px) of the cornell proxy with its
+    ceiling light on a circle (the pipeline's input); returns the seconds per frame."""
     from arlight.lightserver.pipeline import MovingLightFrames, default_rig, write_frames
     from arlight.scene.load import load_scene
 
     world = load_scene(LIVE_SCENE).world
-    rig = default_rig(world, LIVE_CAMERA)
+    rig = default_rig(world, camera)
     t0 = time.perf_counter()
     write_frames(MovingLightFrames(world, rig, loop=frames, spp=2), rig, folder, frames)
     return (time.perf_counter() - t0) / frames
@@ -366,6 +378,149 @@ def fault_slow(rate, seconds, vals, n_obj, n=16, freeze=3.0):
             "publish_max": float(np.max(s["publish_ms"])), "published": s["published"]}
 
 
+# -- pipeline stages (issue #32) -------------------------------------------------------------
+
+STAGE_CAMERA = 64  # serve-light's --camera-size default
+ROHMER_CAMERAS = 4
+ROHMER_MS: dict[str, float | None] = {
+    # Rohmer et al. 2015, Table 1 (GPU, 1024² atlas, 4 cameras, 4k samples, M = 16)
+    "visibility": 0.26 * ROHMER_CAMERAS,
+    "project": 0.44 * ROHMER_CAMERAS, "combine": 0.58, "threshold": 9.1, "split": 0.53,
+    "dilate": 1.33, "sampling": 6.67, "kmeans": 7.3, "integrate": 17.5, "sh": None,
+}
+STAGE_ROWS = [  # (our stage, what it is, Rohmer's Table 1 row)
+    ("visibility", "camera→texel weights + visibility (all cameras)", "render depth ×4"),
+    ("project", "sample the images into the atlas (all cameras)", "project into atlas ×4"),
+    ("combine", "combine radiance atlas", "combine radiance atlas"),
+    ("threshold", "find separating threshold", "find separating threshold"),
+    ("split", "split into direct / indirect", "split into direct/indirect"),
+    ("dilate", "dilatation", "dilatation"),
+    ("sampling", "importance sampling (4096)", "sampling (4k)"),
+    ("kmeans", "k-means (M = 16, 20 iterations)", "k-means (M = 16)"),
+    ("integrate", "integrating cluster radiances", "integrating cluster radiances"),
+    ("sh", "SH cube maps + projection", "— (not in Table 1)"),
+]
+
+
+def _stage_ms(stats: dict[str, float]) -> dict[str, float]:
+    """One update's ``server.stats`` folded into :data:`STAGE_ROWS` (per-camera stages
+    summed)."""
+    out = {k: float(stats.get(k, 0.0)) for k, _, _ in STAGE_ROWS}
+    out["project"] = sum(v for k, v in stats.items() if k.startswith("project_"))
+    return out
+
+
+def _timed_update(server, images) -> dict[str, float]:
+    t0 = time.perf_counter()
+    server.update(images)
+    wall = 1e3 * (time.perf_counter() - t0)
+    return {**_stage_ms(server.stats), "total": wall,
+            "missed": float("visibility" in server.stats)}
+
+
+def stage_runs(frames_dir: Path, atlas: int, updates: int) -> dict:
+    """The server of ``serve-light --source pipeline --atlas ATLAS`` (defaults otherwise) on
+    the recorded frames: its first update, then ``updates`` interleaved (uncached, cached)
+    pairs; per-stage medians (ms)."""
+    from arlight.lightserver.pipeline import pipeline_producer
+
+    producer = pipeline_producer(LIVE_SCENE, frames_dir, atlas=atlas,
+                                 camera_size=STAGE_CAMERA)
+    server = producer.server
+    frames = [producer.frames(i) for i in range(len(producer.frames))]  # read beforehand
+    first = _timed_update(server, frames[0])
+    runs: dict[str, list[dict[str, float]]] = {"uncached": [], "cached": []}
+    for i in range(updates):
+        server.projections.clear()
+        runs["uncached"].append(_timed_update(server, frames[(2 * i + 1) % len(frames)]))
+        runs["cached"].append(_timed_update(server, frames[(2 * i + 2) % len(frames)]))
+    assert all(r["missed"] == 1.0 for r in runs["uncached"]), "uncached update hit the cache"
+    assert all(r["missed"] == 0.0 for r in runs["cached"]), "cached update recomputed"
+    med = {k: {s: float(np.median([r[s] for r in rs])) for s in rs[0]}
+           for k, rs in runs.items()}
+    return {"atlas": atlas, "first": first, **med, "texels": int(len(server.area)),
+            "cameras": len(server.cameras), "updates": updates,
+            "cached_totals": [r["total"] for r in runs["cached"]]}
+
+
+def run_stages(atlases: list[int], updates: int) -> list[dict]:
+    """Record frames once, then :func:`stage_runs` per atlas side."""
+    with tempfile.TemporaryDirectory() as tmp:
+        record_frames(Path(tmp) / "frames", frames=3, camera=STAGE_CAMERA)
+        out = []
+        for atlas in atlases:
+            out.append(stage_runs(Path(tmp) / "frames", atlas, updates))
+            print({k: v for k, v in out[-1].items() if k != "cached_totals"}, flush=True)
+    return out
+
+
+def _ms(v: float | None) -> str:
+    return "—" if v is None else f"{v:.2f}" if v < 10 else f"{v:.0f}"
+
+
+def stage_report(runs: list[dict], uptime_before: str, uptime_after: str) -> str:
+    """The section of RESULTS.md for the stage table."""
+    head = "| stage | Rohmer Table 1 row | Rohmer ms |"
+    sep = "|---|---|---|"
+    for r in runs:
+        a = r["atlas"]
+        cols = ([f"{a}²: first update"] if r is runs[0] else []) + [f"{a}²: uncached",
+                                                                     f"{a}²: cached"]
+        head += "".join(f" {c} |" for c in cols)
+        sep += "---|" * len(cols)
+    lines = [STAGE_SECTION, "",
+             "`python benchmarks/bench_lightserver.py --stages-only` — "
+             "`NearFieldServer.update` at `arlight serve-light --source pipeline`'s defaults "
+             f"(cornell proxy, {runs[0]['cameras']} fisheyes of {STAGE_CAMERA}² px from the "
+             "default rig, τ 0.9, 16 VALs, 4096 samples, 20 k-means iterations, SH for 1 "
+             "object) on 3 path-traced frames (ceiling light on a circle), 2 CPU cores shared "
+             "with other work. *uncached*: the projection cache emptied before the update (the "
+             "camera→texel weights and visibility recomputed: every update before issue #32); "
+             "*cached*: the next update (rig and proxy unchanged: the images are sampled at "
+             f"the cached taps). Medians of {runs[0]['updates']} interleaved pairs in one "
+             "process, ms. *first update*: the first of the process (Dr.Jit compiles the "
+             "ray-tracing kernels then). Rohmer: GPU of 2010, 1024² atlas, 4 cameras; per-"
+             "camera rows × 4; his 53.9 ms include acquiring the 4 colour images (4 × 2.35 "
+             "ms), which are given in memory here.", "", head, sep]
+    for key, what, rohmer in STAGE_ROWS:
+        row = f"| {what} | {rohmer} | {_ms(ROHMER_MS[key])} |"
+        for r in runs:
+            vals = ([r["first"][key]] if r is runs[0] else []) + [r["uncached"][key],
+                                                                  r["cached"][key]]
+            row += "".join(f" {_ms(v)} |" for v in vals)
+        lines.append(row)
+    total = f"| **update (wall)** | sum, 4 cameras, static | {_ms(53.9)} |"
+    for r in runs:
+        vals = ([r["first"]["total"]] if r is runs[0] else []) + [r["uncached"]["total"],
+                                                                  r["cached"]["total"]]
+        total += "".join(f" **{_ms(v)}** |" for v in vals)
+    lines.append(total)
+    lines.append("")
+    for r in runs:
+        ratio = r["uncached"]["total"] / r["cached"]["total"]
+        worst = max(r["cached_totals"])
+        lines.append(f"- {r['atlas']}² atlas ({r['texels']} covered texels): cached update "
+                     f"median **{r['cached']['total']:.0f} ms** (worst of "
+                     f"{r['updates']}: {worst:.0f} ms), uncached {r['uncached']['total']:.0f} "
+                     f"ms — {ratio:.1f}× in the same run.")
+    d = runs[0]
+    ok = d["cached"]["total"] <= 200
+    lines += ["", f"Target (issue #32): light server update ≤ 200 ms at its defaults on 2 "
+              f"cores — cached median {d['cached']['total']:.0f} ms: **{'met' if ok else 'not met'}"
+              "**. The camera→texel taps are computed when the rig or the proxy (or the atlas "
+              "settings) change; their cost is the *uncached* − *cached* difference.",
+              "", f"Load: `uptime` before: {uptime_before}; after: {uptime_after}; CPU "
+              f"pressure (PSI some avg60) {cpu_pressure() or 'n/a'} %."]
+    return "\n".join(lines)
+
+
+def uptime() -> str:
+    """The machine's ``uptime`` line (load averages)."""
+    import subprocess
+
+    return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+
+
 # -- report ----------------------------------------------------------------------------------
 
 def report(rows, live, faults, args) -> str:
@@ -463,7 +618,23 @@ def main() -> None:
     ap.add_argument("--skip-faults", action="store_true")
     ap.add_argument("--skip-pipeline", action="store_true")
     ap.add_argument("--repeats", type=int, default=3, help="runs per N (interleaved)")
+    ap.add_argument("--stages-only", action="store_true",
+                    help="only the pipeline stage table (issue #32)")
+    ap.add_argument("--stage-updates", type=int, default=7,
+                    help="(uncached, cached) update pairs per atlas side")
+    ap.add_argument("--stage-atlases", default="128,1024",
+                    help="atlas sides of the stage table (the first: serve-light's default)")
     args = ap.parse_args()
+    if not 1 <= args.stage_updates <= 100:
+        ap.error("--stage-updates must be in 1..100")
+    atlases = [int(x) for x in args.stage_atlases.split(",")]
+    if any(not 16 <= a <= 4096 for a in atlases):
+        ap.error("--stage-atlases: each side in 16..4096")
+    before = uptime()
+    stages = run_stages(atlases, args.stage_updates)
+    publish(stage_report(stages, before, uptime()), args.write)
+    if args.stages_only:
+        return
     if not (0 < args.seconds <= 120 and 0 < args.rate <= 1000 and 1 <= args.repeats <= 10):
         ap.error("--seconds must be in (0, 120], --rate in (0, 1000], --repeats in 1..10")
     ns = [int(x) for x in args.clients.split(",")]

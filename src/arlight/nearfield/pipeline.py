@@ -12,11 +12,24 @@ laid over, its **virtual** shapes the objects that get an SH block each (in the 
 RigCamera` (:func:`~arlight.nearfield.cameras.load_rig` reads ``cams.toml``).
 
 Stages of one update (``server.stats``, milliseconds; Rohmer's Table 1 names in brackets):
-``project_<camera>`` (render depth + project into atlas), ``combine`` (combine radiance
-atlas), ``threshold`` + ``split`` (find separating threshold; split), ``dilate``
-(dilatation), ``sampling``, ``kmeans``, ``integrate`` (integrating cluster radiances),
-``sh`` (cube maps and their projection). The atlas geometry (position / normal / area) is
+``visibility`` (render depth: the camera→texel weights, visibility and pixel taps of every
+camera; only when the rig or the proxy is new, see below), ``project_<camera>`` (project
+into atlas: the image sampled at the cached taps), ``combine`` (combine radiance atlas),
+``threshold`` + ``split`` (find separating threshold; split), ``dilate`` (dilatation),
+``sampling``, ``kmeans``, ``integrate`` (integrating cluster radiances), ``sh`` (cube maps
+and their projection). The atlas geometry (position / normal / area) is
 computed once in the constructor (``stats_static['atlas_geometry']``).
+
+**Cached projection.** The camera→texel weights ``w_i``, the visibility of every texel from
+every camera and the pixels it projects to depend on the rig and the proxy only, never on
+the images: they are kept in :attr:`NearFieldServer.projections`
+(:class:`~arlight.nearfield.projection_cache.ProjectionCache`) under a content hash of the
+rig (every camera's model and centre, read at each update: cameras replaced or moved in
+place count), the proxy's triangles and the atlas settings. An update then samples the
+images at the cached taps and merges (bitwise the result of projecting from scratch). A new
+``world`` whose real shapes differ (:meth:`NearFieldServer.set_world`, a real shape moved
+by :meth:`~NearFieldServer.set_object_transforms`) lays the atlas out anew and so gets a
+new key.
 """
 
 from __future__ import annotations
@@ -40,7 +53,8 @@ from arlight.nearfield.atlas import (
 )
 from arlight.nearfield.cameras import RigCamera
 from arlight.nearfield.indirect import IndirectProbes, VirtualObject
-from arlight.nearfield.projection import merge, project_camera
+from arlight.nearfield.projection import camera_taps, check_image, merge, sample_camera
+from arlight.nearfield.projection_cache import ProjectionCache, proxy_key, rig_key
 from arlight.nearfield.raytrace import mesh_scene
 from arlight.nearfield.split import DEFAULT_TAU, SplitAtlas, check_tau, split
 from arlight.nearfield.state import SH_BLOCK_BYTES, VAL_RECORD_BYTES, NearFieldLight
@@ -152,19 +166,10 @@ class NearFieldServer:
             raise InputError("the rig has no camera", field="cameras")
         self.world = world
         self.cameras = list(cameras)
+        self.projections = ProjectionCache()
         timer = StageTimer()
         with timer.stage("atlas_geometry"):
-            self.mesh: ProxyMesh = proxy_mesh(world)
-            self.layout: AtlasLayout = layout_charts(self.mesh, self.settings.atlas_resolution)
-            self.geometry: AtlasGeometry = rasterize(self.mesh, self.layout,
-                                                     self.settings.supersample)
-        self.proxy_scene = mesh_scene([(self.mesh.vertices, self.mesh.faces)])
-        self.scale = float(np.linalg.norm(self.mesh.vertices.max(0)
-                                          - self.mesh.vertices.min(0)))
-        self._texels = np.flatnonzero(self.geometry.covered.reshape(-1))
-        self.position = self.geometry.position.reshape(-1, 3)[self._texels]
-        self.normal = self.geometry.normal.reshape(-1, 3)[self._texels]
-        self.area = self.geometry.area.reshape(-1)[self._texels]
+            self._set_proxy(proxy_mesh(world))
         with timer.stage("objects"):
             self.set_world(world)
         self.stats_static = {k: 1e3 * v for k, v in timer.seconds.items()}
@@ -174,9 +179,38 @@ class NearFieldServer:
         self.last: ServerState | None = None
         self.light: NearFieldLight | None = None
 
+    # ------------------------------------------------------------------ proxy
+    def _set_proxy(self, mesh: ProxyMesh) -> None:
+        """Lay the atlas over ``mesh`` (the real shapes): layout, per-texel geometry, the
+        ray-tracing scene and :attr:`proxy_key`."""
+        s = self.settings
+        self.mesh = mesh
+        self.proxy_key = proxy_key(mesh.vertices, mesh.faces, s.atlas_resolution,
+                                   s.supersample)
+        self.layout: AtlasLayout = layout_charts(mesh, s.atlas_resolution)
+        self.geometry: AtlasGeometry = rasterize(mesh, self.layout, s.supersample)
+        self.proxy_scene = mesh_scene([(mesh.vertices, mesh.faces)])
+        self.scale = float(np.linalg.norm(mesh.vertices.max(0) - mesh.vertices.min(0)))
+        self._texels = np.flatnonzero(self.geometry.covered.reshape(-1))
+        self.position = self.geometry.position.reshape(-1, 3)[self._texels]
+        self.normal = self.geometry.normal.reshape(-1, 3)[self._texels]
+        self.area = self.geometry.area.reshape(-1)[self._texels]
+
+    def projection_key(self) -> str:
+        """The key of the current rig and proxy in :attr:`projections` (module docstring)."""
+        return f"{self.proxy_key}:{rig_key(self.cameras)}"
+
     # ------------------------------------------------------------------ objects
     def set_world(self, world: World) -> None:
-        """Take the virtual objects (and their poses) from ``world``; the proxy is kept."""
+        """Take the virtual objects (and their poses) from ``world``; when its real shapes
+        differ from the proxy's, the atlas is laid over them anew (the k-means warm start
+        is dropped: its centres lie on the old proxy)."""
+        mesh = proxy_mesh(world)
+        s = self.settings
+        if proxy_key(mesh.vertices, mesh.faces, s.atlas_resolution,
+                     s.supersample) != self.proxy_key:
+            self._set_proxy(mesh)
+            self.centres = None
         self.world = world
         self.objects = virtual_objects(world)
         self.probes = IndirectProbes(self.mesh.vertices, self.mesh.faces, self.layout,
@@ -194,6 +228,11 @@ class NearFieldServer:
         img = np.zeros((R * R, 3), np.float32)
         img[self._texels] = values
         return img.reshape(R, R, 3)
+
+    def _camera_taps(self, timer: StageTimer) -> list:
+        """Every camera's weights, visibility and taps (the ``visibility`` stage)."""
+        with timer.stage("visibility"):
+            return [camera_taps(self.geometry, cam, self.proxy_scene) for cam in self.cameras]
 
     def update(self, images: Sequence[np.ndarray] | Mapping[str, np.ndarray],
                timestamp: float | None = None, settings: NearFieldSettings | None = None
@@ -228,12 +267,14 @@ class NearFieldServer:
         if len(imgs) != len(self.cameras):
             raise InputError(f"{len(imgs)} images for {len(self.cameras)} cameras",
                              field="images")
+        imgs = [check_image(img, cam) for cam, img in zip(self.cameras, imgs, strict=True)]
         timer = StageTimer()
+        taps = self.projections.get(self.projection_key(),
+                                    lambda: self._camera_taps(timer))
         projections = []
-        geom_flat = self.geometry
-        for cam, img in zip(self.cameras, imgs, strict=True):
+        for cam, img, t in zip(self.cameras, imgs, taps, strict=True):
             with timer.stage(f"project_{cam.name}"):
-                projections.append(project_camera(geom_flat, cam, img, self.proxy_scene))
+                projections.append(sample_camera(t, img, cam.name))
         with timer.stage("combine"):
             radiance, weight = merge(projections)
         with timer.stage("threshold"):

@@ -10,6 +10,12 @@ of view. Its weight is
 (clamped: the fisheye border is low resolution, steep views are unreliable) and the merged
 radiance is ``Σ w_i L_i / Σ w_i`` with ``L_i`` the camera's HDR image sampled bilinearly at
 the projected pixel. Texels no camera sees get 0 (Rohmer §8: they "lose light").
+
+Everything but the sampling depends on the rig and the proxy only: :func:`camera_taps` (the
+weights, the visibility rays and the projected pixels' bilinear taps) is computed once per
+rig and proxy (:mod:`arlight.nearfield.projection_cache`), and an update only samples each
+image at its taps (:func:`sample_camera`) and merges. :func:`project_camera` is both steps
+at once; the two give bitwise the same result (same taps, same arithmetic).
 """
 
 from __future__ import annotations
@@ -39,18 +45,58 @@ class RigCamera(Protocol):
     def size(self) -> tuple[int, int]: ...
 
 
-def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Bilinear samples ``(N, C)`` of ``image (H, W, C)`` at pixel coordinates ``xy (N, 2)``
-    (pixel centres at +0.5; clamped to the border)."""
-    h, w = image.shape[:2]
+@dataclass
+class BilinearTaps:
+    """Where the bilinear samples at ``K`` pixel positions of a ``size`` image come from.
+
+    Attributes:
+        size: (width, height) of the image, pixels.
+        i00, i01, i10, i11: (K,) flat pixel indices ``y·width + x`` of the neighbours
+            (x0, y0), (x1, y0), (x0, y1), (x1, y1).
+        fx, fy: (K, 1) fractional offsets from (x0, y0), in [0, 1].
+    """
+
+    size: tuple[int, int]
+    i00: np.ndarray
+    i01: np.ndarray
+    i10: np.ndarray
+    i11: np.ndarray
+    fx: np.ndarray
+    fy: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.i00)
+
+
+def bilinear_taps(size: tuple[int, int], xy: np.ndarray) -> BilinearTaps:
+    """The taps of bilinear samples at pixel coordinates ``xy (N, 2)`` of a ``size = (w, h)``
+    image (pixel centres at +0.5; clamped to the border)."""
+    w, h = int(size[0]), int(size[1])
     x = np.clip(xy[:, 0] - 0.5, 0.0, w - 1.0)
     y = np.clip(xy[:, 1] - 0.5, 0.0, h - 1.0)
     x0 = np.minimum(np.floor(x).astype(np.int64), w - 2 if w > 1 else 0)
     y0 = np.minimum(np.floor(y).astype(np.int64), h - 2 if h > 1 else 0)
     x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    return ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x1])
-            + fy * ((1 - fx) * image[y1, x0] + fx * image[y1, x1]))
+    return BilinearTaps((w, h), y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1,
+                        (x - x0)[:, None], (y - y0)[:, None])
+
+
+def apply_taps(image: np.ndarray, taps: BilinearTaps) -> np.ndarray:
+    """The bilinear samples ``(K, C)`` of ``image (H, W, C)`` at ``taps`` (made for its size)."""
+    h, w = image.shape[:2]
+    if (w, h) != taps.size:
+        raise ValueError(f"taps for a {taps.size[0]}×{taps.size[1]} image applied to {w}×{h}")
+    flat = image.reshape(h * w, -1)
+    fx, fy = taps.fx, taps.fy
+    return ((1 - fy) * ((1 - fx) * flat[taps.i00] + fx * flat[taps.i01])
+            + fy * ((1 - fx) * flat[taps.i10] + fx * flat[taps.i11]))
+
+
+def bilinear(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Bilinear samples ``(N, C)`` of ``image (H, W, C)`` at pixel coordinates ``xy (N, 2)``
+    (pixel centres at +0.5; clamped to the border)."""
+    h, w = image.shape[:2]
+    return apply_taps(image, bilinear_taps((w, h), xy))
 
 
 @dataclass
@@ -89,14 +135,33 @@ def camera_weights(geom: AtlasGeometry, cam: RigCamera, proxy) -> tuple[np.ndarr
     return w, pix
 
 
-def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
-                   proxy) -> CameraProjection:
-    """Weights and sampled radiance of one camera (module docstring).
+@dataclass
+class CameraTaps:
+    """What one camera's projection keeps between updates (rig and proxy only).
 
-    Raises:
-        InputError: the image does not match the camera's size, holds non-finite or
-            negative values, or the camera sees no texel of the proxy.
+    Attributes:
+        weight: (N,) w_i over the covered texels (0 where unseen).
+        seen: (K,) indices of the texels with w_i > 0.
+        taps: the bilinear taps of the seen texels' projected pixels.
     """
+
+    weight: np.ndarray
+    seen: np.ndarray
+    taps: BilinearTaps
+
+
+def camera_taps(geom: AtlasGeometry, cam: RigCamera, proxy) -> CameraTaps:
+    """Weights, visibility and bilinear taps of ``cam`` over the covered texels (the part of
+    the projection that does not depend on the image; ``proxy``: Mitsuba scene of the proxy
+    mesh)."""
+    w, pix = camera_weights(geom, cam, proxy)
+    seen = np.flatnonzero(w > 0)
+    return CameraTaps(w, seen, bilinear_taps(cam.size, pix[seen]))
+
+
+def check_image(image: np.ndarray, cam: RigCamera) -> np.ndarray:
+    """``image`` as float32 ``(H, W, ≥3)``; InputError unless it matches the camera's size
+    and holds finite, non-negative values."""
     img = np.asarray(image, np.float32)
     w_px, h_px = cam.size
     if img.ndim != 3 or img.shape[:2] != (h_px, w_px) or img.shape[2] < 3:
@@ -105,15 +170,36 @@ def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
     if not np.all(np.isfinite(img)) or np.any(img < 0):
         raise InputError("HDR image holds negative or non-finite values",
                          field=f"cameras.{cam.name}.image")
-    w, pix = camera_weights(geom, cam, proxy)
-    if not np.any(w > 0):
+    return img
+
+
+def sample_camera(taps: CameraTaps, image: np.ndarray, name: str = "camera"
+                  ) -> CameraProjection:
+    """One camera's contribution from its cached ``taps`` and a checked ``image``
+    (:func:`check_image`): the radiance sampled at the seen texels, 0 elsewhere.
+
+    Raises:
+        InputError: the camera sees no texel of the proxy (``name`` is the camera's).
+    """
+    if len(taps.seen) == 0:
         raise InputError("the camera sees nothing of the proxy (no texel in its field of "
                          "view faces it unoccluded); check its position and look direction",
-                         field=f"cameras.{cam.name}")
-    rad = np.zeros((len(w), 3))
-    seen = w > 0
-    rad[seen] = bilinear(img[..., :3], pix[seen])
-    return CameraProjection(w, rad)
+                         field=f"cameras.{name}")
+    rad = np.zeros((len(taps.weight), 3))
+    rad[taps.seen] = apply_taps(image[..., :3], taps.taps)
+    return CameraProjection(taps.weight, rad)
+
+
+def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
+                   proxy) -> CameraProjection:
+    """Weights and sampled radiance of one camera (module docstring), nothing cached.
+
+    Raises:
+        InputError: the image does not match the camera's size, holds non-finite or
+            negative values, or the camera sees no texel of the proxy.
+    """
+    img = check_image(image, cam)
+    return sample_camera(camera_taps(geom, cam, proxy), img, cam.name)
 
 
 def merge(projections: list[CameraProjection]) -> tuple[np.ndarray, np.ndarray]:
@@ -125,4 +211,6 @@ def merge(projections: list[CameraProjection]) -> tuple[np.ndarray, np.ndarray]:
     return rad, ws
 
 
-__all__ = ["CameraProjection", "bilinear", "camera_weights", "merge", "project_camera"]
+__all__ = ["BilinearTaps", "CameraProjection", "CameraTaps", "apply_taps", "bilinear",
+           "bilinear_taps", "camera_taps", "camera_weights", "check_image", "merge",
+           "project_camera", "sample_camera"]
