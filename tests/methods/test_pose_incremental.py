@@ -108,7 +108,7 @@ def test_place_refuses_what_is_not_a_pose(demo):
         views.place(other.posed({"bunny": MOVES[0]}).shapes)
 
 
-@pytest.mark.parametrize("method", ["dir", "dlpv"])
+@pytest.mark.parametrize("method", ["dir", "dlpv", "dvct", "onepass", "reference"])
 def test_incremental_pose_equals_a_fresh_preparation(demo, method):
     """For each of two rigid moves of the virtual bunny, the frame rendered from the one
     prepared state equals bitwise the frame of ``prepare(world.posed(T))``; afterwards the

@@ -514,10 +514,10 @@ def _load_shape(name: str, node: Node) -> mi.Shape:
 
 def geometry_params(node: Node) -> dict[str, Any]:
     """Mitsuba parameter values (as :func:`mitsuba.traverse` names them) of a geometry node
-    (:func:`describe_geometry`): a ``"mesh"`` node's vertex buffers, a sphere's, rectangle's
-    or disk's ``to_world``, a cube's buffers as Mitsuba's own ``cube`` computes them (a
-    throw-away cube, never part of a scene). Setting them on a loaded shape of the same type
-    makes it bitwise the shape :func:`load_object` would load from ``node``."""
+    (:func:`describe_geometry`): a ``"mesh"`` node's vertex buffers; a sphere's, rectangle's
+    or disk's ``to_world`` and a cube's buffers as the plugin computes them (a throw-away
+    shape, never part of a scene). Setting them on a loaded shape of the same type makes it
+    bitwise the shape :func:`load_object` would load from ``node``."""
     kind = node["type"]
     if kind == "mesh":
         v, faces, uv, normals = node["vertices"], node["faces"], node["uv"], node["normals"]
@@ -530,11 +530,21 @@ def geometry_params(node: Node) -> dict[str, Any]:
             out["vertex_normals"] = dr.ravel(
                 mi.Normal3f(normals[:, 0], normals[:, 1], normals[:, 2]))
         return out
-    if kind == "cube":  # a mesh whose buffers Mitsuba computes from to_world
-        params = mi.traverse(mi.load_dict(plugin_dict(node)))
-        return {k: type(params[k])(params[k]) for k in
-                ("vertex_positions", "faces", "vertex_normals", "vertex_texcoords")}
-    return {"to_world": _load_transform(node["to_world"])}
+    # Mitsuba's primitives: what the plugin makes of to_world (a cube's buffers, a sphere's
+    # transform with the inverse its constructor computed; assigning a ScalarTransform4f to
+    # the parameter would compute the inverse otherwise, last bits apart)
+    params = mi.traverse(mi.load_dict(plugin_dict(node)))
+    if kind != "cube":
+        return {"to_world": transform_parameter(params["to_world"])}
+    return {k: type(params[k])(params[k]) for k in
+            ("vertex_positions", "faces", "vertex_normals", "vertex_texcoords")}
+
+
+def transform_parameter(value: mi.Transform4f) -> mi.Transform4f:
+    """A ``to_world`` parameter value as every loaded or moved shape gets it: a transform
+    built from ``value``'s matrix alone (its inverse computed by ``mi.Transform4f``; the
+    plugins' constructors compute it otherwise, last bits apart)."""
+    return mi.Transform4f(value.matrix)
 
 
 def _load_mesh(name: str, node: Node) -> mi.Mesh:
@@ -697,6 +707,16 @@ def load_view(view: Node, roles: dict[str, int]) -> SceneView:
         roles: shape name -> ``ROLE_REAL`` / ``ROLE_VIRTUAL`` (light geometry is real).
     """
     scene = load_scene(view)
+    out = SceneView(scene, mi.Int32(0), mi.Int32(0))
+    # every shape's to_world through the scene's parameters once, as SceneViews.place moves
+    # shapes (transform_parameter): a shape moved in place is then bitwise one loaded there
+    params = mi.traverse(scene)
+    objects = view["objects"]
+    moved = {name: {"to_world": transform_parameter(params[f"{name}.to_world"])}
+             for name, node in objects.items()
+             if is_shape_node(node) and f"{name}.to_world" in params}
+    if moved:
+        out.set_geometry(moved)
     ids, idx, role = [], [], []
     for sh in scene.shapes():
         reg = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(sh))[0])
@@ -713,7 +733,8 @@ def load_view(view: Node, roles: dict[str, int]) -> SceneView:
     role_table = np.full(size, ROLE_MISS, dtype=np.int32)
     idx_table[ids] = idx
     role_table[ids] = role
-    return SceneView(scene, mi.Int32(idx_table), mi.Int32(role_table))
+    out.shape_index, out.role = mi.Int32(idx_table), mi.Int32(role_table)
+    return out
 
 
 def build_views(scene: ARScene) -> SceneViews:

@@ -58,7 +58,7 @@ Stats: ``time_gbuffer``, ``time_rsm``, ``time_voxelize``, ``time_inject``, ``tim
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -66,14 +66,21 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
-from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    Prepared,
+    RenderSettings,
+    place_views,
+    posed_data,
+)
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
 from arlight.realtime.ibl_shading import ggx_d, smith_g1
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, ReducedLight, reduce_lights
-from arlight.realtime.rsm import RealMaps, RSMPair, real_maps, rsm_pair
+from arlight.realtime.rsm import RealMaps, RSMPair, moved_maps, real_maps, rsm_pair, same_grid
 from arlight.realtime.rsm import check_memory as check_rsm_memory
 from arlight.realtime.sh_volume import Grid, cell_index
 from arlight.realtime.shading import (
@@ -244,16 +251,8 @@ def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float
     return out
 
 
-def _same_grid(a: Grid | None, b: Grid | None) -> bool:
-    return (a is not None and b is not None and a.n == b.n and a.cell == b.cell
-            and np.array_equal(a.origin, b.origin))
-
-
-def prepare(world: World, options: Options, previous: DVCTData | None = None) -> DVCTData:
-    """Mitsuba views, reduced lights, volume placement and the real proxy's voxels. With
-    ``previous`` (the same world in another pose of its virtual objects) the real proxy's
-    voxels are reused when the volume has not moved (its centre is snapped to the cell
-    lattice, so small motions keep it)."""
+def prepare(world: World, options: Options) -> DVCTData:
+    """Mitsuba views, reduced lights, volume placement and the real proxy's voxels."""
     check_rsm_memory(options.rsm_size)
     check_memory(options.volume_size)
     views = build_views(world)
@@ -262,14 +261,34 @@ def prepare(world: World, options: Options, previous: DVCTData | None = None) ->
     grid = real = tris = maps = None
     if bounds is not None:
         grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
-        if previous is not None and _same_grid(previous.grid, grid):
-            real = previous.real_voxels
-        else:
-            real = voxelize_shapes(world.real_shapes, grid)
+        real = voxelize_shapes(world.real_shapes, grid)
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
         maps = real_maps(views, lights, grid, options.rsm_size, bounds)
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
                     _light_sizes(world, lights, options), maps)
+
+
+def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], options: Options
+         ) -> DVCTData | None:
+    """``data`` (prepared for ``world`` in any pose) moved in place to
+    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views, the volume
+    follows the virtual objects' bounds (its centre snapped to the cell lattice, so small
+    motions keep it), the real proxy's voxels are kept while the volume stays, its RSMs as
+    :func:`~arlight.realtime.rsm.moved_maps` says; only the virtual objects' triangles are
+    transformed (they are voxelised every frame anyway). Bitwise the data :func:`prepare`
+    makes of the posed world; None (nothing changed) when a real shape moves."""
+    posed = place_views(data.views, world, transforms)
+    if posed is None:
+        return None
+    if data.grid is None or data.real_maps is None:
+        return replace(data, world=posed)
+    bounds = virtual_bounds(posed, data.views.mixed)
+    grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
+    real = data.real_voxels if same_grid(data.grid, grid) else voxelize_shapes(
+        posed.real_shapes, grid)
+    tris = np.concatenate([shape_triangles(s) for s in posed.virtual_shapes])
+    return replace(data, world=posed, grid=grid, real_voxels=real, virtual_triangles=tris,
+                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds))
 
 
 # --------------------------------------------------------------------------------------------
@@ -750,16 +769,19 @@ class DVCTMethod(BaseMethod):
     """Delta Voxel Cone Tracing (Franke 2014)."""
 
     spec = SPEC
+    incremental_pose = True
 
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> DVCTData:
         return prepare(world, options)
 
-    def pose(self, state, transforms: dict[str, np.ndarray], settings: RenderSettings
-             ) -> DVCTData:
-        """The posed world's data; the real proxy's voxels are kept when the volume stays
-        where it was (only the virtual objects are voxelised again, every frame)."""
-        return prepare(state.world.posed(transforms), state.options, previous=state.data)
+    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
+             settings: RenderSettings) -> DVCTData:
+        """:func:`pose` from the last posed data; a moved real shape prepares again."""
+        return posed_data(state, lambda data: pose(data, state.world, transforms,
+                                                   state.options),
+                          lambda: self.prepare_world(state.world.posed(transforms),
+                                                     state.options, settings))
 
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

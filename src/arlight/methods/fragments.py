@@ -13,7 +13,9 @@ Part of the method contract tier (with :mod:`~arlight.methods.spec` and
 
 from __future__ import annotations
 
-from arlight.methods.base import BaseMethod, RenderSettings
+import numpy as np
+
+from arlight.methods.base import BaseMethod, Prepared, RenderSettings, place_views, posed_data
 from arlight.methods.spec import Field, Options
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.scene.model import World
@@ -38,6 +40,19 @@ class PathScenesMethod(BaseMethod):
     def aux_view(self, data: PathScenes):
         """The mixed view: the denoiser's albedo and normal buffers are traced there."""
         return data.views.mixed
+
+    def pose_in_place(self, state: Prepared, transforms: dict[str, np.ndarray],
+                      settings: RenderSettings) -> PathScenes:
+        """The incremental pose of a path tracer (issue #32; a subclass with
+        ``incremental_pose = True`` uses it as its ``pose``): the shapes move in place in both
+        Mitsuba views (:meth:`~arlight.backend.mitsuba_scene.SceneViews.place`, real shapes
+        too), nothing else is prepared. Not ``pose`` itself: ``dic`` keeps its own."""
+        def move(data: PathScenes) -> PathScenes | None:
+            posed = place_views(data.views, state.world, transforms, real_moves=True)
+            return None if posed is None else PathScenes(posed, data.views)
+
+        return posed_data(state, move, lambda: self.prepare_world(
+            state.world.posed(transforms), state.options, settings))
 
 
 __all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS"]

@@ -170,6 +170,9 @@ class OnePassMethod(PathScenesMethod):
 
     spec = SPEC
 
+    incremental_pose = True
+    pose = PathScenesMethod.pose_in_place
+
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         frame, views, mode = view.frame, data.views, options.mode

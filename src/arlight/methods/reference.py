@@ -190,6 +190,9 @@ class ReferenceMethod(PathScenesMethod):
         capabilities=Capabilities(progressive=True),
     )
 
+    incremental_pose = True
+    pose = PathScenesMethod.pose_in_place
+
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         frame, views, has_virtual = view.frame, data.views, data.world.has_virtual
