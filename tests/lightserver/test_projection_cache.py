@@ -3,10 +3,11 @@
 A cached update must give what projecting from scratch gives, and any change of the rig or
 the proxy must recompute the taps. What each test rejects:
 
-* cached == uncached, **bitwise** (radiance atlas, weights and the whole light state): the
-  cached path samples the same taps with the same arithmetic, so any difference is a bug —
-  taps sampled with other rounding, an update writing into the cached arrays, warm-start
-  state lost on a hit;
+* cached == uncached, **bitwise** (radiance atlas, weights and the whole light state; and
+  == ``merge`` of ``project_camera`` from scratch): the cached path samples the same taps
+  with the same arithmetic and sums the cameras in the same order, so any difference is a
+  bug — taps sampled with other rounding, cameras summed in another order, an update
+  writing into the cached arrays, warm-start state lost on a hit;
 * against an **independent** resampling (SciPy's ``map_coordinates`` and the weights from
   ``camera_weights``), to float tolerance (1e-12 relative: float64 sums in another order) —
   rejects tap indices or fractions that are wrong in both paths (x/y swapped, an off-by-half
@@ -29,7 +30,7 @@ import pytest
 from arlight.nearfield import projection as projection_module
 from arlight.nearfield.cameras import auto_rig
 from arlight.nearfield.pipeline import NearFieldServer, NearFieldSettings
-from arlight.nearfield.projection import camera_weights
+from arlight.nearfield.projection import camera_weights, merge, project_camera
 from arlight.nearfield.projection_cache import ProjectionCache, proxy_key, rig_key
 from tests.nearfield.conftest import room, vbox, world
 
@@ -83,6 +84,11 @@ def test_cached_update_equals_the_uncached_one_bitwise(scene):
     np.testing.assert_array_equal(cached.last.weight, fresh.last.weight)
     _assert_light_equal(a, b)
     assert a.count > 0 and np.any(a.sh != 0)  # both VALs and SH are compared
+    # and the public from-scratch path: project every camera, merge the full-size arrays
+    rad, wsum = merge([project_camera(cached.geometry, cam, img, cached.proxy_scene)
+                       for cam, img in zip(cached.cameras, f1, strict=True)])
+    np.testing.assert_array_equal(cached.last.radiance, rad)
+    np.testing.assert_array_equal(cached.last.weight, wsum)
 
 
 def test_cached_projection_matches_an_independent_resampling(scene):

@@ -53,7 +53,7 @@ from arlight.nearfield.atlas import (
 )
 from arlight.nearfield.cameras import RigCamera
 from arlight.nearfield.indirect import IndirectProbes, VirtualObject
-from arlight.nearfield.projection import camera_taps, check_image, merge, sample_camera
+from arlight.nearfield.projection import accumulate, camera_taps, check_image, combine
 from arlight.nearfield.projection_cache import ProjectionCache, proxy_key, rig_key
 from arlight.nearfield.raytrace import mesh_scene
 from arlight.nearfield.split import DEFAULT_TAU, SplitAtlas, check_tau, split
@@ -271,12 +271,12 @@ class NearFieldServer:
         timer = StageTimer()
         taps = self.projections.get(self.projection_key(),
                                     lambda: self._camera_taps(timer))
-        projections = []
+        acc = np.zeros((len(self.area), 3))  # Σ w_i L_i, cameras in rig order
         for cam, img, t in zip(self.cameras, imgs, taps, strict=True):
             with timer.stage(f"project_{cam.name}"):
-                projections.append(sample_camera(t, img, cam.name))
+                accumulate(acc, t, img, cam.name)
         with timer.stage("combine"):
-            radiance, weight = merge(projections)
+            radiance, weight = combine(acc, [t.weight for t in taps])
         with timer.stage("threshold"):
             sp = split(radiance, self.area, s.tau)
         with timer.stage("split"):

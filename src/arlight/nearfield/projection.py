@@ -14,8 +14,9 @@ the projected pixel. Texels no camera sees get 0 (Rohmer §8: they "lose light")
 Everything but the sampling depends on the rig and the proxy only: :func:`camera_taps` (the
 weights, the visibility rays and the projected pixels' bilinear taps) is computed once per
 rig and proxy (:mod:`arlight.nearfield.projection_cache`), and an update only samples each
-image at its taps (:func:`sample_camera`) and merges. :func:`project_camera` is both steps
-at once; the two give bitwise the same result (same taps, same arithmetic).
+image at its taps and accumulates ``Σ w_i L_i`` in place (:func:`accumulate`,
+:func:`combine`). :func:`project_camera` + :func:`merge` is the same from scratch; the two
+give bitwise the same result (same taps, same arithmetic, same order of the sums).
 """
 
 from __future__ import annotations
@@ -173,6 +174,13 @@ def check_image(image: np.ndarray, cam: RigCamera) -> np.ndarray:
     return img
 
 
+def _check_seen(taps: CameraTaps, name: str) -> None:
+    if len(taps.seen) == 0:
+        raise InputError("the camera sees nothing of the proxy (no texel in its field of "
+                         "view faces it unoccluded); check its position and look direction",
+                         field=f"cameras.{name}")
+
+
 def sample_camera(taps: CameraTaps, image: np.ndarray, name: str = "camera"
                   ) -> CameraProjection:
     """One camera's contribution from its cached ``taps`` and a checked ``image``
@@ -181,13 +189,33 @@ def sample_camera(taps: CameraTaps, image: np.ndarray, name: str = "camera"
     Raises:
         InputError: the camera sees no texel of the proxy (``name`` is the camera's).
     """
-    if len(taps.seen) == 0:
-        raise InputError("the camera sees nothing of the proxy (no texel in its field of "
-                         "view faces it unoccluded); check its position and look direction",
-                         field=f"cameras.{name}")
+    _check_seen(taps, name)
     rad = np.zeros((len(taps.weight), 3))
     rad[taps.seen] = apply_taps(image[..., :3], taps.taps)
     return CameraProjection(taps.weight, rad)
+
+
+def accumulate(acc: np.ndarray, taps: CameraTaps, image: np.ndarray,
+               name: str = "camera") -> None:
+    """``acc (N, 3) += w_i · L_i`` on the texels the camera sees (in place; only those are
+    touched). Cameras accumulated in rig order and then :func:`combine` d give bitwise
+    :func:`merge` of their :func:`sample_camera` projections (the unseen texels' terms are
+    exact zeros there) without the full-size per-camera arrays.
+
+    Raises:
+        InputError: the camera sees no texel of the proxy (``name`` is the camera's).
+    """
+    _check_seen(taps, name)
+    seen = taps.seen
+    acc[seen] += taps.weight[seen, None] * apply_taps(image[..., :3], taps.taps)
+
+
+def combine(acc: np.ndarray, weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``(radiance (N, 3), weight sum (N,))`` from the accumulated ``Σ w_i L_i`` and the
+    cameras' weights ``w_i (N,)``: ``acc / Σ w_i`` (0 where no camera sees the texel)."""
+    ws = np.sum(weights, axis=0)
+    rad = np.where(ws[:, None] > 0, acc / np.maximum(ws, 1e-300)[:, None], 0.0)
+    return rad, ws
 
 
 def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
@@ -205,12 +233,10 @@ def project_camera(geom: AtlasGeometry, cam: RigCamera, image: np.ndarray,
 def merge(projections: list[CameraProjection]) -> tuple[np.ndarray, np.ndarray]:
     """``(radiance (N, 3), weight sum (N,))``: the w-weighted mean over cameras (0 where no
     camera sees the texel)."""
-    ws = np.sum([p.weight for p in projections], axis=0)
     acc = np.sum([p.weight[:, None] * p.radiance for p in projections], axis=0)
-    rad = np.where(ws[:, None] > 0, acc / np.maximum(ws, 1e-300)[:, None], 0.0)
-    return rad, ws
+    return combine(acc, [p.weight for p in projections])
 
 
-__all__ = ["BilinearTaps", "CameraProjection", "CameraTaps", "apply_taps", "bilinear",
-           "bilinear_taps", "camera_taps", "camera_weights", "check_image", "merge",
-           "project_camera", "sample_camera"]
+__all__ = ["BilinearTaps", "CameraProjection", "CameraTaps", "accumulate", "apply_taps",
+           "bilinear", "bilinear_taps", "camera_taps", "camera_weights", "check_image",
+           "combine", "merge", "project_camera", "sample_camera"]
