@@ -171,3 +171,34 @@ def test_upsampling_keeps_grid_values_and_no_bleeding(room_camera):
         assert np.allclose(res.delta[rr[real], cc[real]], expect[real], atol=1e-6)
         expect_v = h.albedo[rr, cc] / np.pi * (t.mixed @ sh)
         assert np.allclose(res.mixed[rr[~real], cc[~real]], expect_v[~real], atol=1e-5)
+
+
+def test_state_grid_matches_a_set_of_voxels():
+    """The dense visibility-state grid against a Python set of voxel coordinates: a query
+    point is free exactly when a free sample fell in its voxel this or an earlier frame and
+    no blocked sample fell there since; points outside the grid are never free. Rejects a
+    grid with swapped axes or strides, an origin off by a voxel, or an update that lets a
+    voxel with a blocked sample be free."""
+    from arlight.probeless.pipeline import StateGrid
+
+    rng = np.random.default_rng(3)
+    voxel = 0.05
+    grid = StateGrid(np.array([-0.5, 0.0, -0.3]), np.array([0.5, 0.2, 0.4]), voxel)
+    ref: set[tuple[int, int, int]] = set()
+
+    def key(p):
+        return tuple(np.floor((p - grid.origin) / voxel).astype(int))
+
+    for _ in range(3):
+        pts = rng.uniform([-0.5, 0.0, -0.3], [0.5, 0.2, 0.4], (400, 3))
+        free = rng.random(400) < 0.7
+        grid.update(pts, free)
+        blocked = {key(p) for p, f in zip(pts, free, strict=True) if not f}
+        ref |= {key(p) for p, f in zip(pts, free, strict=True) if f}
+        ref -= blocked
+    q = rng.uniform([-0.5, 0.0, -0.3], [0.5, 0.2, 0.4], (3000, 3))
+    expect = np.array([key(p) in ref for p in q])
+    assert expect.any() and not expect.all()
+    assert np.array_equal(grid.lookup(q), expect)
+    assert not grid.lookup(np.array([[5.0, 0.1, 0.0], [0.0, -3.0, 0.0]])).any()
+    assert grid.free_count == len(ref)

@@ -35,6 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.backend.camera_rays import opaque, rays_from_samples
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_REAL, ROLE_VIRTUAL, SceneViews
 from arlight.probeless.directions import N_COEFFS, DirectionSet, unoccluded_transfer
 from arlight.probeless.estimate import DEFAULT_RIDGE, SHLightFit, estimate_light
@@ -139,11 +140,10 @@ def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True) -> Hits:
     depth."""
     view = views.mixed if mixed else views.real
     h, w = camera.height, camera.width
-    v, u = np.mgrid[0:h, 0:w]
-    o, d = camera.pixel_rays(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1))
-    oo = np.ascontiguousarray(o.T, np.float32)
-    dd = np.ascontiguousarray(d.T, np.float32)
-    ray = mi.Ray3f(mi.Point3f(oo[0], oo[1], oo[2]), mi.Vector3f(dd[0], dd[1], dd[2]))
+    # pixel centres, the lens centre (a pinhole ray), generated in the kernel: building
+    # 307k rays in NumPy took longer than tracing them
+    centre = mi.Point2f(0.5, 0.5)
+    ray = mi.Ray3f(rays_from_samples(camera, dr.arange(mi.UInt32, h * w), centre, centre))
     si = view.scene.ray_intersect(ray)
     valid = si.is_valid()
     # the side facing the camera from the geometric normal; the shading normal on that side
@@ -154,11 +154,12 @@ def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True) -> Hits:
     alb = surface_albedo(si, valid)
     role = view.hit_role(si)
     shape = view.hit_shape(si)
-    dr.eval(si.p, n, alb, role, shape, si.t)
-    t = np.array(si.t, np.float64)
+    forward = mi.Vector3f(*(opaque(c) for c in camera.world_from_camera[:3, 2]))
+    zf = si.t * dr.dot(ray.d, forward)
+    dr.eval(si.p, n, alb, role, shape, zf)
     role_np = np.array(role, np.int32).reshape(h, w)
-    forward = camera.world_from_camera[:3, 2]
-    z = np.where(np.isfinite(t) & (role_np.ravel() != ROLE_MISS), t * (d @ forward), np.inf)
+    zf_np = np.array(zf, np.float64)
+    z = np.where(np.isfinite(zf_np) & (role_np.ravel() != ROLE_MISS), zf_np, np.inf)
     return Hits(position=np.array(si.p, np.float64).T.reshape(h, w, 3),
                 normal=np.array(n, np.float64).T.reshape(h, w, 3),
                 albedo=np.array(alb, np.float64).T.reshape(h, w, 3),
@@ -231,16 +232,72 @@ class PhaseCache:
         return np.isfinite(best), cell
 
 
-def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Integer key of the voxel containing each point (21 bits per axis)."""
-    q = np.floor(np.asarray(points, np.float64) / voxel).astype(np.int64) + (1 << 20)
-    q = np.clip(q, 0, (1 << 21) - 1)
-    return (q[:, 0] << 42) | (q[:, 1] << 21) | q[:, 2]
+MAX_STATE_CELLS = 1 << 27
+"""Most voxels of the visibility-state grid (one byte each, 128 MiB); a larger scene gets a
+grid of this size around its centre, and points outside it are never flagged free."""
 
 
-def _key_centres(keys: np.ndarray, voxel: float) -> np.ndarray:
-    q = np.stack([(keys >> 42) & 0x1FFFFF, (keys >> 21) & 0x1FFFFF, keys & 0x1FFFFF], axis=1)
-    return (q - (1 << 20) + 0.5) * voxel
+class StateGrid:
+    """Gruber's world-space visibility-state cache (§3.3): one Boolean per voxel, *free* =
+    "no occluder within ``max_distance``, skip the visibility rays", as a dense grid over the
+    scene's bounding box (Gruber: 268³ bits over the TSDF's 2 m cube).
+
+    Lookups and updates are index arithmetic, ``O(M)`` for ``M`` points, with no sorting or
+    hashing (a sorted set of voxel keys cost ~70 ms per 640×480 frame on 2 CPU cores).
+
+    Args:
+        lo, hi: corners of the scene's bounding box (world, m).
+        voxel: voxel edge (m).
+    """
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, voxel: float) -> None:
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        self.voxel = float(voxel)
+        dims = np.ceil((hi - lo) / voxel).astype(np.int64) + 3
+        while int(np.prod(dims)) > MAX_STATE_CELLS:  # keep the centre, shrink the reach
+            dims = np.maximum(1, (dims * 0.9).astype(np.int64))
+        centre = (lo + hi) / 2
+        self.origin = centre - dims * voxel / 2
+        self.dims = dims
+        self.flags = np.zeros(int(np.prod(dims)), bool)
+
+    def index(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat voxel index ``(M,)`` of each point and whether it lies in the grid."""
+        q = np.floor((np.asarray(points, np.float64) - self.origin) / self.voxel)
+        inside = np.all((q >= 0) & (q < self.dims), axis=1)
+        q = np.where(inside[:, None], q, 0).astype(np.int64)
+        return (q[:, 0] * self.dims[1] + q[:, 1]) * self.dims[2] + q[:, 2], inside
+
+    def lookup(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point's voxel is flagged free ``(M,)``."""
+        idx, inside = self.index(points)
+        return inside & self.flags[idx]
+
+    def update(self, points: np.ndarray, is_free: np.ndarray) -> None:
+        """Flag the voxels of ``points`` whose samples this frame were all free; a voxel with
+        any blocked sample stays (or becomes) not free."""
+        idx, inside = self.index(points)
+        is_free = np.asarray(is_free, bool)
+        self.flags[idx[inside & is_free]] = True
+        self.flags[idx[inside & ~is_free]] = False
+
+    def clear_near(self, points: np.ndarray, radius: float) -> None:
+        """Clear the free voxels whose centre is within ``radius`` (+ half a voxel diagonal)
+        of any of ``points`` (the changed surface seen by a validation camera)."""
+        free = np.flatnonzero(self.flags)
+        if len(points) == 0 or len(free) == 0:
+            return
+        from scipy.spatial import cKDTree
+
+        ijk = np.stack(np.unravel_index(free, tuple(self.dims)), axis=1)
+        centres = self.origin + (ijk + 0.5) * self.voxel
+        dist, _ = cKDTree(points).query(centres, k=1)
+        self.flags[free[dist <= radius + self.voxel * np.sqrt(3) / 2]] = False
+
+    @property
+    def free_count(self) -> int:
+        """Number of voxels flagged free."""
+        return int(np.count_nonzero(self.flags))
 
 
 @dataclass
@@ -251,19 +308,27 @@ class ValidationCamera:
     depth: np.ndarray | None = None
 
 
-def _cvc_depth(views: SceneViews, camera: Camera) -> tuple[np.ndarray, np.ndarray,
-                                                           np.ndarray]:
-    """Ray distance ``(P,)`` (inf on a miss), ray origins and directions of a CVC."""
-    h, w = camera.height, camera.width
-    v, u = np.mgrid[0:h, 0:w]
-    o, d = camera.pixel_rays(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1))
+def _cvc_depths(views: SceneViews, cameras: list[Camera]
+                ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per camera: ray distance ``(P,)`` (inf on a miss), ray origins and directions, of all
+    ``cameras`` in one batch (one kernel launch for every validation camera of a frame)."""
+    rays = []
+    for camera in cameras:
+        v, u = np.mgrid[0:camera.height, 0:camera.width]
+        rays.append(camera.pixel_rays(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1)))
+    o = np.concatenate([r[0] for r in rays])
+    d = np.concatenate([r[1] for r in rays])
     oo = np.ascontiguousarray(o.T, np.float32)
     dd = np.ascontiguousarray(d.T, np.float32)
     si = views.mixed.scene.ray_intersect(mi.Ray3f(mi.Point3f(*oo), mi.Vector3f(*dd)))
     dr.eval(si.t)
     t = np.array(si.t, np.float64)
     t[~np.isfinite(t)] = np.inf
-    return t, o, d
+    out, a = [], 0
+    for ro, rd in rays:
+        out.append((t[a:a + len(ro)], ro, rd))
+        a += len(ro)
+    return out
 
 
 def overhead_camera(views: SceneViews, size: int) -> Camera:
@@ -293,8 +358,9 @@ class FrameResult:
         mixed, delta, mask: shading layers ``(H, W, 3)``/``(H, W)`` when shading was asked.
         stats: ``rays`` (visibility rays cast), ``samples`` (regular + dense),
             ``dense_samples``, ``free_samples`` (state cache), ``cache_hits`` /
-            ``cache_misses`` (reprojection), ``time_rt``, ``time_estimate``,
-            ``time_shade`` (s).
+            ``cache_misses`` (reprojection), ``time_rt`` (everything before E5, of which
+            ``time_state``: the validation cameras, ``time_hits``: the primary hits),
+            ``time_estimate``, ``time_shade`` (s).
     """
 
     fit: SHLightFit
@@ -366,7 +432,7 @@ class Pipeline:
         self.frame_index = 0
         self.caches: list[PhaseCache | None] = [None] * self.variant.interleave
         self.dense_caches: list[PhaseCache | None] = [None] * self.variant.interleave
-        self.free_keys = np.zeros(0, np.int64)
+        self.state: StateGrid | None = None
         self.cvcs: list[ValidationCamera] = []
         self._dynamic: ValidationCamera | None = None
 
@@ -386,10 +452,10 @@ class Pipeline:
         changed: list[np.ndarray] = []
         dyn_cam = camera.resized(st.cvc_size, max(1, round(st.cvc_size * camera.height
                                                            / camera.width)))
-        if self._dynamic is not None:  # ping-pong: the old pose again, now
-            self.cvcs.append(self._dynamic)
-        for cvc in self.cvcs:
-            t, o, d = _cvc_depth(self.views, cvc.camera)
+        cvcs = self.cvcs + ([self._dynamic] if self._dynamic is not None else [])
+        # ping-pong: the dynamic CVC's old pose is cast again now, next to its new pose
+        depths = _cvc_depths(self.views, [c.camera for c in cvcs] + [dyn_cam])
+        for cvc, (t, o, d) in zip(cvcs, depths, strict=False):
             if cvc.depth is not None:
                 old = cvc.depth
                 diff = np.abs(np.where(np.isfinite(t), t, 1e9) - np.where(np.isfinite(old),
@@ -399,18 +465,9 @@ class Pipeline:
                     sel = moved & np.isfinite(tt)
                     changed.append(o[sel] + tt[sel, None] * d[sel])
             cvc.depth = t
-        if self._dynamic is not None:
-            self.cvcs.pop()
-        t, _, _ = _cvc_depth(self.views, dyn_cam)
-        self._dynamic = ValidationCamera(dyn_cam, t)
-        pts = np.concatenate(changed) if changed else np.zeros((0, 3))
-        if len(pts) and len(self.free_keys):
-            from scipy.spatial import cKDTree
-
-            centres = _key_centres(self.free_keys, st.state_voxel)
-            dist, _ = cKDTree(pts).query(centres, k=1)
-            keep = dist > st.max_distance + st.state_voxel * np.sqrt(3) / 2
-            self.free_keys = self.free_keys[keep]
+        self._dynamic = ValidationCamera(dyn_cam, depths[-1][0])
+        if self.state is not None and changed:
+            self.state.clear_near(np.concatenate(changed), st.max_distance)
 
     # ------------------------------------------------------------------ transfer
 
@@ -475,10 +532,12 @@ class Pipeline:
         v = self.variant
         out = Transfer.zeros(len(p))
         free = np.zeros(len(p), bool)
-        keys = None
         if v.state_cache:
-            keys = _voxel_keys(p, self.settings.state_voxel)
-            free = np.isin(keys, self.free_keys)
+            if self.state is None:
+                bb = self.views.mixed.scene.bbox()
+                self.state = StateGrid(np.array(bb.min, np.float64),
+                                       np.array(bb.max, np.float64), self.settings.state_voxel)
+            free = self.state.lookup(p)
             if np.any(free):
                 t0 = unoccluded_transfer(n[free])
                 out.real[free] = t0
@@ -498,13 +557,10 @@ class Pipeline:
             out.cast[todo] = part.cast
             out.blocked[todo] = part.blocked
             out.rays += part.rays
-            if v.state_cache and keys is not None:
+            if self.state is not None:
                 frac = part.blocked / np.maximum(part.cast, 1)
-                is_free = (frac <= self.settings.free_fraction) & (part.cast > 0)
-                k_todo = keys[todo]
-                new_free = np.setdiff1d(np.unique(k_todo[is_free]),
-                                        np.unique(k_todo[~is_free]))
-                self.free_keys = np.union1d(self.free_keys, new_free)
+                self.state.update(p[todo], (frac <= self.settings.free_fraction)
+                                  & (part.cast > 0))
         return out
 
     # ------------------------------------------------------------------ frame
@@ -523,7 +579,10 @@ class Pipeline:
         t0 = time.perf_counter()
         if v.state_cache:
             self._validate_state(camera)
+        t_state = time.perf_counter()
         hits = primary_hits(self.views, camera)
+        stats["time_state"] = t_state - t0
+        stats["time_hits"] = time.perf_counter() - t_state
         reg = _regular_mask(h, w, v.spacing) & hits.valid
         virt = hits.role == ROLE_VIRTUAL
         dense = np.zeros((h, w), bool)
@@ -720,5 +779,5 @@ class Pipeline:
         return out, 0, 0
 
 
-__all__ = ["VARIANTS", "FrameResult", "Hits", "PhaseCache", "Pipeline", "Settings", "Variant",
-           "primary_hits", "virtual_edges"]
+__all__ = ["MAX_STATE_CELLS", "VARIANTS", "FrameResult", "Hits", "PhaseCache", "Pipeline",
+           "Settings", "StateGrid", "Variant", "primary_hits", "virtual_edges"]
