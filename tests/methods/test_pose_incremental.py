@@ -22,8 +22,8 @@ SMALL: dict[str, dict] = {
     "dir": {"vpls": 64},
     "dlpv": {"volume_size": 16, "rsm_size": 32},
     "dvct": {"volume_size": 16, "rsm_size": 32},
-    "ibl": {},
-    "prt": {},
+    "ibl": {"oof_directions": 64, "oof_shells": 6},
+    "prt": {"oof_directions": 64, "oof_shells": 6, "directions": 64},
     "onepass": {},
     "reference": {},
 }
@@ -108,7 +108,8 @@ def test_place_refuses_what_is_not_a_pose(demo):
         views.place(other.posed({"bunny": MOVES[0]}).shapes)
 
 
-@pytest.mark.parametrize("method", ["dir", "dlpv", "dvct", "onepass", "reference"])
+@pytest.mark.parametrize("method", ["dir", "dlpv", "dvct", "ibl", "prt", "onepass",
+                                    "reference"])
 def test_incremental_pose_equals_a_fresh_preparation(demo, method):
     """For each of two rigid moves of the virtual bunny, the frame rendered from the one
     prepared state equals bitwise the frame of ``prepare(world.posed(T))``; afterwards the

@@ -36,7 +36,7 @@ elsewhere; ``delta`` the darkening; ``mask`` the G-buffer coverage. Without virt
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -44,7 +44,14 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.backend.rays import np3
-from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    Prepared,
+    RenderSettings,
+    place_views,
+    posed_data,
+)
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
@@ -61,6 +68,8 @@ from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
     field_from_options,
+    move_virtual_scene,
+    pose_field,
     render_layers,
     virtual_scene,
 )
@@ -147,12 +156,36 @@ def prepare(world: World, options: Options) -> IBLData:
     occluder = virtual_scene(world)
     field = field_from_options(world, options) if occluder is not None else None
     alpha, ks, glossy = specular_tables(world)
-    ao = options.ao_distance
-    if ao <= 0.0:
-        b = virtual_bounds(world, views.mixed) if world.has_virtual else None
-        ao = float(np.linalg.norm(b[1] - b[0])) if b is not None else math.inf
     return IBLData(world, views, lights, ambient_sh(world, lights, options.sh_order, env_img),
-                   env, occluder, field, alpha, ks, glossy, ao, diffuse_weights(world))
+                   env, occluder, field, alpha, ks, glossy, _ao_distance(world, views, options),
+                   diffuse_weights(world))
+
+
+def _ao_distance(world: World, views: SceneViews, options: Options) -> float:
+    """The AO ray length (m): the option, or the diagonal of the virtual objects' box."""
+    if options.ao_distance > 0.0:
+        return float(options.ao_distance)
+    b = virtual_bounds(world, views.mixed) if world.has_virtual else None
+    return float(np.linalg.norm(b[1] - b[0])) if b is not None else math.inf
+
+
+def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options: Options
+         ) -> IBLData | None:
+    """``data`` (prepared for ``world`` in any pose) moved in place to
+    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views and in the
+    virtual occluder, the object-space occlusion field is looked up through the new pose
+    (:func:`~arlight.realtime.oof.pose_field`; a world-space field, several virtual shapes,
+    is sampled again), lights, environment and tables are kept. Bitwise the data
+    :func:`prepare` makes of the posed world; None (nothing changed) when a real shape
+    moves."""
+    before = data.world
+    posed = place_views(data.views, world, transforms)
+    if posed is None:
+        return None
+    if data.occluder is not None:
+        move_virtual_scene(data.occluder, before, posed)
+    return replace(data, world=posed, field=pose_field(data.field, posed, options),
+                   ao_distance=_ao_distance(posed, data.views, options))
 
 
 def ambient_irradiance(data: IBLData, n: mi.Vector3f, order: int) -> mi.Color3f:
@@ -195,10 +228,19 @@ class IBLMethod(BaseMethod):
     """Dynamic IBL pipeline with AR object occlusion fields (Franke §4.2, §5.2)."""
 
     spec = SPEC
+    incremental_pose = True
 
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> IBLData:
         return prepare(world, options)
+
+    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
+             settings: RenderSettings) -> IBLData:
+        """:func:`pose` from the last posed data; a moved real shape prepares again."""
+        return posed_data(state, lambda data: pose(data, state.world, transforms,
+                                                   state.options),
+                          lambda: self.prepare_world(state.world.posed(transforms),
+                                                     state.options, settings))
 
     def render_view(self, data: IBLData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

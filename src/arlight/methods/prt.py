@@ -36,14 +36,22 @@ precomputation, 0 when cached). See ``docs/methods/prt.md``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
-from arlight.methods.base import BaseMethod, Layers, RenderSettings
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    Prepared,
+    RenderSettings,
+    place_views,
+    posed_data,
+)
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.ibl_shading import (
@@ -57,6 +65,8 @@ from arlight.realtime.oof import (
     OOF_OPTIONS,
     OcclusionField,
     field_from_options,
+    move_virtual_scene,
+    pose_field,
     render_layers,
     virtual_scene,
 )
@@ -65,7 +75,7 @@ from arlight.realtime.prt_shading import (
     prt_meshes,
     shade_virtual,
 )
-from arlight.realtime.prt_transfer import vertex_values
+from arlight.realtime.prt_transfer import rotation_part, vertex_values
 from arlight.realtime.shading import emitted_intensity
 from arlight.realtime.sog import SoGTables
 from arlight.scene.model import FrameView, World
@@ -105,10 +115,10 @@ SPEC = MethodSpec(
 )
 
 
-def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1) -> np.ndarray:
-    """Radiance SH ``((order+1)², 3)`` of all the world's light as seen from ``centre``
-    (module docstring). Environment maps are projected, then rotated (exact), so turning a
-    map by ``rotation_deg`` turns its SH exactly."""
+def distant_sh(world: World, order: int) -> np.ndarray:
+    """Radiance SH ``((order+1)², 3)`` of the world's distant lights (environment maps,
+    projected then rotated exactly, so turning a map by ``rotation_deg`` turns its SH
+    exactly; constant skies): the part of :func:`light_sh` that no position changes."""
     out = np.zeros((n_coeffs(order), 3))
     for lt in world.lights:
         if lt.type in ("envmap", "sh"):
@@ -117,6 +127,15 @@ def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1) -
             out += rotate(sh, rot_y(float(lt.params.get("rotation_deg", 0.0))))
         elif lt.type == "constant":
             out[0] += np.asarray(lt.params["radiance"], np.float64) * math.sqrt(4 * math.pi)
+    return out
+
+
+def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1,
+             distant: np.ndarray | None = None) -> np.ndarray:
+    """Radiance SH ``((order+1)², 3)`` of all the world's light as seen from ``centre``
+    (module docstring): :func:`distant_sh` (given as ``distant`` when already computed)
+    plus the local lights as SH delta lights from ``centre``."""
+    out = (distant_sh(world, order) if distant is None else distant).copy()
     local = World([], [lt for lt in world.lights if lt.type not in ("envmap", "sh",
                                                                      "constant")])
     if local.lights:
@@ -127,7 +146,8 @@ def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1) -
                 d = np.asarray(lt.position, np.float64) - centre
                 r = max(float(np.linalg.norm(d)), 1e-9)
                 to_light = d / r
-                w = mi.Vector3f(*[float(x) for x in -to_light])
+                # opaque: one kernel for every centre (a moving object moves it each frame)
+                w = mi.Vector3f(*[dr.opaque(mi.Float, float(x)) for x in -to_light])
                 e = np.array(emitted_intensity(lt, w), np.float64).reshape(3) / (r * r)
             out += directional_light_coeffs(to_light, e, order)
     return out
@@ -149,6 +169,7 @@ class PRTData:
     env: MipEnvironment | None = None
     sog: SoGTables | None = None
     ks: mi.Color3f | None = None
+    distant: np.ndarray | None = None  # distant_sh: the light SH no pose changes
 
     def vertex_values(self, order: int | None = None) -> list[np.ndarray]:
         """Per object ``Σ_k t_k l_k`` per vertex ``(V, 3)`` this frame."""
@@ -167,16 +188,46 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
                         options.bounces, options.shadowed)
     occluder = virtual_scene(world)
     field = field_from_options(world, options) if occluder is not None else None
-    centre = np.zeros(3)
-    if occluder is not None:
-        b = occluder.bbox()
-        centre = (np.array([b.min.x, b.min.y, b.min.z]) + np.array([b.max.x, b.max.y,
-                                                                    b.max.z])) / 2.0
     env, sog, ks = glossy_tables(world) if options.glossy else (None, None, None)
-    return PRTData(world, views, lights, light_sh(world, options.order, centre,
-                                                  options.area_grid),
+    distant = distant_sh(world, options.order)
+    return PRTData(world, views, lights, light_sh(world, options.order, _centre(occluder),
+                                                  options.area_grid, distant),
                    meshes.objects, occluder, field, meshes.face_offset, meshes.faces, env, sog,
-                   ks)
+                   ks, distant)
+
+
+def _centre(occluder: mi.Scene | None) -> np.ndarray:
+    """Centre of the virtual objects' bounding box (m; the origin without any)."""
+    if occluder is None:
+        return np.zeros(3)
+    b = occluder.bbox()
+    return (np.array([b.min.x, b.min.y, b.min.z]) + np.array([b.max.x, b.max.y,
+                                                              b.max.z])) / 2.0
+
+
+def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options: Options
+         ) -> PRTData | None:
+    """``data`` (prepared for ``world`` in any pose) moved in place to
+    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views and in the
+    virtual occluder; each object keeps its object-space transfer and takes its new rotation;
+    the light SH is measured from the new centre (distant part kept); the occlusion field is
+    looked up through the new pose (:func:`~arlight.realtime.oof.pose_field`). Bitwise the
+    data :func:`prepare` makes of the posed world; None (nothing changed) when a real shape
+    moves or a virtual primitive (its object mesh is read back from the loaded mesh) does."""
+    if any(world.shapes[o.shape].mesh is None for o in data.objects):
+        return None
+    before = data.world
+    posed = place_views(data.views, world, transforms)
+    if posed is None:
+        return None
+    if data.occluder is not None:
+        move_virtual_scene(data.occluder, before, posed)
+    objects = [replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
+               for o in data.objects]
+    light = light_sh(posed, options.order, _centre(data.occluder), options.area_grid,
+                     data.distant)
+    return replace(data, world=posed, objects=objects, light=light,
+                   field=pose_field(data.field, posed, options))
 
 
 def glossy_tables(world: World) -> tuple[MipEnvironment | None, SoGTables | None,
@@ -200,10 +251,19 @@ class PRTMethod(BaseMethod):
     """Per-vertex SH PRT for rigid virtual objects with AR object occlusion fields."""
 
     spec = SPEC
+    incremental_pose = True
 
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> PRTData:
         return prepare(world, options)
+
+    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
+             settings: RenderSettings) -> PRTData:
+        """:func:`pose` from the last posed data; otherwise prepared again."""
+        return posed_data(state, lambda data: pose(data, state.world, transforms,
+                                                   state.options),
+                          lambda: self.prepare_world(state.world.posed(transforms),
+                                                     state.options, settings))
 
     def render_view(self, data: PRTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
@@ -215,4 +275,5 @@ class PRTMethod(BaseMethod):
         return layers
 
 
-__all__ = ["OPTIONS", "PRTData", "PRTMethod", "SPEC", "glossy_tables", "light_sh", "prepare"]
+__all__ = ["OPTIONS", "PRTData", "PRTMethod", "SPEC", "distant_sh", "glossy_tables", "light_sh",
+           "pose", "prepare"]

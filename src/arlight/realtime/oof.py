@@ -35,9 +35,10 @@ Units: positions and radii metres; SH coefficients of radiance in W/(sr·m²); i
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import SimpleNamespace
 from typing import Any, Protocol
 
@@ -45,7 +46,16 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import SceneView, SceneViews, describe_shape, load_scene
+from arlight.backend.mitsuba_scene import (
+    ROLE_VIRTUAL,
+    SceneView,
+    SceneViews,
+    describe_geometry,
+    describe_shape,
+    geometry_params,
+    load_scene,
+    load_view,
+)
 from arlight.backend.rays import np3
 from arlight.layers import Layers
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
@@ -58,6 +68,7 @@ from arlight.sphere.sh import (
     band_of_each_coeff,
     clamped_cosine_band,
     n_coeffs,
+    rotate,
     sh_basis,
     triple_product_tensor,
 )
@@ -68,9 +79,23 @@ RAY_CHUNK = 1 << 21
 
 def virtual_scene(world: World) -> mi.Scene | None:
     """A Mitsuba scene of the world's virtual shapes alone (None without any): the occluder
-    of the occlusion field and of the virtual objects' ambient occlusion."""
+    of the occlusion field and of the virtual objects' ambient occlusion. Loaded as the
+    methods' views are (:func:`~arlight.backend.mitsuba_scene.load_view`), so that
+    :func:`move_virtual_scene` moves its shapes bitwise to where a new one would load them."""
     objects = {str(i): describe_shape(s) for i, s in enumerate(world.shapes) if s.is_virtual}
-    return load_scene({"objects": objects}) if objects else None
+    if not objects:
+        return None
+    return load_view({"objects": objects}, dict.fromkeys(objects, ROLE_VIRTUAL)).scene
+
+
+def move_virtual_scene(scene: mi.Scene, before: World, after: World) -> None:
+    """Move the shapes of a :func:`virtual_scene` of ``before`` in place to their pose in
+    ``after`` (the same world posed otherwise; incremental pose, issue #32)."""
+    moved = {str(i): geometry_params(describe_geometry(b)) for i, (a, b) in
+             enumerate(zip(before.shapes, after.shapes, strict=True))
+             if b.is_virtual and not np.array_equal(a.to_world, b.to_world)}
+    if moved:
+        SceneView(scene, mi.Int32(0), mi.Int32(0)).set_geometry(moved)
 
 
 def occlusion_rays(scene: mi.Scene, origins: np.ndarray, dirs: np.ndarray,
@@ -118,14 +143,58 @@ class OcclusionField:
     radii: np.ndarray
     coeffs: np.ndarray
     order: int
+    frame: np.ndarray | None = None
+    """World from field frame, 4×4 (a rotation, a uniform scale and a translation): the
+    field was sampled in the object's own space (AR-OOF, Franke §5.2: precomputed once per
+    object, looked up through its pose) and ``centre``, ``radii`` are in that space; None:
+    sampled in world space."""
 
     @property
     def r_max(self) -> float:
+        """Outermost shell radius in the field's frame."""
         return float(self.radii[-1])
+
+    @property
+    def world_centre(self) -> np.ndarray:
+        """Centre of the shells in world space, m."""
+        if self.frame is None:
+            return np.asarray(self.centre, np.float64)
+        return self.frame[:3, :3] @ self.centre + self.frame[:3, 3]
+
+    @property
+    def world_r_max(self) -> float:
+        """Outermost shell radius in world space, m."""
+        return self.r_max * (1.0 if self.frame is None else similarity(self.frame)[0])
 
     def __post_init__(self) -> None:
         self._flat = mi.Float(np.ascontiguousarray(self.coeffs, np.float32).reshape(-1))
         self._cache: dict = {}  # per-light tables (the light is usually static across frames)
+
+    def posed(self, frame: np.ndarray) -> OcclusionField:
+        """This object-space field looked up through another pose ``frame`` (world from
+        object, 4×4 similarity): the samples and their upload are shared, nothing is
+        traced again."""
+        out = copy.copy(self)
+        out.frame = np.asarray(frame, np.float64)
+        out._cache = {}
+        return out
+
+    def _to_field(self, light_sh: np.ndarray, p: mi.Point3f, n: mi.Vector3f
+                  ) -> tuple[np.ndarray, mi.Point3f, mi.Vector3f]:
+        """Light SH, points and normals in the field's frame: ``p`` through the inverse
+        pose, ``n`` and the light through its rotation (opaque values: one kernel for every
+        pose)."""
+        if self.frame is None:
+            return light_sh, p, n
+        scale, rot = similarity(self.frame)
+        inv = np.linalg.inv(self.frame)
+        m = [[dr.opaque(mi.Float, float(inv[r, c])) for c in range(4)] for r in range(3)]
+        q = mi.Point3f(*[m[r][0] * p.x + m[r][1] * p.y + m[r][2] * p.z + m[r][3]
+                         for r in range(3)])
+        rt = [[dr.opaque(mi.Float, float(rot[c, r])) for c in range(3)] for r in range(3)]
+        v = mi.Vector3f(*[rt[r][0] * n.x + rt[r][1] * n.y + rt[r][2] * n.z for r in range(3)])
+        light = rotate(np.asarray(light_sh, np.float64), rot.T)
+        return light, q, dr.normalize(v)
 
     def light_table(self, light_sh: np.ndarray, order: int) -> np.ndarray:
         """Per frame: the light folded into the triple-product tensor and the real surface's
@@ -163,6 +232,7 @@ class OcclusionField:
             raise ValueError(f"SH order {order} requested, but the occlusion field was "
                              f"precomputed to order {self.order}; rebuild it with "
                              f"order >= {order}")
+        light_sh, p, n = self._to_field(light_sh, p, n)
         k, kf = n_coeffs(order), self.coeffs.shape[3]
         S, H, W1, _ = self.coeffs.shape
         rel = p - mi.Point3f(*[float(x) for x in self.centre])
@@ -308,16 +378,67 @@ def build_field(scene: mi.Scene, centre: np.ndarray, radius: float, order: int =
     return OcclusionField(c, radii, np.ascontiguousarray(coeffs, np.float32), order)
 
 
-def field_for_world(world: World, order: int = 4, **kw) -> OcclusionField | None:
-    """The occlusion field of all virtual shapes of ``world`` together (None without any)."""
-    scene = virtual_scene(world)
-    if scene is None:
+def similarity(m: np.ndarray) -> tuple[float, np.ndarray]:
+    """``(s, R)`` of a 4×4 transform whose linear part is ``s·R`` (uniform scale ``s > 0``,
+    proper rotation ``R``); ValueError for anything else (shear, non-uniform scale, mirror)."""
+    a = np.asarray(m, np.float64)[:3, :3]
+    g = a.T @ a
+    s2 = float(np.trace(g)) / 3.0
+    if s2 <= 0.0 or np.max(np.abs(g - s2 * np.eye(3))) > 1e-6 * s2 or np.linalg.det(a) <= 0:
+        raise ValueError("not a similarity transform")
+    s = math.sqrt(s2)
+    return s, a / s
+
+
+def object_frame(world: World) -> np.ndarray | None:
+    """The frame an object-space occlusion field of ``world``'s virtual shapes is sampled
+    in: the ``to_world`` of its one virtual shape when that is a similarity (then the field
+    depends on the shape alone, not on its pose); None otherwise (several virtual shapes or
+    a shear: the field is sampled in world space, and a pose samples it again)."""
+    virtual = world.virtual_shapes
+    if len(virtual) != 1:
         return None
+    try:
+        similarity(virtual[0].to_world)
+    except ValueError:
+        return None
+    return np.asarray(virtual[0].to_world, np.float64)
+
+
+def _bounding_sphere(scene: mi.Scene) -> tuple[np.ndarray, float]:
     b = scene.bbox()
     lo = np.array([b.min.x, b.min.y, b.min.z], np.float64)
     hi = np.array([b.max.x, b.max.y, b.max.z], np.float64)
-    return build_field(scene, (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0),
-                       order=order, **kw)
+    return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
+
+
+def field_for_world(world: World, order: int = 4, **kw) -> OcclusionField | None:
+    """The occlusion field of all virtual shapes of ``world`` together (None without any):
+    sampled in the object's own space when :func:`object_frame` has a frame (one virtual
+    shape: its shape at the identity pose, looked up through its ``to_world``), else in world
+    space."""
+    frame = object_frame(world)
+    if frame is not None:
+        shape = replace(world.virtual_shapes[0], to_world=np.eye(4))
+        scene = load_scene({"objects": {"0": describe_shape(shape)}})
+        return build_field(scene, *_bounding_sphere(scene), order=order, **kw).posed(frame)
+    scene = virtual_scene(world)
+    if scene is None:
+        return None
+    return build_field(scene, *_bounding_sphere(scene), order=order, **kw)
+
+
+def pose_field(field: OcclusionField | None, world: World, options) -> OcclusionField | None:
+    """``field`` (of this world in another pose) for ``world``: the object-space field
+    looked up through the new pose, or, for a world-space field, sampled again
+    (:func:`field_from_options`). Bitwise the field :func:`field_from_options` makes of
+    ``world``."""
+    if field is None:
+        return None
+    frame = object_frame(world)
+    if field.frame is not None and frame is not None:
+        return field.posed(frame)
+    return field_from_options(world, options)
 
 
 OOF_OPTIONS: dict[str, Field] = {
@@ -369,8 +490,9 @@ def shadow_factor(mixed: SceneView, real: SceneView, occluder: mi.Scene | None,
         occl = direct_irradiance(occ_view, lights, pc, nc, on, shadows=True)
         blocked = dr.any(occl < free)
     affected = mi.Bool(blocked)
-    if field is not None:
-        affected |= dr.norm(pc - mi.Point3f(*[float(x) for x in field.centre])) < field.r_max
+    if field is not None:  # opaque: one kernel for every pose of the field
+        c = [dr.opaque(mi.Float, float(x)) for x in field.world_centre]
+        affected |= dr.norm(pc - mi.Point3f(*c)) < dr.opaque(mi.Float, field.world_r_max)
     sub = dr.compress(affected)
     if dr.width(sub) == 0:
         return f
@@ -464,5 +586,6 @@ def render_layers(data: RelitState, view: FrameView, options: GBufferOptions, se
 
 __all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "RAY_CHUNK", "RelitState",
            "ShadeVirtual", "build_field", "cosine_transfer", "field_for_world",
-           "field_from_options", "occlusion_rays", "octahedral_index", "octahedral_normals",
-           "render_layers", "shade_real", "shadow_factor", "shell_samples", "virtual_scene"]
+           "field_from_options", "move_virtual_scene", "object_frame", "occlusion_rays",
+           "octahedral_index", "octahedral_normals", "pose_field", "render_layers",
+           "shade_real", "shadow_factor", "shell_samples", "similarity", "virtual_scene"]
