@@ -146,3 +146,17 @@ def test_dlpv_pose_keeps_the_proxy_maps_that_do_not_depend_on_the_volume(demo):
     assert "directional" in kinds and set(kinds) != {"directional"}
     for kind, a, b in zip(kinds, far.real_maps.mu, rest.mu, strict=True):
         assert (a is b) == (kind != "directional")
+
+
+def test_a_still_frame_poses_nothing(demo):
+    """The same transforms again return the last posed data as it is; other transforms move
+    it. Rejects a pose that re-does its work on every still frame, or one that keys the
+    shortcut on the transforms' identity instead of their values."""
+    m = get_method("dir")
+    s = RenderSettings(options=SMALL["dir"])
+    state = m.prepare(demo.world, s)
+    first = m.pose(state, {"bunny": MOVES[0].copy()}, s)
+    assert m.pose(state, {"bunny": MOVES[0].copy()}, s) is first
+    other = m.pose(state, {"bunny": MOVES[1]}, s)
+    assert other is not first and other.world.shapes[3].to_world[0, 3] != \
+        first.world.shapes[3].to_world[0, 3]

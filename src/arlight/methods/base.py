@@ -143,6 +143,9 @@ class Prepared:
     """Held while a method with ``incremental_pose`` poses the state and renders it."""
     last: Any = field(default=None, repr=False, compare=False)
     """The data of the last incremental pose (:func:`posed_data`), None before the first."""
+    last_transforms: dict[str, np.ndarray] | None = field(default=None, repr=False,
+                                                          compare=False)
+    """The object transforms ``last`` was posed for."""
 
 
 class BaseMethod(ABC):
@@ -317,16 +320,25 @@ def place_views(views: SceneViews, world: World, transforms: dict[str, np.ndarra
     return posed
 
 
-def posed_data(state: Prepared, move: Callable[[Any], Any | None],
-               prepare: Callable[[], Any]) -> Any:
-    """An incremental pose: ``move(previous)`` updates the data of the last pose (the
-    prepared data before the first) in place and returns the posed data, or None when it
-    cannot (a real shape moved); then ``prepare()`` prepares the posed world from scratch.
-    The result is remembered as ``state.last`` for the next frame."""
+def _same_transforms(a: dict[str, np.ndarray] | None, b: dict[str, np.ndarray]) -> bool:
+    return a is not None and a.keys() == b.keys() and all(
+        np.array_equal(a[k], b[k]) for k in a)
+
+
+def posed_data(state: Prepared, transforms: dict[str, np.ndarray],
+               move: Callable[[Any], Any | None], prepare: Callable[[], Any]) -> Any:
+    """An incremental pose for ``transforms``: ``move(previous)`` updates the data of the
+    last pose (the prepared data before the first) in place and returns the posed data, or
+    None when it cannot (a real shape moved); then ``prepare()`` prepares the posed world
+    from scratch. The result is remembered as ``state.last`` for the next frame; the same
+    transforms again return it as it is (a still frame poses nothing)."""
+    if state.last is not None and _same_transforms(state.last_transforms, transforms):
+        return state.last
     out = move(state.last if state.last is not None else state.data)
     if out is None:
         return prepare()
     state.last = out
+    state.last_transforms = {k: np.array(v, np.float64) for k, v in transforms.items()}
     return out
 
 

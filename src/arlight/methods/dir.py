@@ -276,7 +276,7 @@ class DIRMethod(BaseMethod):
             return None if posed is None else DIRData(posed, data.views, data.lights,
                                                       scene_bounds(data.views.mixed))
 
-        return posed_data(state, move, lambda: self.prepare_world(
+        return posed_data(state, transforms, move, lambda: self.prepare_world(
             state.world.posed(transforms), state.options, settings))
 
     def render_view(self, data: DIRData, view: FrameView, options: Options,

@@ -778,7 +778,7 @@ class DVCTMethod(BaseMethod):
     def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
              settings: RenderSettings) -> DVCTData:
         """:func:`pose` from the last posed data; a moved real shape prepares again."""
-        return posed_data(state, lambda data: pose(data, state.world, transforms,
+        return posed_data(state, transforms, lambda data: pose(data, state.world, transforms,
                                                    state.options),
                           lambda: self.prepare_world(state.world.posed(transforms),
                                                      state.options, settings))

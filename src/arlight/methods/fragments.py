@@ -51,7 +51,7 @@ class PathScenesMethod(BaseMethod):
             posed = place_views(data.views, state.world, transforms, real_moves=True)
             return None if posed is None else PathScenes(posed, data.views)
 
-        return posed_data(state, move, lambda: self.prepare_world(
+        return posed_data(state, transforms, move, lambda: self.prepare_world(
             state.world.posed(transforms), state.options, settings))
 
 

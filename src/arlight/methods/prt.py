@@ -260,7 +260,7 @@ class PRTMethod(BaseMethod):
     def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
              settings: RenderSettings) -> PRTData:
         """:func:`pose` from the last posed data; otherwise prepared again."""
-        return posed_data(state, lambda data: pose(data, state.world, transforms,
+        return posed_data(state, transforms, lambda data: pose(data, state.world, transforms,
                                                    state.options),
                           lambda: self.prepare_world(state.world.posed(transforms),
                                                      state.options, settings))
