@@ -1,7 +1,9 @@
 """Distributed rendering on Ray: a worker killed mid-task loses nothing; Ray stays optional.
 
-Ray's start-up on a 2-core machine takes ~6 s, so the fast tier has one Ray run (the fault
-test, which also checks that the frames equal the sequential loop's).
+Ray's start-up on a 2-core machine takes ~6 s, so the fast tier has one Ray run here (the
+fault test, which also checks that the frames equal the sequential loop's) and one in
+``test_ray_examples.py`` (the documented examples; an environment-lit world, which this
+file's scenes lack).
 
 Rejects: tasks without retries (the killed worker's frame would be missing or the run would
 fail); results collected only at the end (the log would be empty while the run goes on);

@@ -3,7 +3,10 @@
 :class:`PipelineProducer` feeds frame ``i`` of a frame source to
 :class:`arlight.nearfield.pipeline.NearFieldServer` (radiance atlas → τ split → VALs by
 warm-started k-means → SH per virtual object; issue 17) and returns its
-:class:`~arlight.nearfield.NearFieldLight`. Frame sources:
+:class:`~arlight.nearfield.NearFieldLight`. The rig and the proxy do not change while the
+server runs, so the camera→texel weights and visibility are computed by the first update
+only (the server's projection cache, issue #32); every later update re-projects radiance.
+Frame sources:
 
 - :class:`FolderFrames`: a folder with one sub-folder per frame (natural name order), each
   holding one HDR image per rig camera named ``<camera name>.exr`` (or ``.hdr``/``.pfm``);
