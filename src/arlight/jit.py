@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from arlight.errors import ArlightError
 from arlight.interrupts import shielded, test_point
 
@@ -59,4 +61,33 @@ def ensure_variant() -> str:
         "(or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version >= 16).")
 
 
-__all__ = ["MAX_LANES", "ensure_variant"]
+ALIGN_BYTES = 64
+"""Alignment of the NumPy buffers :func:`aligned` hands to Dr.Jit."""
+
+
+def aligned(a, dtype) -> np.ndarray:
+    """``a`` as a C-contiguous NumPy array of ``dtype`` whose buffer starts on a 64-byte
+    boundary, to build a Dr.Jit array from.
+
+    Dr.Jit's LLVM backend reads a contiguous NumPy array in place and compiles the alignment
+    it finds into the kernel (``align 64`` or ``align 1``). NumPy's buffers are 64-byte
+    aligned or not depending on their size and the heap, so a kernel fed per-frame arrays
+    (dic's records, whose count changes every frame) was compiled again whenever that
+    changed: seconds on the CPU. Aligned inputs give one kernel.
+    """
+    src = np.asarray(a, dtype=dtype)
+    raw = np.empty(src.nbytes + ALIGN_BYTES, np.uint8)
+    start = (-raw.ctypes.data) % ALIGN_BYTES
+    out = raw[start:start + src.nbytes].view(src.dtype).reshape(src.shape)
+    out[...] = src
+    return out
+
+
+def columns(a, dtype) -> list[np.ndarray]:
+    """The columns of an ``(N, k)`` array as :func:`aligned` 1-D arrays (build e.g. a
+    ``mi.Point3f(*columns(p, np.float32))`` from them)."""
+    a = np.asarray(a)
+    return [aligned(a[:, c], dtype) for c in range(a.shape[1])]
+
+
+__all__ = ["ALIGN_BYTES", "aligned", "columns", "MAX_LANES", "ensure_variant"]

@@ -309,17 +309,20 @@ def traced_kernels(render) -> set[str]:
             if k.get("type") == dr.KernelType.JIT and k.get("operation_count", 0) >= 100}
 
 
-def test_moved_camera_and_other_spp_reuse_the_compiled_tracer():
-    """Camera pose, intrinsics, resolution and spp reach the kernels as opaque values: the
-    tracer compiled for one frame serves a moved camera, another image size and another spp
-    (rejects any of them baked into the kernel as a literal — each frame of a moving camera,
-    or each spp of a benchmark, then paid a new LLVM compilation: seconds)."""
+@pytest.mark.parametrize("name", ["onepass", "dic"])
+def test_moved_camera_and_other_spp_reuse_the_compiled_tracer(name):
+    """Camera pose, intrinsics, resolution and spp reach the kernels as opaque values, and
+    per-frame NumPy inputs (dic's records, its G-buffer rays) as 64-byte aligned buffers: the
+    kernels compiled for one frame serve a moved camera, another image size and another spp
+    (rejects any of them baked into a kernel as a literal, or Dr.Jit given NumPy buffers of
+    varying alignment — it compiles the alignment in: each frame of a moving camera, or each
+    spp of a benchmark, then paid new LLVM compilations, seconds)."""
     import dataclasses
 
     from arlight.scene.model import FrameView
 
     scene = make(table_scene())
-    method = get_method("onepass")
+    method = get_method(name)
     state = method.prepare(scene.world)
     view = scene.view
     first = traced_kernels(lambda: method.render(state, view, RenderSettings(spp=4, seed=1)))

@@ -41,6 +41,13 @@ def _lens_permutation(spp: int) -> int:
     return a
 
 
+def opaque(x: float) -> mi.Float:
+    """``x`` as an opaque Dr.Jit scalar: read from memory by the kernel, not compiled into
+    it, so a kernel that uses it serves any value (a moved camera, another resolution, another
+    spp) without compiling again (seconds on the CPU)."""
+    return dr.opaque(mi.Float, float(x))
+
+
 def stratified_2d(key: mi.UInt32, k: mi.UInt32, spp: int, salt: int) -> mi.Point2f:
     """Point in [0,1)² for sample ``k`` of ``spp`` (multi-jittered when spp is a square).
 
@@ -56,14 +63,16 @@ def stratified_2d(key: mi.UInt32, k: mi.UInt32, spp: int, salt: int) -> mi.Point
     jy = _uniform(key ^ (k * 0x9E3779B9), s + _SALT_JITTER_Y)
     if n * n != spp or n == 1:
         return mi.Point2f(jx, jy)
+    # n opaque: one kernel serves every square spp
+    n, nf = dr.opaque(mi.UInt32, n), opaque(n)
     i = k % n
     j = k // n
-    shift_i = mi.UInt32(dr.floor(_uniform(key ^ (i * 0x85EBCA6B), s + _SALT_SHIFT_X) * n))
-    shift_j = mi.UInt32(dr.floor(_uniform(key ^ (j * 0xC2B2AE35), s + _SALT_SHIFT_Y) * n))
+    shift_i = mi.UInt32(dr.floor(_uniform(key ^ (i * 0x85EBCA6B), s + _SALT_SHIFT_X) * nf))
+    shift_j = mi.UInt32(dr.floor(_uniform(key ^ (j * 0xC2B2AE35), s + _SALT_SHIFT_Y) * nf))
     sub_x = (j + dr.minimum(shift_i, n - 1)) % n
     sub_y = (i + dr.minimum(shift_j, n - 1)) % n
-    x = (mi.Float(i) + (mi.Float(sub_x) + jx) / n) / n
-    y = (mi.Float(j) + (mi.Float(sub_y) + jy) / n) / n
+    x = (mi.Float(i) + (mi.Float(sub_x) + jx) / nf) / nf
+    y = (mi.Float(j) + (mi.Float(sub_y) + jy) / nf) / nf
     return mi.Point2f(dr.minimum(x, dr.one_minus_epsilon(mi.Float)),
                       dr.minimum(y, dr.one_minus_epsilon(mi.Float)))
 
@@ -80,16 +89,38 @@ def generate_rays(camera: Camera, pixel: mi.UInt32, k: mi.UInt32, spp: int,
     off = stratified_2d(key, k, spp, 0)
     lens_u = None
     if camera.aperture_radius > 0:
-        k_lens = (k * _lens_permutation(spp)) % spp
+        k_lens = (k * dr.opaque(mi.UInt32, _lens_permutation(spp))) % dr.opaque(mi.UInt32, spp)
         lens_u = stratified_2d(key, k_lens, spp, _LENS_SALT)
     return rays_from_samples(camera, pixel, off, lens_u)
 
 
-def opaque(x: float) -> mi.Float:
-    """``x`` as an opaque Dr.Jit scalar: read from memory by the kernel, not compiled into
-    it, so a kernel that uses it serves any value (a moved camera, another resolution, another
-    spp) without compiling again (seconds on the CPU)."""
-    return dr.opaque(mi.Float, float(x))
+class Projection:
+    """The pinhole projection of world points into a camera's image, in Dr.Jit, with the
+    camera's pose, intrinsics and size as opaque values (:func:`opaque`: a moved camera
+    reuses the compiled kernels). Pixel ``(u, v)``: column, row in pixels, OpenCV
+    convention; ``z``: camera-space depth, metres (≤ 0 behind the camera)."""
+
+    def __init__(self, camera: Camera):
+        m = camera.camera_from_world()
+        self.rows = [[opaque(m[r][c]) for c in range(4)] for r in range(3)]
+        self.fx, self.fy = opaque(camera.fx), opaque(camera.fy)
+        self.cx, self.cy = opaque(camera.cx), opaque(camera.cy)
+        self.center = mi.Point3f(*(opaque(x) for x in camera.position))
+        self.width = dr.opaque(mi.UInt32, camera.width)
+        self.height = dr.opaque(mi.UInt32, camera.height)
+
+    def camera_space(self, p: mi.Point3f) -> list[mi.Float]:
+        """``p`` in camera coordinates (x right, y down, z forward), metres."""
+        r = self.rows
+        return [r[i][0] * p.x + r[i][1] * p.y + r[i][2] * p.z + r[i][3] for i in range(3)]
+
+    def project(self, p: mi.Point3f, min_z: float = 0.0) -> tuple[mi.Float, mi.Float, mi.Float]:
+        """``(u, v, z)`` of ``p``; ``|z|`` below ``min_z`` is raised to it first (keeps
+        ``u, v`` finite behind or at the camera)."""
+        x, y, z = self.camera_space(p)
+        if min_z > 0:
+            z = dr.select(dr.abs(z) > min_z, z, min_z)
+        return self.fx * x / z + self.cx, self.fy * y / z + self.cy, z
 
 
 def rays_from_samples(camera: Camera, pixel: mi.UInt32, off: mi.Point2f,

@@ -29,7 +29,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
 from arlight.backend.rays import np3
-from arlight.jit import MAX_LANES
+from arlight.jit import MAX_LANES, aligned, columns
 from arlight.realtime.shading import SHADOW_EPS
 from arlight.tracing.onepass import RAY_TYPES, OnePassTracer, TracerOptions
 
@@ -92,11 +92,9 @@ def _chunk_rays(position: np.ndarray, normal: np.ndarray, keys: np.ndarray, n_ra
     lane = dr.arange(mi.UInt32, lanes)
     rec = lane // n_rays
     k = lane - rec * n_rays
-    p = np.ascontiguousarray(position[a:b], np.float32)
-    n = np.ascontiguousarray(normal[a:b], np.float32)
-    pos = dr.gather(mi.Point3f, mi.Point3f(p[:, 0], p[:, 1], p[:, 2]), rec)
-    nrm = dr.gather(mi.Vector3f, mi.Vector3f(n[:, 0], n[:, 1], n[:, 2]), rec)
-    key = dr.gather(mi.UInt32, mi.UInt32(np.ascontiguousarray(keys[a:b], np.uint32)), rec)
+    pos = dr.gather(mi.Point3f, mi.Point3f(*columns(position[a:b], np.float32)), rec)
+    nrm = dr.gather(mi.Vector3f, mi.Vector3f(*columns(normal[a:b], np.float32)), rec)
+    key = dr.gather(mi.UInt32, mi.UInt32(aligned(keys[a:b], np.uint32)), rec)
     return _record_rays(pos, nrm, key, k, n_rays)
 
 

@@ -40,8 +40,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.backend.camera_rays import Projection
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.backend.rays import np3
+from arlight.jit import columns
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.sampling.stream import LaneSampler
 from arlight.scene.camera import Camera
@@ -68,29 +70,21 @@ class SplatLookup:
     """The splat buffer on the device, read at the camera projection of world points."""
 
     def __init__(self, camera: Camera, e_mixed: np.ndarray, e_delta: np.ndarray):
-        self.w, self.h = camera.width, camera.height
-        m = np.ascontiguousarray(e_mixed, np.float32)
-        d = np.ascontiguousarray(e_delta, np.float32)
-        self.mixed = mi.Color3f(m[:, 0], m[:, 1], m[:, 2])
-        self.delta = mi.Color3f(d[:, 0], d[:, 1], d[:, 2])
-        cw = camera.camera_from_world()
-        self.rows = [[float(cw[r][c]) for c in range(4)] for r in range(3)]
-        self.fx, self.fy = float(camera.fx), float(camera.fy)
-        self.cx, self.cy = float(camera.cx), float(camera.cy)
+        self.mixed = mi.Color3f(*columns(e_mixed, np.float32))
+        self.delta = mi.Color3f(*columns(e_delta, np.float32))
+        self.proj = Projection(camera)
 
     def pixel(self, p: mi.Point3f) -> mi.UInt32:
         """Pixel index of the projection of ``p``, wrapped into the image (Kán §4.2.5)."""
-        r = self.rows
-        pc = [r[i][0] * p.x + r[i][1] * p.y + r[i][2] * p.z + r[i][3] for i in range(3)]
-        z = dr.select(dr.abs(pc[2]) > 1e-9, pc[2], 1e-9)
-        u = dr.clip(self.fx * pc[0] / z + self.cx, -1e7, 1e7)
-        v = dr.clip(self.fy * pc[1] / z + self.cy, -1e7, 1e7)
+        u, v, _ = self.proj.project(p, min_z=1e-9)
+        u, v = dr.clip(u, -1e7, 1e7), dr.clip(v, -1e7, 1e7)
+        w, h = mi.Float(self.proj.width), mi.Float(self.proj.height)
         cu, cv = dr.floor(u), dr.floor(v)
-        col = cu - self.w * dr.floor(cu / self.w)
-        row = cv - self.h * dr.floor(cv / self.h)
-        col = dr.clip(mi.Int32(col), 0, self.w - 1)
-        row = dr.clip(mi.Int32(row), 0, self.h - 1)
-        return mi.UInt32(row * self.w + col)
+        col = cu - w * dr.floor(cu / w)
+        row = cv - h * dr.floor(cv / h)
+        col = dr.clip(mi.Int32(col), 0, mi.Int32(self.proj.width) - 1)
+        row = dr.clip(mi.Int32(row), 0, mi.Int32(self.proj.height) - 1)
+        return mi.UInt32(row * mi.Int32(self.proj.width) + col)
 
     def lookup(self, p: mi.Point3f, active: mi.Bool) -> tuple[mi.Color3f, mi.Color3f]:
         """``(E_m, E_d)`` (W/m²) at the projections of ``p``."""
@@ -293,9 +287,7 @@ def splat_geometry(view: SceneView, camera: Camera) -> SplatGeometry:
     v, u = np.mgrid[0:h, 0:w]
     uv = np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1)
     o, d = camera.pixel_rays(uv)
-    o32, d32 = o.astype(np.float32), d.astype(np.float32)
-    ray = mi.Ray3f(mi.Point3f(o32[:, 0], o32[:, 1], o32[:, 2]),
-                   mi.Vector3f(d32[:, 0], d32[:, 1], d32[:, 2]))
+    ray = mi.Ray3f(mi.Point3f(*columns(o, np.float32)), mi.Vector3f(*columns(d, np.float32)))
     si = view.scene.ray_intersect(ray)
     valid = si.is_valid()
     n = facing(mi.Vector3f(si.sh_frame.n), -ray.d)

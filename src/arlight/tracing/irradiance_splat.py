@@ -19,7 +19,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.rays import np3
-from arlight.jit import ensure_variant
+from arlight.jit import aligned, columns, ensure_variant
 from arlight.scene.camera import Camera
 from arlight.tracing.irradiance_cache import (
     NORMAL_SCALE,
@@ -33,13 +33,8 @@ BIN_PX = 8
 """Side of the screen bins records are sorted into, pixels."""
 
 
-def _f32(a: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(a, np.float32)
-
-
 def _vec(cls, a: np.ndarray):
-    a = _f32(a)
-    return cls(a[:, 0], a[:, 1], a[:, 2])
+    return cls(*columns(a, np.float32))
 
 
 def splat_dr(records: Records, geom: SplatGeometry, camera: Camera, kappa: float,
@@ -75,18 +70,19 @@ def splat_dr(records: Records, geom: SplatGeometry, camera: Camera, kappa: float
     pix, col, row, lane_bin = pix[busy], col[busy], row[busy], lane_bin[busy]
     if len(pix) == 0:
         return out
-    j0 = mi.UInt32(starts[lane_bin].astype(np.uint32))
-    j1 = mi.UInt32(ends[lane_bin].astype(np.uint32))
-    colv, rowv = mi.Int32(col.astype(np.int32)), mi.Int32(row.astype(np.int32))
+    # aligned copies: one compiled kernel whatever the number of records (arlight.jit)
+    j0 = mi.UInt32(aligned(starts[lane_bin], np.uint32))
+    j1 = mi.UInt32(aligned(ends[lane_bin], np.uint32))
+    colv, rowv = mi.Int32(aligned(col, np.int32)), mi.Int32(aligned(row, np.int32))
     x, n = _vec(mi.Point3f, geom.position[pix]), _vec(mi.Vector3f, geom.normal[pix])
 
-    lst = mi.UInt32(rec_sorted.astype(np.uint32))
+    lst = mi.UInt32(aligned(rec_sorted, np.uint32))
     t_pos, t_nrm = _vec(mi.Point3f, records.position), _vec(mi.Vector3f, records.normal)
     t_em, t_ed = _vec(mi.Color3f, records.e_mixed), _vec(mi.Color3f, records.e_delta)
     t_vm = _vec(mi.Color3f, np.square(records.stderr_mixed))  # inf for one-ray records
     t_vd = _vec(mi.Color3f, np.square(records.stderr_delta))
-    t_half_r = mi.Float(_f32(0.5 * radius))
-    t_box = [mi.Int32(b.astype(np.int32)) for b in (c0, c1, r0, r1)]
+    t_half_r = mi.Float(aligned(0.5 * radius, np.float32))
+    t_box = [mi.Int32(aligned(b, np.int32)) for b in (c0, c1, r0, r1)]
     k = float(kappa)
     ns = float(NORMAL_SCALE / math.sqrt(2.0))
     m = len(pix)

@@ -56,7 +56,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.camera_rays import opaque
+from arlight.backend.camera_rays import Projection
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
 from arlight.sampling.lights import LightSampler, light_context
 from arlight.sampling.stream import CAMERA_PIXEL, LaneSampler
@@ -358,34 +358,24 @@ class _Reprojector:
     def __init__(self, camera: Camera, frame: np.ndarray, real: SceneView):
         flat = np.ascontiguousarray(frame.reshape(-1, 3), dtype=np.float32)
         self.table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
-        # the camera as opaque values (a moved camera reuses the compiled tracer)
-        m = camera.camera_from_world()
-        self.rows = [[opaque(m[r][c]) for c in range(4)] for r in range(3)]
-        self.fx, self.fy = opaque(camera.fx), opaque(camera.fy)
-        self.cx, self.cy = opaque(camera.cx), opaque(camera.cy)
-        self.center = mi.Point3f(*(opaque(x) for x in camera.position))
-        self.width = dr.opaque(mi.UInt32, camera.width)
-        self.height = dr.opaque(mi.UInt32, camera.height)
+        self.proj = Projection(camera)
         self.real = real
 
     def lookup(self, p: mi.Point3f, active: mi.Bool) -> tuple[mi.Color3f, mi.Bool, mi.Bool]:
         """(frame radiance, usable, visibility ray traced) for points ``p``."""
-        r = self.rows
-        pc = [r[i][0] * p.x + r[i][1] * p.y + r[i][2] * p.z + r[i][3] for i in range(3)]
-        z = pc[2]
-        u = self.fx * pc[0] / z + self.cx
-        v = self.fy * pc[1] / z + self.cy
-        inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < mi.Float(self.width)) & (
-            v < mi.Float(self.height))
-        d = p - self.center
+        pr = self.proj
+        u, v, z = pr.project(p)
+        inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < mi.Float(pr.width)) & (
+            v < mi.Float(pr.height))
+        d = p - pr.center
         dist = dr.norm(d)
-        ray = mi.Ray3f(self.center, d / dist)
+        ray = mi.Ray3f(pr.center, d / dist)
         ray.maxt = dist * (1.0 - 1e-4)
         occluded = self.real.scene.ray_test(ray, inside)
         ok = inside & ~occluded
-        col = dr.minimum(mi.UInt32(dr.maximum(u, 0.0)), self.width - 1)
-        row = dr.minimum(mi.UInt32(dr.maximum(v, 0.0)), self.height - 1)
-        val = dr.gather(mi.Color3f, self.table, row * self.width + col, ok)
+        col = dr.minimum(mi.UInt32(dr.maximum(u, 0.0)), pr.width - 1)
+        row = dr.minimum(mi.UInt32(dr.maximum(v, 0.0)), pr.height - 1)
+        val = dr.gather(mi.Color3f, self.table, row * pr.width + col, ok)
         return val, ok, inside
 
 
