@@ -394,8 +394,13 @@ class Cycles:
     """The Blender worker process (``cycles_worker.py``) and its composites (``frame`` given:
     the AR composite of a catcher scene; None: the plain render of a world scene)."""
 
-    def __init__(self, python: str, scene_npz: Path, frame: np.ndarray | None, tmp: Path):
+    def __init__(self, python: str, scene_npz: Path, frame: np.ndarray | None, tmp: Path,
+                 clock: str = "cycles"):
+        """``clock``: the seconds :meth:`render` returns — ``"cycles"`` (Cycles' own
+        synchronisation + render time) or ``"wall"`` (the whole render call, its denoising
+        included)."""
         self.frame = None if frame is None else frame.astype(np.float64)
+        self.clock = clock
         self.tmp, self.count, self.syncs = tmp, 0, []
         self.log = tmp / f"{Path(scene_npz).stem}.log"
         with open(self.log, "w") as log:
@@ -403,13 +408,14 @@ class Cycles:
                                           str(scene_npz)], stdin=subprocess.PIPE,
                                          stdout=subprocess.PIPE, stderr=log, text=True)
 
-    def render(self, spp: int, seed: int) -> tuple[np.ndarray, float]:
-        """(composite or render, seconds) of one render."""
+    def render(self, spp: int, seed: int, denoise: bool = False) -> tuple[np.ndarray, float]:
+        """(composite or render, seconds) of one render (``denoise``: Cycles' OIDN)."""
 
         self.count += 1
         out = self.tmp / f"cycles_{os.getpid()}_{id(self)}_{self.count}"
         assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write(json.dumps({"spp": spp, "seed": seed, "out": str(out)}) + "\n")
+        self.proc.stdin.write(json.dumps({"spp": spp, "seed": seed, "out": str(out),
+                                          "denoise": denoise}) + "\n")
         self.proc.stdin.flush()
         while True:  # Blender prints its own lines on stdout too
             line = self.proc.stdout.readline()
@@ -426,10 +432,11 @@ class Cycles:
             comb = z["combined"].astype(np.float64)
             catcher = z["catcher"].astype(np.float64) if "catcher" in z else None
         os.unlink(f"{out}.npz")
+        sec = float(reply["wall" if self.clock == "wall" else "seconds"])
         if self.frame is None:
-            return comb[..., :3], float(reply["seconds"])
+            return comb[..., :3], sec
         alpha = comb[..., 3:4]
-        return comb[..., :3] + (1.0 - alpha) * self.frame * catcher, float(reply["seconds"])
+        return comb[..., :3] + (1.0 - alpha) * self.frame * catcher, sec
 
     def close(self) -> None:
         if self.proc.stdin is not None:
@@ -881,6 +888,11 @@ def main() -> None:
                     help="only render the one-light worlds in both renderers and compare")
     ap.add_argument("--check-dir", default=None,
                     help="with --check-lights: keep both renders of each world here (.npz)")
+    ap.add_argument("--denoise", action="store_true",
+                    help="instead: equal-time PSNR against the ground truth with the denoiser "
+                         "on both sides (onepass + OIDN, Cycles + its OIDN; issue #31) at "
+                         "--denoise-spp")
+    ap.add_argument("--denoise-spp", nargs="+", type=int, default=[1, 4, 16])
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args()
     if args.repeats < 2:
@@ -893,6 +905,8 @@ def main() -> None:
     labels = list(args.only or (["onepass", "reference"] if args.worlds else ARLIGHT))
     if "onepass" not in labels:
         sys.exit("--only must include onepass (the ratios are Cycles' time over onepass's)")
+
+    from vs_cycles_denoised import denoised_report, measure_denoised
 
     from arlight.evaluate.suite import get_scene
     from arlight.evaluate.worlds import GENERATOR_VERSION, generate, parse_worlds
@@ -918,8 +932,15 @@ def main() -> None:
                 photo = sc.photo(spp=args.frame_spp, seed=1, max_depth=args.max_depth)
             else:
                 photo = synthesize(world, spp=args.frame_spp, seed=1, max_depth=args.max_depth)
-            results.append(measure(name, world, proxy, photo, args, labels, Path(tmp_dir)))
+            if args.denoise:
+                results.append(measure_denoised(name, proxy, photo, args, Path(tmp_dir)))
+            else:
+                results.append(measure(name, world, proxy, photo, args, labels,
+                                       Path(tmp_dir)))
     pressure.append(cpu_pressure())
+    if args.denoise:
+        publish(denoised_report(results, descriptions, args, size, pressure), args.write)
+        return
     if not args.worlds:
         res = results[0]
         lines = [HEADING, "",

@@ -3,10 +3,15 @@ Runs under a Python that has ``bpy`` (the ``bench`` extra, in its own virtual en
 bpy 5.0 pins numpy < 2); talks over stdin/stdout, one JSON object a line.
 
     python cycles_worker.py scene.npz
-    stdin:  {"spp": 64, "seed": 3, "out": "/tmp/x"}
-    stdout: {"ok": true, "seconds": 1.23, "sync": 0.2}   (Cycles' synchronisation + render
-            time, and the synchronisation's alone: with an environment map mostly the bake of
-            its importance map, Cycles' default "Automatic" resolution 1024)
+    stdin:  {"spp": 64, "seed": 3, "out": "/tmp/x", "denoise": false}
+    stdout: {"ok": true, "seconds": 1.23, "sync": 0.2, "wall": 1.3}   (Cycles' synchronisation
+            + render time, the synchronisation's alone — with an environment map mostly the
+            bake of its importance map, Cycles' default "Automatic" resolution 1024 — and the
+            wall time of the whole render call, denoising and the EXR write included)
+
+``denoise``: Cycles' own OpenImageDenoise on the CPU (quality High, albedo and normal
+auxiliary passes, accurate prefilter: its best), applied to every pass it denoises (Combined
+and the Shadow Catcher).
 
 The passes go to ``out.npz`` (``combined`` RGBA premultiplied, and in a catcher scene
 ``catcher`` RGB: the *Shadow Catcher* pass), read from Blender's multi-part EXR with its
@@ -28,6 +33,7 @@ import json
 import math
 import os
 import sys
+import time
 
 import bpy
 import mathutils
@@ -316,15 +322,32 @@ def _clock(text: str) -> float:
     return sec
 
 
-def render(spp: int, seed: int, out: str) -> tuple[float, float | None]:
-    """Render ``spp`` samples with ``seed``; the passes go to ``out.npz``; returns Cycles'
-    synchronisation + render seconds and the synchronisation's (from the EXR's metadata)."""
+def set_denoise(on: bool) -> None:
+    """Cycles' OpenImageDenoise (CPU, High, albedo + normal, accurate prefilter) on or off."""
+    cy = bpy.context.scene.cycles
+    cy.use_denoising = bool(on)
+    if on:
+        cy.denoiser = "OPENIMAGEDENOISE"
+        cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        cy.denoising_prefilter = "ACCURATE"
+        cy.denoising_quality = "HIGH"
+        cy.denoising_use_gpu = False
+
+
+def render(spp: int, seed: int, out: str, denoise: bool = False
+           ) -> tuple[float, float | None, float]:
+    """Render ``spp`` samples with ``seed`` (``denoise``: with Cycles' OIDN); the passes go to
+    ``out.npz``; returns Cycles' synchronisation + render seconds and the synchronisation's
+    (from the EXR's metadata), and the wall time of the render call."""
     sc = bpy.context.scene
     sc.cycles.samples = int(spp)
     sc.cycles.seed = int(seed)
+    set_denoise(denoise)
     exr = out + ".exr"
     sc.render.filepath = exr
+    t0 = time.perf_counter()
     bpy.ops.render.render(write_still=True)
+    wall = time.perf_counter() - t0
     oiio = _oiio()
     inp = oiio.ImageInput.open(exr)
     passes, seconds, sync, i = {}, None, None, 0
@@ -349,7 +372,7 @@ def render(spp: int, seed: int, out: str) -> tuple[float, float | None]:
     np.savez(out + ".npz", **arrays)
     if seconds is None:
         raise RuntimeError("no cycles.ViewLayer.total_time in the EXR metadata")
-    return seconds, sync
+    return seconds, sync, wall
 
 
 def main() -> None:
@@ -357,8 +380,10 @@ def main() -> None:
     for line in sys.stdin:
         job = json.loads(line)
         try:
-            sec, sync = render(job["spp"], job["seed"], job["out"])
-            print(json.dumps({"ok": True, "seconds": sec, "sync": sync}), flush=True)
+            sec, sync, wall = render(job["spp"], job["seed"], job["out"],
+                                     bool(job.get("denoise", False)))
+            print(json.dumps({"ok": True, "seconds": sec, "sync": sync, "wall": wall}),
+                  flush=True)
         except Exception as exc:  # report, keep serving
             print(json.dumps({"ok": False, "error": repr(exc)}), flush=True)
 
