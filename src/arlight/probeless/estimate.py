@@ -31,18 +31,19 @@ MAX_CONDITION = 1e3
 """Singular values below ``σ_max / MAX_CONDITION`` count as unobservable. The floor-and-boxes
 room has ``σ_16/σ_1 ≈ 4e-3`` (band 3 seen only through occlusion); a reconstructed plane has
 ``σ_2/σ_1 ≈ 5e-3`` and then < 2e-4 (marching-cubes normal noise), so 1e3 separates them."""
-DEFAULT_RIDGE = 3e-4
-"""Tikhonov weight relative to ``σ_max²``. Chosen together with the reconstruction's
-smoothing (:data:`arlight.probeless.reconstruct.SMOOTH_ITERATIONS`) on *training* light setups
-— the modelled room under three real HDR maps, static and moving camera — by the median
-upper-hemisphere error, and reported on Gruber's SH cap light, held out (issue #33,
-``benchmarks/tune_light_estimation.py --part setups``, benchmarks/RESULTS.md): training
-median 0.644 → 0.552, Gruber's light 0.567 → 0.332 (static) and 0.357 → 0.298 (moving)
-against the old 3e-3 without smoothing. 3e-3 had been chosen on those very Gruber sequences
-on the raw marching-cubes mesh, whose staircase normals a strong ridge partly hid. On the
-generated worlds of issue #30 (light at the objects, local lamps; no reconstruction) the
-training median SH error fell with *more* ridge, toward the zero estimate; 3e-4 has not been
-re-measured there (the #30 note: a re-choice reports on seeds from 1 000 024 on)."""
+DEFAULT_RIDGE = 1e-3
+"""Tikhonov weight relative to ``σ_max²``. Chosen with the reconstruction's smoothing
+(:data:`arlight.probeless.reconstruct.SMOOTH_ITERATIONS`) on *training* light setups — the
+modelled room under three real HDR maps, static and moving camera, path traced with
+interreflection — by the median upper-hemisphere error at Gruber's 10 cm visibility, and
+reported on Gruber's SH cap light, held out (issue #33, ``benchmarks/tune_light_estimation.py
+--part setups``, benchmarks/RESULTS.md): training median 0.622 → 0.568, Gruber's light
+0.567 → 0.348 (static) and 0.357 → 0.290 (moving) against the old 3e-3 without smoothing.
+3e-3 had been chosen on those very Gruber sequences on the raw marching-cubes mesh, whose
+staircase normals a strong ridge partly hid. On the generated worlds of issue #30 (light at
+the objects, local lamps; no reconstruction) the training median SH error fell with *more*
+ridge, toward the zero estimate; 1e-3 has not been re-measured there (the #30 note: a
+re-choice reports on seeds from 1 000 024 on)."""
 MIN_RANK = 4
 """Fewer observable light directions than this: the light is undetermined (at least the
 constant and the linear band must be seen for a dominant direction)."""
