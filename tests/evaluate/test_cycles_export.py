@@ -128,3 +128,21 @@ def test_time_to_and_quantiles(B):
     pts = [(1.0, 0.1), (4.0, 0.05), (16.0, 0.025)]  # noise ∝ t^-1/2
     assert B.time_to(pts, 0.0125) == pytest.approx(64.0)
     assert B.quantiles([1.0, 2.0, 3.0, 0.5, 4.0]) == pytest.approx((2.0, 0.7, 0.5))
+
+
+def test_equal_time_psnr_of_the_denoised_comparison(B):
+    """``--denoise``'s equal-time PSNR: linear in log time between a curve's points, its best
+    PSNR marked as a lower bound past its slowest point, no frame before its fastest, and
+    onepass's spp spanning Cycles' (rejects an extrapolation past the measured points, or
+    linear-in-time interpolation: at the geometric mean of 1 s and 4 s it must be midway)."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        from vs_cycles_denoised import arlight_spp, psnr_at
+    finally:
+        sys.path.remove(str(BENCH))
+    curve = [(4.0, 30.0), (1.0, 20.0)]  # any order
+    assert psnr_at(curve, 2.0) == (pytest.approx(25.0), "=")
+    assert psnr_at(curve, 8.0) == (30.0, "≥")
+    value, how = psnr_at(curve, 0.5)
+    assert math.isnan(value) and how == "no frame"
+    assert arlight_spp([1, 4, 16]) == [1, 2, 4, 8, 16, 32, 64]
