@@ -160,3 +160,25 @@ def test_a_still_frame_poses_nothing(demo):
     other = m.pose(state, {"bunny": MOVES[1]}, s)
     assert other is not first and other.world.shapes[3].to_world[0, 3] != \
         first.world.shapes[3].to_world[0, 3]
+
+
+@pytest.mark.parametrize("method", ["ibl", "prt"])
+def test_two_virtual_shapes_pose_like_a_fresh_preparation(demo, method):
+    """With the red box virtual too, ``ibl``'s occlusion field covers two shapes and is
+    sampled in world space (again per pose), and ``prt`` has a virtual primitive (prepared
+    again per pose); both still render bitwise what preparing the posed world renders.
+    Rejects an object-space field used for several shapes (the box would not move with the
+    bunny's frame) and a prt pose that keeps a primitive's read-back mesh."""
+    shapes = [replace(s, role="virtual") if s.name == "red_box" else s
+              for s in demo.world.shapes]
+    world = replace(demo.world, shapes=shapes)
+    m = get_method(method)
+    s = RenderSettings(spp=1, options=SMALL[method])
+    state = m.prepare(world, s)
+    rest = m.render(state, demo.view, s)
+    transforms = {"bunny": MOVES[0]}
+    posed = m.render(state, replace(demo.view, object_transforms=transforms), s)
+    fresh = m.render(m.prepare(world.posed(transforms), s), demo.view, s)
+    assert _equal(posed, fresh)
+    assert not _equal(posed, rest)
+    assert _equal(m.render(state, demo.view, s), rest)

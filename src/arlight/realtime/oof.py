@@ -208,7 +208,7 @@ class OcclusionField:
         m = min(k, np.asarray(light_sh).shape[0])
         light[:m] = np.asarray(light_sh, np.float64)[:m]
         m_jkc = np.einsum("ijk,ic->jkc", _tensor(order), light)
-        t = cosine_transfer(octahedral_normals(NORMAL_GRID), order)  # (B, k)
+        t = _normal_transfer(order)  # (B, k)
         return (t @ m_jkc.transpose(1, 0, 2).reshape(k, -1)).reshape(len(t), k, 3)
 
     def occluded_irradiance(self, light_sh: np.ndarray, p: mi.Point3f, n: mi.Vector3f,
@@ -332,6 +332,16 @@ def octahedral_index(n: mi.Vector3f, grid: int) -> mi.UInt32:
 
 
 _TENSORS: dict[int, np.ndarray] = {}
+_NORMAL_TRANSFERS: dict[int, np.ndarray] = {}
+
+
+def _normal_transfer(order: int) -> np.ndarray:
+    """:func:`cosine_transfer` of the normal grid's nodes ``(NORMAL_GRID², k)``, computed
+    once per order (a moving object's field rotates its light every frame, so
+    :meth:`OcclusionField.light_table` runs per frame)."""
+    if order not in _NORMAL_TRANSFERS:
+        _NORMAL_TRANSFERS[order] = cosine_transfer(octahedral_normals(NORMAL_GRID), order)
+    return _NORMAL_TRANSFERS[order]
 
 
 def _tensor(order: int) -> np.ndarray:
