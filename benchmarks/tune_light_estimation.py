@@ -449,7 +449,7 @@ SETUP_RIDGES = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2]
 KEEP_DISTANCE = 0.1
 """The choice is made at Gruber's 10 cm; the longer ranges are measured, not chosen: the
 training setups are lit by distant maps only, and on ``bunny-box`` (a near lamp) 1 m turns
-the estimated direction away from the lamp (dot 0.94 → 0.67, docs/methods/probeless.md)."""
+the estimated direction away from the lamp (dot 0.97 → 0.76, docs/methods/probeless.md)."""
 SETUP_DEPTH = {"training": 8, "heldout": 2}
 """Mitsuba path depth of the frames: the training frames carry interreflection, as real
 frames do (a transfer without interreflection must not be tuned on frames without it);

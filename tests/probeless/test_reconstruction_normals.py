@@ -27,7 +27,8 @@ def _floor_normal_error_deg(mesh, frames) -> np.ndarray:
 def test_floor_normals_of_the_tsdf_reconstruction():
     """Two 160×120 frames of the room (depth from Mitsuba's ray casts of the exact shapes),
     TSDF-integrated at Gruber's 2 m / 268³: at 90 % of the floor pixels the reconstruction's
-    shading normal is within 25° of the exact (0, 1, 0) (measured 14°). Rejects the raw
+    shading normal is within 25° of the exact (0, 1, 0) (measured 14°, 30 or 100 Taubin
+    passes). Rejects the raw
     marching-cubes mesh of the projective TSDF (``smooth_iterations=0``: staircase risers on
     the grazing far floor, 52° at the 90th percentile), whose normals E5 reads the light
     through."""
