@@ -1,0 +1,141 @@
+"""Benchmark: frame time of the interactive methods while the virtual object moves rigidly
+every frame vs while it stands still (issue #32, incremental pose).
+
+On the demo scene at 640×480 each method (dlpv, dir, dvct, ibl, prt, and onepass at 1 spp),
+in a process of its own started by this run (no other method's scenes or kernels alive),
+prepares the world once, renders warm-up frames of both kinds (kernels compiled), then
+``--rounds`` interleaved pairs: a moving frame (the bunny a further 1 cm along a circle on
+the table and turned 5° about +y, a transform no frame used before) and a still frame (that
+pose again: nothing moved). Reported per method: the median wall time of each kind
+(``Layers.stats["seconds"]``, pose included), their ratio (target ≤ 1.3), the moving
+frames' mean wall time and median ``time_pose``; with the machine's ``uptime`` load and CPU
+pressure at the end of the run. The bitwise equality of the moved frames to a fresh
+preparation is tested in tests/methods/test_pose_incremental.py, not here.
+
+    .venv/bin/python benchmarks/bench_motion.py [--rounds 9] [--methods dlpv,dir] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from results import cpu_pressure, publish
+
+from arlight.demo import DEMO_DIR
+from arlight.methods import RenderSettings, get_method
+from arlight.scene.load import load_scene
+
+HEADING = "## Interactive methods while the virtual object moves (issue #32)"
+HERE = Path(__file__).resolve().parent
+METHODS = ["dlpv", "dir", "dvct", "ibl", "prt", "onepass"]
+STEP_M = 0.01
+"""Distance the bunny moves along its circle per moving frame, metres."""
+TURN_DEG = 5.0
+"""Rotation of the bunny about +y per moving frame, degrees."""
+RADIUS_M = 0.05
+"""Radius of the bunny's circle on the table, metres."""
+BEFORE = "dlpv 3.9×, dir 1.1×, dvct 5.5×, ibl 6.9×, prt 6.4×, onepass 1.3×"
+"""Moving/still ratios measured when issue #32 was filed (every pose prepared again)."""
+
+
+def motion(i: int) -> np.ndarray:
+    """World-space transform of the ``i``-th moving frame (4×4): the rest pose turned by
+    ``i · TURN_DEG`` about +y and moved to point ``i`` of a circle through the rest position
+    (``i · STEP_M`` of arc)."""
+    phi = i * STEP_M / RADIUS_M
+    a = math.radians(i * TURN_DEG)
+    m = np.eye(4)
+    m[[0, 0, 2, 2], [0, 2, 0, 2]] = [math.cos(a), math.sin(a), -math.sin(a), math.cos(a)]
+    m[:3, 3] = [RADIUS_M * math.sin(phi), 0.0, RADIUS_M * (1.0 - math.cos(phi))]
+    return m
+
+
+def settings_for(method: str) -> RenderSettings:
+    """1 spp for onepass (its interactive setting), the method's defaults otherwise."""
+    return RenderSettings(spp=1, seed=3) if method == "onepass" else RenderSettings(seed=3)
+
+
+def measure(method: str, rounds: int, warmup: int) -> dict[str, float]:
+    """Still and moving frame times of one method (seconds), interleaved."""
+    scene = load_scene(DEMO_DIR / "scene.toml")
+    m, s = get_method(method), settings_for(method)
+    state = m.prepare(scene.world, s)
+    still, moving, pose = [], [], []
+    frame = 0
+    for i in range(warmup + rounds):
+        frame += 1
+        view = replace(scene.view, object_transforms={"bunny": motion(frame)})
+        lay_m = m.render(state, view, s)  # the bunny moved since the last frame
+        lay_s = m.render(state, view, s)  # the same pose again: nothing moved
+        if i >= warmup:
+            still.append(lay_s.stats["seconds"])
+            moving.append(lay_m.stats["seconds"])
+            pose.append(lay_m.stats.get("time_pose", 0.0))
+    return {"still": statistics.median(still), "moving": statistics.median(moving),
+            "moving_mean": statistics.fmean(moving), "pose": statistics.median(pose),
+            "incremental": float(getattr(m, "incremental_pose", False))}
+
+
+def table(results: dict[str, dict[str, float]], rounds: int, load: str, psi: str) -> str:
+    lines = [HEADING, "",
+             f"Demo scene, 640×480, one run, a process per method; {rounds} moving/still pairs "
+             f"interleaved after warm-up, median wall time per frame (pose included). Moving: "
+             f"the bunny {STEP_M * 100:.0f} cm further along a {RADIUS_M * 100:.0f} cm circle "
+             f"and {TURN_DEG:.0f}° further turned every moving frame; still: that pose again. "
+             f"Target: moving ≤ 1.3× still.",
+             "", "| method | incremental pose | still (ms) | moving (ms) | ratio | moving mean "
+             "(ms) | pose (ms, median) |", "|---|---|---|---|---|---|---|"]
+    for name, r in results.items():
+        lines.append(f"| {name}{' (1 spp)' if name == 'onepass' else ''} | "
+                     f"{'yes' if r['incremental'] else 'no'} | {r['still'] * 1e3:.0f} | "
+                     f"{r['moving'] * 1e3:.0f} | {r['moving'] / r['still']:.2f} | "
+                     f"{r['moving_mean'] * 1e3:.0f} | {r['pose'] * 1e3:.1f} |")
+    met = [n for n, r in results.items() if r["moving"] <= 1.3 * r["still"]]
+    lines += ["", f"Target met by {len(met)} of {len(results)}: {', '.join(met) or 'none'}. "
+              f"Before incremental pose (issue #32's table: the frame after a 1 cm move vs a "
+              f"still frame, pose re-prepared): {BEFORE}."]
+    lines += ["", f"Load at the end of the run (`uptime`): {load}"
+              + (f"; CPU pressure (PSI some avg60): {psi} %" if psi else "") + "."]
+    return "\n".join(lines)
+
+
+def child(name: str, rounds: int, warmup: int) -> dict[str, float]:
+    """:func:`measure` in a fresh process (no other method's scenes or kernels alive)."""
+    out = subprocess.run([sys.executable, __file__, "--child", name, "--rounds", str(rounds),
+                          "--warmup", str(warmup)], capture_output=True, text=True,
+                         check=True, cwd=str(HERE)).stdout
+    line = next(x for x in out.splitlines() if x.startswith("RESULT"))
+    return json.loads(line[len("RESULT"):])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--rounds", type=int, default=9)
+    ap.add_argument("--warmup", type=int, default=3)
+    ap.add_argument("--write", action="store_true", help="store the table in RESULTS.md")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        print("RESULT" + json.dumps(measure(args.child, args.rounds, args.warmup)))
+        return
+    results = {}
+    for name in args.methods.split(","):
+        t0 = time.perf_counter()
+        results[name] = child(name, args.rounds, args.warmup)
+        print(f"{name}: {results[name]} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    publish(table(results, args.rounds, load, cpu_pressure()), args.write)
+
+
+if __name__ == "__main__":
+    main()
