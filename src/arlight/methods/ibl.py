@@ -66,12 +66,13 @@ from arlight.realtime.ibl_shading import (
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.oof import (
     OOF_OPTIONS,
+    Occluder,
     OcclusionField,
     field_from_options,
-    move_virtual_scene,
+    make_occluder,
+    move_occluder,
     pose_field,
     render_layers,
-    virtual_scene,
 )
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, virtual_bounds
 from arlight.scene.model import FrameView, World
@@ -137,7 +138,7 @@ class IBLData:
     lights: LightSet
     ambient: np.ndarray
     env: MipEnvironment | None
-    occluder: mi.Scene | None
+    occluder: Occluder | None
     field: OcclusionField | None
     alpha: mi.Float
     ks: mi.Color3f
@@ -153,7 +154,7 @@ def prepare(world: World, options: Options) -> IBLData:
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     env_img = environment_map(world)
     env = MipEnvironment.build(env_img) if env_img is not None else None
-    occluder = virtual_scene(world)
+    occluder = make_occluder(world)
     field = field_from_options(world, options) if occluder is not None else None
     alpha, ks, glossy = specular_tables(world)
     return IBLData(world, views, lights, ambient_sh(world, lights, options.sh_order, env_img),
@@ -172,19 +173,22 @@ def _ao_distance(world: World, views: SceneViews, options: Options) -> float:
 def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options: Options
          ) -> IBLData | None:
     """``data`` (prepared for ``world`` in any pose) moved in place to
-    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views and in the
-    virtual occluder, the object-space occlusion field is looked up through the new pose
-    (:func:`~arlight.realtime.oof.pose_field`; a world-space field, several virtual shapes,
-    is sampled again), lights, environment and tables are kept. Bitwise the data
-    :func:`prepare` makes of the posed world; None (nothing changed) when a real shape
-    moves."""
+    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views; the
+    object-space occluder and occlusion field are looked up through the new pose
+    (:func:`~arlight.realtime.oof.move_occluder`, :func:`~arlight.realtime.oof.pose_field`;
+    with several virtual shapes the world-space occluder's shapes move in place and the
+    world-space field is sampled again); lights, environment and tables are kept. Bitwise
+    the data :func:`prepare` makes of the posed world; None (nothing changed) when a real
+    shape moves."""
     before = data.world
     posed = place_views(data.views, world, transforms)
     if posed is None:
         return None
-    if data.occluder is not None:
-        move_virtual_scene(data.occluder, before, posed)
-    return replace(data, world=posed, field=pose_field(data.field, posed, options),
+    ok, occluder = move_occluder(data.occluder, before, posed)
+    if not ok:
+        return None
+    return replace(data, world=posed, occluder=occluder,
+                   field=pose_field(data.field, posed, options),
                    ao_distance=_ao_distance(posed, data.views, options))
 
 

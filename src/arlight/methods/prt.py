@@ -63,12 +63,13 @@ from arlight.realtime.ibl_shading import (
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.oof import (
     OOF_OPTIONS,
+    Occluder,
     OcclusionField,
     field_from_options,
-    move_virtual_scene,
+    make_occluder,
+    move_occluder,
     pose_field,
     render_layers,
-    virtual_scene,
 )
 from arlight.realtime.prt_shading import (
     PRTObject,
@@ -76,7 +77,7 @@ from arlight.realtime.prt_shading import (
     shade_virtual,
 )
 from arlight.realtime.prt_transfer import rotation_part, vertex_values
-from arlight.realtime.shading import emitted_intensity
+from arlight.realtime.shading import emitted_intensity, virtual_bounds
 from arlight.realtime.sog import SoGTables
 from arlight.scene.model import FrameView, World
 from arlight.sphere.sh import directional_light_coeffs, n_coeffs, project_equirect, rotate
@@ -162,7 +163,7 @@ class PRTData:
     lights: LightSet
     light: np.ndarray
     objects: list[PRTObject]
-    occluder: mi.Scene | None
+    occluder: Occluder | None
     field: OcclusionField | None
     face_offset: mi.UInt32
     faces: mi.UInt32
@@ -186,32 +187,30 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
     cache = (cache_dir or default_cache_dir()) if options.cache else None
     meshes = prt_meshes(world, views, cache, options.order, options.directions,
                         options.bounces, options.shadowed)
-    occluder = virtual_scene(world)
+    occluder = make_occluder(world)
     field = field_from_options(world, options) if occluder is not None else None
     env, sog, ks = glossy_tables(world) if options.glossy else (None, None, None)
     distant = distant_sh(world, options.order)
-    return PRTData(world, views, lights, light_sh(world, options.order, _centre(occluder),
+    return PRTData(world, views, lights, light_sh(world, options.order, _centre(world, views),
                                                   options.area_grid, distant),
                    meshes.objects, occluder, field, meshes.face_offset, meshes.faces, env, sog,
                    ks, distant)
 
 
-def _centre(occluder: mi.Scene | None) -> np.ndarray:
-    """Centre of the virtual objects' bounding box (m; the origin without any)."""
-    if occluder is None:
-        return np.zeros(3)
-    b = occluder.bbox()
-    return (np.array([b.min.x, b.min.y, b.min.z]) + np.array([b.max.x, b.max.y,
-                                                              b.max.z])) / 2.0
+def _centre(world: World, views: SceneViews) -> np.ndarray:
+    """Centre of the virtual objects' world bounding box (m; the origin without any)."""
+    b = virtual_bounds(world, views.mixed) if world.has_virtual else None
+    return np.zeros(3) if b is None else (b[0] + b[1]) / 2.0
 
 
 def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options: Options
          ) -> PRTData | None:
     """``data`` (prepared for ``world`` in any pose) moved in place to
-    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views and in the
-    virtual occluder; each object keeps its object-space transfer and takes its new rotation;
-    the light SH is measured from the new centre (distant part kept); the occlusion field is
-    looked up through the new pose (:func:`~arlight.realtime.oof.pose_field`). Bitwise the
+    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views; each
+    object keeps its object-space transfer and takes its new rotation; the light SH is
+    measured from the new centre (distant part kept); occluder and occlusion field are
+    looked up through the new pose (:func:`~arlight.realtime.oof.move_occluder`,
+    :func:`~arlight.realtime.oof.pose_field`). Bitwise the
     data :func:`prepare` makes of the posed world; None (nothing changed) when a real shape
     moves or a virtual primitive (its object mesh is read back from the loaded mesh) does."""
     if any(world.shapes[o.shape].mesh is None for o in data.objects):
@@ -220,13 +219,14 @@ def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options
     posed = place_views(data.views, world, transforms)
     if posed is None:
         return None
-    if data.occluder is not None:
-        move_virtual_scene(data.occluder, before, posed)
+    ok, occluder = move_occluder(data.occluder, before, posed)
+    if not ok:
+        return None
     objects = [replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
                for o in data.objects]
-    light = light_sh(posed, options.order, _centre(data.occluder), options.area_grid,
+    light = light_sh(posed, options.order, _centre(posed, data.views), options.area_grid,
                      data.distant)
-    return replace(data, world=posed, objects=objects, light=light,
+    return replace(data, world=posed, objects=objects, light=light, occluder=occluder,
                    field=pose_field(data.field, posed, options))
 
 

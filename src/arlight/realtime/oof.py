@@ -40,7 +40,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from types import SimpleNamespace
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeAlias
 
 import drjit as dr
 import mitsuba as mi
@@ -88,14 +88,82 @@ def virtual_scene(world: World) -> mi.Scene | None:
     return load_view({"objects": objects}, dict.fromkeys(objects, ROLE_VIRTUAL)).scene
 
 
-def move_virtual_scene(scene: mi.Scene, before: World, after: World) -> None:
-    """Move the shapes of a :func:`virtual_scene` of ``before`` in place to their pose in
-    ``after`` (the same world posed otherwise; incremental pose, issue #32)."""
+class PosedOccluder:
+    """The virtual occluder of a world with one virtual shape under a similarity transform
+    (:func:`object_frame`): that shape loaded at the identity pose, tested by rays taken
+    into its frame. Moving the object swaps the frame (:meth:`posed`); no Mitsuba scene is
+    updated. Duck-types the ``ray_test`` of ``mi.Scene`` that the occluder's users call.
+
+    Attributes:
+        scene: the shape alone at the identity pose.
+        frame: world from object, 4×4 (m).
+    """
+
+    def __init__(self, scene: mi.Scene, frame: np.ndarray) -> None:
+        self.scene = scene
+        self.frame = np.asarray(frame, np.float64)
+        inv = np.linalg.inv(self.frame)
+        self._inv = [[dr.opaque(mi.Float, float(inv[r, c])) for c in range(4)]
+                     for r in range(3)]  # opaque: one kernel for every pose
+
+    def posed(self, frame: np.ndarray) -> PosedOccluder:
+        """The same object in another pose (nothing loaded or rebuilt)."""
+        return PosedOccluder(self.scene, frame)
+
+    def ray_test(self, ray: mi.Ray3f, active: mi.Bool | bool = True) -> mi.Bool:
+        """Whether each ray hits the object before ``ray.maxt``: origin and direction are
+        taken into the object's frame (the direction not renormalised, so the parameter
+        ``t`` and ``maxt`` keep their meaning)."""
+        m = self._inv
+        o = mi.Point3f(*[m[r][0] * ray.o.x + m[r][1] * ray.o.y + m[r][2] * ray.o.z + m[r][3]
+                         for r in range(3)])
+        d = mi.Vector3f(*[m[r][0] * ray.d.x + m[r][1] * ray.d.y + m[r][2] * ray.d.z
+                          for r in range(3)])
+        local = mi.Ray3f(o, d)
+        local.maxt = ray.maxt
+        return self.scene.ray_test(local, active)
+
+
+Occluder: TypeAlias = "mi.Scene | PosedOccluder"
+"""What tests rays against the virtual shapes alone: a world-space scene
+(:func:`virtual_scene`) or an object-space one looked up through the pose."""
+
+
+def _object_scene(world: World) -> mi.Scene:
+    """The one virtual shape of ``world`` alone, at the identity pose."""
+    shape = replace(world.virtual_shapes[0], to_world=np.eye(4))
+    return load_scene({"objects": {"0": describe_shape(shape)}})
+
+
+def make_occluder(world: World) -> Occluder | None:
+    """The virtual occluder of ``world`` (None without virtual shapes): object-space
+    (:class:`PosedOccluder`) when :func:`object_frame` has a frame, else
+    :func:`virtual_scene`."""
+    frame = object_frame(world)
+    if frame is not None:
+        return PosedOccluder(_object_scene(world), frame)
+    return virtual_scene(world)
+
+
+def move_occluder(occluder: Occluder | None, before: World, after: World
+                  ) -> tuple[bool, Occluder | None]:
+    """The occluder of ``before`` for ``after`` (the same world posed otherwise; incremental
+    pose, issue #32): an object-space one re-posed, a world-space one with its shapes moved
+    in place. ``(False, None)`` when the kind would change (the new pose is no similarity):
+    prepare again."""
+    if occluder is None:
+        return True, None
+    frame = object_frame(after)
+    if isinstance(occluder, PosedOccluder):
+        return (True, occluder.posed(frame)) if frame is not None else (False, None)
+    if frame is not None:
+        return False, None
     moved = {str(i): geometry_params(describe_geometry(b)) for i, (a, b) in
              enumerate(zip(before.shapes, after.shapes, strict=True))
              if b.is_virtual and not np.array_equal(a.to_world, b.to_world)}
     if moved:
-        SceneView(scene, mi.Int32(0), mi.Int32(0)).set_geometry(moved)
+        SceneView(occluder, mi.Int32(0), mi.Int32(0)).set_geometry(moved)
+    return True, occluder
 
 
 def occlusion_rays(scene: mi.Scene, origins: np.ndarray, dirs: np.ndarray,
@@ -429,8 +497,7 @@ def field_for_world(world: World, order: int = 4, **kw) -> OcclusionField | None
     space."""
     frame = object_frame(world)
     if frame is not None:
-        shape = replace(world.virtual_shapes[0], to_world=np.eye(4))
-        scene = load_scene({"objects": {"0": describe_shape(shape)}})
+        scene = _object_scene(world)
         return build_field(scene, *_bounding_sphere(scene), order=order, **kw).posed(frame)
     scene = virtual_scene(world)
     if scene is None:
@@ -475,7 +542,7 @@ def field_from_options(world: World, options) -> OcclusionField | None:
                            directions=options.oof_directions, outer=options.oof_outer)
 
 
-def shadow_factor(mixed: SceneView, real: SceneView, occluder: mi.Scene | None,
+def shadow_factor(mixed: SceneView, real: SceneView, occluder: Occluder | None,
                   lights: LightSet, field: OcclusionField | None, p: mi.Point3f,
                   n: mi.Vector3f, active: mi.Bool) -> mi.Color3f:
     """Per-lane multiplicative factor ``f ∈ [0, 1]`` (RGB) of the real surface's light
@@ -541,7 +608,7 @@ class RelitState(Protocol):
     world: World
     views: SceneViews
     lights: LightSet
-    occluder: mi.Scene | None
+    occluder: Occluder | None
     field: OcclusionField | None
 
 
@@ -594,8 +661,9 @@ def render_layers(data: RelitState, view: FrameView, options: GBufferOptions, se
     return layers
 
 
-__all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "RAY_CHUNK", "RelitState",
-           "ShadeVirtual", "build_field", "cosine_transfer", "field_for_world",
-           "field_from_options", "move_virtual_scene", "object_frame", "occlusion_rays",
-           "octahedral_index", "octahedral_normals", "pose_field", "render_layers",
-           "shade_real", "shadow_factor", "shell_samples", "similarity", "virtual_scene"]
+__all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "Occluder", "PosedOccluder",
+           "RAY_CHUNK", "RelitState", "ShadeVirtual", "build_field", "cosine_transfer",
+           "field_for_world", "field_from_options", "make_occluder", "move_occluder",
+           "object_frame", "occlusion_rays", "octahedral_index", "octahedral_normals",
+           "pose_field", "render_layers", "shade_real", "shadow_factor", "shell_samples",
+           "similarity", "virtual_scene"]
