@@ -14,10 +14,12 @@ lat-long map), MSAD (median over frames of Σ|composite − RM's composite|, W/(
 over 160×120×3 values), time of RT + estimation and of shading (median, ms) and rays per
 frame (visibility, including the virtual objects' dense samples).
 
-Part 2 — Gruber's Fig. 5 timing at 640×480 on this machine's cores: RM and ART4, the same
-sequence, interleaved frame by frame (the load of other processes hits both alike), median
-per-frame time of RT + light estimation over the frames after ART4's 4-frame warm-up, and
-the ratio (Gruber, GTX 780: RM 203.5 ms, ART4 85.3 ms, 2.39×). Usage:
+Part 2 — Gruber's Fig. 5 timing on this machine's cores: RM, REG4 and ART4 at 640×480 (the
+Kinect's resolution, Gruber's), REG4 and ART4 at 160×120, each on one sequence with the
+variants interleaved frame by frame (the load of other processes hits all alike): median
+per-frame time of RT + light estimation over the frames after ART4's 4-frame warm-up, split
+into the stages (primary hits, transfer, E5), and the same-run ratios
+(Gruber, GTX 780: RM 203.5, REG4 88.9, ART4 85.3 ms). Usage:
 
     python benchmarks/bench_probeless.py [--frames 8] [--write]
 """
@@ -30,7 +32,7 @@ import statistics
 from pathlib import Path
 
 import numpy as np
-from results import publish
+from results import cpu_pressure, publish
 
 from arlight.backend.mitsuba_scene import build_views
 from arlight.probeless.experiment import table1
@@ -76,29 +78,43 @@ def accuracy(n: int) -> str:
     return "\n".join(lines)
 
 
-def timing(n: int) -> tuple[str, float]:
-    frames = render_sequence("sh", n=n, moving=True, width=640, height=480, spp=8)
+STAGES = {"hits": "primary hits", "transfer": "transfer", "estimate": "E5"}
+
+
+def _stages(stats: dict[str, float]) -> dict[str, float]:
+    """Per-frame seconds of the pipeline's stages (RT = primary hits + transfer)."""
+    return {"hits": stats["time_hits"], "transfer": stats["time_rt"] - stats["time_hits"],
+            "estimate": stats["time_estimate"]}
+
+
+def timing(n: int, width: int, height: int, variants: tuple[str, ...]
+           ) -> tuple[str, dict[str, float]]:
+    """Median per-frame time of RT + estimation of ``variants`` on one moving-camera
+    sequence, the variants interleaved frame by frame (the load of other processes hits all
+    alike), frames after the 4-frame warm-up; a table with the stage breakdown."""
+    frames = render_sequence("sh", n=n, moving=True, width=width, height=height,
+                             spp=8 if width > 200 else 64)
     mesh = reconstruct([f.rgbd for f in frames], albedo=ALBEDO)
     views = build_views(World(shapes=[mesh], lights=[]))
-    pipes = {v: Pipeline(views, v, shapes=[mesh]) for v in ("RM", "ART4")}
-    times: dict[str, list[float]] = {v: [] for v in pipes}
-    rays: dict[str, list[float]] = {v: [] for v in pipes}
+    pipes = {v: Pipeline(views, v, shapes=[mesh]) for v in variants}
+    rows: dict[str, list[dict[str, float]]] = {v: [] for v in pipes}
     for i, f in enumerate(frames):
         for v, p in pipes.items():
             r = p.process(f.rgbd.camera, f.rgbd.colour, f.rgbd.depth, shade=False)
             if i >= 4:
-                times[v].append(r.stats["time_rt"] + r.stats["time_estimate"])
-                rays[v].append(r.stats["rays"])
-    med = {v: 1000 * statistics.median(t) for v, t in times.items()}
-    best = {v: 1000 * min(t) for v, t in times.items()}
-    ratio = med["RM"] / med["ART4"]
-    text = (f"640×480, {os.cpu_count()} cores (shared with other jobs: times vary by 2× "
-            f"between runs), frames 5-{n} of a moving-camera sequence: median RM "
-            f"**{med['RM']:.0f} ms** ({np.mean(rays['RM']) / 1e6:.1f} M rays), ART4 "
-            f"**{med['ART4']:.0f} ms** ({np.mean(rays['ART4']) / 1e6:.2f} M rays); RM / ART4 = "
-            f"**{ratio:.2f}×** (fastest frames: {best['RM']:.0f} / {best['ART4']:.0f} ms = "
-            f"{best['RM'] / best['ART4']:.2f}×). Gruber, GTX 780: 203.5 / 85.3 ms = 2.39×.")
-    return text, ratio
+                rows[v].append({**_stages(r.stats), "rays": r.stats["rays"],
+                                "total": r.stats["time_rt"] + r.stats["time_estimate"]})
+    med = {v: {k: statistics.median(x[k] for x in rs) for k in rs[0]}
+           for v, rs in rows.items()}
+    lines = [f"{width}×{height}, frames 5-{n} of a moving-camera sequence, variants "
+             "interleaved frame by frame; median ms per frame:", "",
+             "| variant | RT + estimation | " + " | ".join(STAGES.values())
+             + " | visibility rays |", "|---|---|" + "---|" * (len(STAGES) + 1)]
+    for v, m in med.items():
+        lines.append(f"| {v} | **{1000 * m['total']:.1f}** | "
+                     + " | ".join(f"{1000 * m[k]:.1f}" for k in STAGES)
+                     + f" | {m['rays']:,.0f} |")
+    return "\n".join(lines), {v: m["total"] for v, m in med.items()}
 
 
 def main() -> None:
@@ -107,13 +123,24 @@ def main() -> None:
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
     tab = accuracy(args.frames)
-    time_text, _ = timing(max(args.frames, 12))
+    n = max(args.frames, 12)
+    big, t_big = timing(n, 640, 480, ("RM", "REG4", "ART4"))
+    small, t_small = timing(n, 160, 120, ("REG4", "ART4"))
     text = "\n".join([
         HEADING, "",
         "`python benchmarks/bench_probeless.py` — synthetic sequences of "
         f"{args.frames} frames at 160×120 (Mitsuba path tracer, direct light, 64 spp), "
-        "reconstructed with the TSDF (2 m, 268³); every variant on the reconstruction.", "",
-        tab, "", time_text, ""])
+        "reconstructed with the TSDF (2 m, 268³, Taubin-smoothed); every variant on the "
+        "reconstruction.", "",
+        tab, "", "### Time per frame (Gruber Fig. 5: RM 203.5, REG4 88.9, ART4 85.3 ms on a "
+        "GTX 780)", "", big, "",
+        f"RM / ART4 = **{t_big['RM'] / t_big['ART4']:.2f}×**, ART4 / REG4 = "
+        f"**{t_big['ART4'] / t_big['REG4']:.2f}** (Gruber: 2.39× and 0.96).", "", small, "",
+        f"ART4 / REG4 = **{t_small['ART4'] / t_small['REG4']:.2f}** at 160×120.", "",
+        f"{os.cpu_count()} cores shared with other jobs; `uptime` load at the end "
+        f"{os.getloadavg()[0]:.2f} (1 min) / {os.getloadavg()[1]:.2f} (5 min), CPU pressure "
+        f"(PSI some avg60) {cpu_pressure() or 'n/a'} %. Ratios are of the same run; absolute "
+        "times vary by 2× between runs.", ""])
     publish(text, args.write)
 
 

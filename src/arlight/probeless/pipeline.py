@@ -12,8 +12,9 @@ reconstruction as the real proxy, plus virtual objects):
    image-space caches of the last frames by reprojection (nearest cache cell, rejected when
    the cached depth or normal differs: then that subset is cast again now). Points in voxels
    of the visibility-state cache flagged *free* get the analytic unoccluded transfer (E6) and
-   no rays; cache validation cameras (one overhead, one following the user with ping-pong
-   depth maps) clear flags within 10 cm of any change of the scene's depth;
+   no rays; when the world changes (:meth:`Pipeline.set_views`) cache validation cameras
+   (one overhead, one at the user's pose) clear flags within ``max_distance`` of any change
+   of the scene's depth;
 4. light: E5 over the regular samples on real surfaces (where the sensor depth agrees);
 5. shading (E7): virtual pixels ``a_v/π T_mix·l`` (+ a Phong lobe along the dominant
    direction for Phong materials), real pixels ``delta = a/π (T_mix − T_real)·l`` (or the
@@ -300,18 +301,10 @@ class StateGrid:
         return int(np.count_nonzero(self.flags))
 
 
-@dataclass
-class ValidationCamera:
-    """A cache validation camera (Gruber §3.3) and the depth map it saw last."""
-
-    camera: Camera
-    depth: np.ndarray | None = None
-
-
 def _cvc_depths(views: SceneViews, cameras: list[Camera]
                 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per camera: ray distance ``(P,)`` (inf on a miss), ray origins and directions, of all
-    ``cameras`` in one batch (one kernel launch for every validation camera of a frame)."""
+    ``cameras`` in one batch (one kernel launch for all the validation cameras)."""
     rays = []
     for camera in cameras:
         v, u = np.mgrid[0:camera.height, 0:camera.width]
@@ -359,7 +352,7 @@ class FrameResult:
         stats: ``rays`` (visibility rays cast), ``samples`` (regular + dense),
             ``dense_samples``, ``free_samples`` (state cache), ``cache_hits`` /
             ``cache_misses`` (reprojection), ``time_rt`` (everything before E5, of which
-            ``time_state``: the validation cameras, ``time_hits``: the primary hits),
+            ``time_hits``: the primary hits),
             ``time_estimate``, ``time_shade`` (s).
     """
 
@@ -433,41 +426,38 @@ class Pipeline:
         self.caches: list[PhaseCache | None] = [None] * self.variant.interleave
         self.dense_caches: list[PhaseCache | None] = [None] * self.variant.interleave
         self.state: StateGrid | None = None
-        self.cvcs: list[ValidationCamera] = []
-        self._dynamic: ValidationCamera | None = None
+        self._last_camera: Camera | None = None
 
     # ------------------------------------------------------------------ state cache
 
     def set_views(self, views: SceneViews) -> None:
         """The world changed (a reconstruction update, a moved virtual object): later
-        frames trace ``views``; the CVCs notice what changed and clear the state cache."""
-        self.views = views
+        frames trace ``views``.
 
-    def _validate_state(self, camera: Camera) -> None:
-        """Cache validation cameras: compare the depth they see now with what they saw
-        last; clear free voxels within ``max_distance`` of every changed pixel."""
+        The cache validation cameras (Gruber §3.3: one overhead over the whole scene, one at
+        the user's pose) cast the old and the new world; free voxels within ``max_distance``
+        of every pixel whose depth changed by more than ``cvc_threshold`` are cleared.
+        Gruber casts them every frame, comparing with the depth maps of the last cast (the
+        user's camera with ping-pong buffers), because KinectFusion changes the TSDF
+        without telling anyone; here the world changes only through this call, so they are
+        cast only then, old against new, and cost nothing per frame."""
         st = self.settings
-        if not self.cvcs:
-            self.cvcs.append(ValidationCamera(overhead_camera(self.views, st.cvc_size)))
-        changed: list[np.ndarray] = []
-        dyn_cam = camera.resized(st.cvc_size, max(1, round(st.cvc_size * camera.height
-                                                           / camera.width)))
-        cvcs = self.cvcs + ([self._dynamic] if self._dynamic is not None else [])
-        # ping-pong: the dynamic CVC's old pose is cast again now, next to its new pose
-        depths = _cvc_depths(self.views, [c.camera for c in cvcs] + [dyn_cam])
-        for cvc, (t, o, d) in zip(cvcs, depths, strict=False):
-            if cvc.depth is not None:
-                old = cvc.depth
-                diff = np.abs(np.where(np.isfinite(t), t, 1e9) - np.where(np.isfinite(old),
-                                                                            old, 1e9))
-                moved = diff > st.cvc_threshold
-                for tt in (t, old):
-                    sel = moved & np.isfinite(tt)
-                    changed.append(o[sel] + tt[sel, None] * d[sel])
-            cvc.depth = t
-        self._dynamic = ValidationCamera(dyn_cam, depths[-1][0])
-        if self.state is not None and changed:
+        if self.state is not None and self.state.free_count:
+            cams = [overhead_camera(views, st.cvc_size)]
+            if self._last_camera is not None:
+                c = self._last_camera
+                cams.append(c.resized(st.cvc_size,
+                                      max(1, round(st.cvc_size * c.height / c.width))))
+            changed: list[np.ndarray] = []
+            for (t0, o, d), (t1, _, _) in zip(_cvc_depths(self.views, cams),
+                                              _cvc_depths(views, cams), strict=True):
+                moved = np.abs(np.where(np.isfinite(t1), t1, 1e9)
+                               - np.where(np.isfinite(t0), t0, 1e9)) > st.cvc_threshold
+                for t in (t0, t1):
+                    sel = moved & np.isfinite(t)
+                    changed.append(o[sel] + t[sel, None] * d[sel])
             self.state.clear_near(np.concatenate(changed), st.max_distance)
+        self.views = views
 
     # ------------------------------------------------------------------ transfer
 
@@ -577,12 +567,9 @@ class Pipeline:
                                    "free_samples": 0.0, "cache_hits": 0.0,
                                    "cache_misses": 0.0}
         t0 = time.perf_counter()
-        if v.state_cache:
-            self._validate_state(camera)
-        t_state = time.perf_counter()
+        self._last_camera = camera
         hits = primary_hits(self.views, camera)
-        stats["time_state"] = t_state - t0
-        stats["time_hits"] = time.perf_counter() - t_state
+        stats["time_hits"] = time.perf_counter() - t0
         reg = _regular_mask(h, w, v.spacing) & hits.valid
         virt = hits.role == ROLE_VIRTUAL
         dense = np.zeros((h, w), bool)
