@@ -264,19 +264,22 @@ class OcclusionField:
         light = rotate(np.asarray(light_sh, np.float64), rot.T)
         return light, q, dr.normalize(v)
 
-    def light_table(self, light_sh: np.ndarray, order: int) -> np.ndarray:
+    def light_table(self, light_sh: np.ndarray, order: int,
+                    nodes: np.ndarray | None = None) -> np.ndarray:
         """Per frame: the light folded into the triple-product tensor and the real surface's
         clamped-cosine transfer, tabulated over normals (thesis §5.2 step 4, "a cache of
         diffuse transfer vectors … indexed by sampled normal directions"): row ``b`` holds
         ``W_jc(n_b) = Σ_k T_k(n_b) Σ_i C_ijk L_ic`` ``(k, 3)`` for the normal ``n_b`` of node
         ``b`` of an octahedral grid of ``NORMAL_GRID²`` nodes (:func:`octahedral_normals`)
-        → ``(NORMAL_GRID², k, 3)``."""
+        → ``(NORMAL_GRID², k, 3)``; with ``nodes``, the rows of those nodes only."""
         k = n_coeffs(order)
         light = np.zeros((k, 3))
         m = min(k, np.asarray(light_sh).shape[0])
         light[:m] = np.asarray(light_sh, np.float64)[:m]
         m_jkc = np.einsum("ijk,ic->jkc", _tensor(order), light)
         t = _normal_transfer(order)  # (B, k)
+        if nodes is not None:
+            t = t[nodes]
         return (t @ m_jkc.transpose(1, 0, 2).reshape(k, -1)).reshape(len(t), k, 3)
 
     def occluded_irradiance(self, light_sh: np.ndarray, p: mi.Point3f, n: mi.Vector3f,
@@ -328,30 +331,34 @@ class OcclusionField:
         used = np.flatnonzero(np.bincount(np.asarray(node, np.int64),
                                           minlength=NORMAL_GRID ** 2))
         key = (np.asarray(light_sh, np.float64).tobytes(), order)
-        if self._cache.get("key") != key:  # the light changed: new tables
-            self._cache = {"key": key, "table": self.light_table(light_sh, order)}
-        table = self._cache["table"]
-        out = mi.Color3f(0.0)
-        if len(used) <= FEW_NORMALS:
-            if self._cache.get("used") is None or not np.array_equal(self._cache["used"], used):
-                per = self.coeffs[..., :k].reshape(-1, k) @ table[used].transpose(
+        if self._cache.get("key") != key or not np.array_equal(self._cache["used"], used):
+            # the light (a moving object's rotates) or the normals changed: new tables, for
+            # the normal-grid nodes the lanes use only
+            table = self.light_table(light_sh, order, used)  # (U, k, 3)
+            slot = np.zeros(NORMAL_GRID ** 2, np.uint32)
+            slot[used] = np.arange(len(used))
+            self._cache = {"key": key, "used": used, "slot": mi.UInt32(slot)}
+            if len(used) <= FEW_NORMALS:
+                per = self.coeffs[..., :k].reshape(-1, k) @ table.transpose(
                     1, 0, 2).reshape(k, -1)  # (Q, U·3): blocked irradiance per sample, node
                 per = np.ascontiguousarray(per.reshape(-1, len(used), 3).transpose(1, 0, 2))
-                slot = np.zeros(NORMAL_GRID ** 2, np.uint32)
-                slot[used] = np.arange(len(used))
-                self._cache.update(used=used, per=mi.Float(per.astype(np.float32).reshape(-1)),
-                                   slot=mi.UInt32(slot), q=per.shape[1])
-            c = self._cache
-            base = dr.gather(mi.UInt32, c["slot"], node) * c["q"]
+                self._cache.update(per=mi.Float(per.astype(np.float32).reshape(-1)),
+                                   q=per.shape[1])
+            else:
+                self._cache["rows"] = mi.Float(table.astype(np.float32).reshape(-1))
+        c = self._cache
+        slot = dr.gather(mi.UInt32, c["slot"], node)
+        out = mi.Color3f(0.0)
+        if len(used) <= FEW_NORMALS:
+            base = slot * c["q"]
             for q, w in corners:
                 out += w * dr.gather(mi.Color3f, c["per"], base + q, inside)
         else:
-            rows = mi.Float(table.astype(np.float32).reshape(-1))
             for j in range(k):
                 o = mi.Float(0.0)
                 for q, w in corners:
                     o += w * dr.gather(mi.Float, self._flat, q * kf + j, inside)
-                out += o * dr.gather(mi.Color3f, rows, node * k + j, inside)
+                out += o * dr.gather(mi.Color3f, c["rows"], slot * k + j, inside)
         return dr.select(inside, out * fade, mi.Color3f(0.0))
 
     def occluded_irradiance_np(self, light_sh: np.ndarray, p: np.ndarray, n: np.ndarray,
