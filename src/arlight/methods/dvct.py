@@ -66,6 +66,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
+from arlight.jit import aligned
 from arlight.methods.base import (
     BaseMethod,
     Layers,
@@ -459,10 +460,10 @@ def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
     p = dr.gather(mi.Point3f, lanes.position, src)
     nrm = dr.gather(mi.Vector3f, lanes.normal, src)
     frame = mi.Frame3f(nrm)
-    local = dr.gather(mi.Vector3f, mi.Vector3f(*(dirs[:, c].astype(np.float32)
+    local = dr.gather(mi.Vector3f, mi.Vector3f(*(aligned(dirs[:, c], np.float32)
                                                  for c in range(3))), cone)
     d = frame.to_world(local)
-    wt = dr.gather(mi.Float, mi.Float(w.astype(np.float32)), cone)
+    wt = dr.gather(mi.Float, mi.Float(aligned(w, np.float32)), cone)
     s0 = vols.alpha.grid.cell
     res = trace_cones(vols, p + nrm * (DIFFUSE_START * s0), d, tan_h, dr.inf, mi.Bool(True),
                       t_start=0.5 * s0, alpha_for_light=alpha_for_light,
@@ -618,7 +619,7 @@ def low_res_lanes(gb: GBuffer, k: int) -> mi.UInt32:
     rows = np.minimum(np.arange(hl) * k + k // 2, gb.height - 1)
     cols = np.minimum(np.arange(wl) * k + k // 2, gb.width - 1)
     pix = (rows[:, None] * gb.width + cols[None, :]).ravel()
-    return mi.UInt32(pix.astype(np.uint32) * gb.spp)
+    return mi.UInt32(aligned(pix * gb.spp, np.uint32))
 
 
 def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> ConeTerms:

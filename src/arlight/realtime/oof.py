@@ -57,6 +57,7 @@ from arlight.backend.mitsuba_scene import (
     load_view,
 )
 from arlight.backend.rays import np3
+from arlight.jit import aligned
 from arlight.layers import Layers
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import LightSet
@@ -342,10 +343,10 @@ class OcclusionField:
                 per = self.coeffs[..., :k].reshape(-1, k) @ table.transpose(
                     1, 0, 2).reshape(k, -1)  # (Q, U·3): blocked irradiance per sample, node
                 per = np.ascontiguousarray(per.reshape(-1, len(used), 3).transpose(1, 0, 2))
-                self._cache.update(per=mi.Float(per.astype(np.float32).reshape(-1)),
+                self._cache.update(per=mi.Float(aligned(per.reshape(-1), np.float32)),
                                    q=per.shape[1])
             else:
-                self._cache["rows"] = mi.Float(table.astype(np.float32).reshape(-1))
+                self._cache["rows"] = mi.Float(aligned(table.reshape(-1), np.float32))
         c = self._cache
         slot = dr.gather(mi.UInt32, c["slot"], node)
         out = mi.Color3f(0.0)
@@ -635,7 +636,7 @@ def shade_real(data: RelitState, gb: GBuffer, frame: np.ndarray) -> mi.Color3f:
     real = gb.valid & ~gb.virtual
     f = shadow_factor(data.views.mixed, data.views.real, data.occluder, data.lights,
                       data.field, gb.position, gb.normal, real)
-    b = dr.gather(mi.Color3f, mi.Float(np.asarray(frame, np.float32).reshape(-1)), gb.pixel)
+    b = dr.gather(mi.Color3f, mi.Float(aligned(np.reshape(frame, -1), np.float32)), gb.pixel)
     delta = dr.select(real, b * (f - 1.0), mi.Color3f(0.0))
     dr.eval(delta)
     return delta

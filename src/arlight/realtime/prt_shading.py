@@ -33,6 +33,7 @@ from arlight.backend.camera_rays import generate_rays
 from arlight.backend.mitsuba_scene import SceneViews
 from arlight.backend.rays import np3
 from arlight.errors import InputError
+from arlight.jit import aligned
 from arlight.progress import reporter
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import MipEnvironment
@@ -170,7 +171,7 @@ def unshadowed(light: np.ndarray, n: mi.Vector3f, order: int) -> mi.Color3f:
         return ambient_irradiance_dr(LightSet([], sh9), n) * (1.0 / math.pi)
     e = irradiance(light, np3(n),
                    max_order=order) / math.pi
-    return mi.Color3f(*[mi.Float(e[:, c].astype(np.float32)) for c in range(3)])
+    return mi.Color3f(*[mi.Float(aligned(e[:, c], np.float32)) for c in range(3)])
 
 
 def self_shadowing(shadowed: mi.Color3f, free: mi.Color3f) -> mi.Float:
@@ -193,7 +194,7 @@ def shade_virtual(data: PRTShadingState, gb: GBuffer, view: FrameView,
     if dr.width(idx) == 0 or not data.objects:
         return dr.zeros(mi.Color3f, 0), dr.zeros(mi.UInt32, 0)
     vals = np.concatenate(data.vertex_values(options.order)).astype(np.float32)
-    table = mi.Float(vals.reshape(-1))
+    table = mi.Float(aligned(vals.reshape(-1), np.float32))
     k = idx % gb.spp
     ray = mi.Ray3f(generate_rays(view.camera, dr.gather(mi.UInt32, gb.pixel, idx), k,
                                  gb.spp, mi.UInt32(seed)))

@@ -60,6 +60,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.errors import InputError
+from arlight.jit import aligned
 from arlight.realtime.sh_volume import Grid
 from arlight.scene.model import Shape
 
@@ -277,7 +278,7 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20) -> Voxels:
         iz = lo[t, 2] + k // (ex[:, 0] * ex[:, 1])
         centre = np.stack([ix, iy, iz], 1) + 0.5
         v = (local[t] - centre[:, None, :]).astype(np.float32)
-        hit = np.array(_overlaps(*(mi.Vector3f(*(np.ascontiguousarray(v[:, k, c])
+        hit = np.array(_overlaps(*(mi.Vector3f(*(aligned(v[:, k, c], np.float32)
                                                    for c in range(3))) for k in range(3)),
                                  0.5), dtype=bool)
         flats.append((ix + n * (iy + n * iz))[hit])
@@ -350,7 +351,7 @@ def build_mips(level0: mi.Float | np.ndarray, grid: Grid, channels: int) -> MipV
     n = grid.n
     if n & (n - 1):
         raise ValueError(f"mip chains need a power-of-two size, got {n}")
-    cur = mi.Float(level0) if isinstance(level0, np.ndarray) else level0
+    cur = mi.Float(aligned(level0, np.float32)) if isinstance(level0, np.ndarray) else level0
     parts, offsets, off = [cur], [0], 0
     while n > 1:
         off += n ** 3
@@ -383,13 +384,13 @@ def eta_level0(real: Voxels, virtual: Voxels) -> tuple[mi.Float, mi.Float]:
     alpha = dr.zeros(mi.Float, m * 2)
     normal = dr.zeros(mi.Float, m * 3)
     if both.occupied:
-        ib = mi.UInt32(both.index.astype(np.uint32))
+        ib = mi.UInt32(aligned(both.index, np.uint32))
         dr.scatter(alpha, 1.0, ib * 2)
         unit = both.unit_normals().astype(np.float32)
         for c in range(3):
-            dr.scatter(normal, mi.Float(np.ascontiguousarray(unit[:, c])), ib * 3 + c)
+            dr.scatter(normal, mi.Float(aligned(unit[:, c], np.float32)), ib * 3 + c)
     if real.occupied:
-        dr.scatter(alpha, 1.0, mi.UInt32(real.index.astype(np.uint32)) * 2 + 1)
+        dr.scatter(alpha, 1.0, mi.UInt32(aligned(real.index, np.uint32)) * 2 + 1)
     dr.eval(alpha, normal)
     return alpha, normal
 
