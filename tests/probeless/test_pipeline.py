@@ -202,3 +202,22 @@ def test_state_grid_matches_a_set_of_voxels():
     assert np.array_equal(grid.lookup(q), expect)
     assert not grid.lookup(np.array([[5.0, 0.1, 0.0], [0.0, -3.0, 0.0]])).any()
     assert grid.free_count == len(ref)
+
+
+def test_e5_reads_the_real_surface_behind_a_virtual_object(room_camera):
+    """The camera frame has no virtual object: grid pixels a virtual box will cover still
+    observe the real surface. E5 with a big virtual box in view gets the same observation
+    rows and the same light as without it (REG4, the same frame). Rejects an estimate that
+    drops the covered pixels (fewer rows) or reads them through the virtual object's hit
+    (its albedo, its transfer)."""
+    shapes = S.room_shapes()
+    frame = np.full((room_camera.height, room_camera.width, 3), 0.3)
+    frame[:, : room_camera.width // 2] *= 2.0  # a light that is not symmetric
+    plain = Pipeline(views_of(shapes, room_camera), "REG4").process(
+        room_camera, frame, shade=False)
+    vbox = box("vbox", (0.3, 0.3, 0.3), (0.0, 0.15, 0.2), role="virtual", albedo=0.9)
+    with_box = Pipeline(views_of([*shapes, vbox], room_camera), "REG4").process(
+        room_camera, frame, shade=False)
+    assert with_box.stats["hidden_samples"] > 20
+    assert len(with_box.observations[0]) == len(plain.observations[0])
+    assert np.allclose(with_box.fit.sh, plain.fit.sh, rtol=1e-6, atol=1e-9)

@@ -15,7 +15,8 @@ reconstruction as the real proxy, plus virtual objects):
    no rays; when the world changes (:meth:`Pipeline.set_views`) cache validation cameras
    (one overhead, one at the user's pose) clear flags within ``max_distance`` of any change
    of the scene's depth;
-4. light: E5 over the regular samples on real surfaces (where the sensor depth agrees);
+4. light: E5 over the regular samples on real surfaces (where the sensor depth agrees),
+   including the real surfaces behind virtual objects (the frame shows them);
 5. shading (E7): virtual pixels ``a_v/π T_mix·l`` (+ a Phong lobe along the dominant
    direction for Phong materials), real pixels ``delta = a/π (T_mix − T_real)·l`` (or the
    ratio form ``I_c (T_mix·l / T_real·l − 1)``), upsampled from the samples.
@@ -135,16 +136,22 @@ class Hits:
         return self.role != ROLE_MISS
 
 
-def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True) -> Hits:
+def primary_hits(views: SceneViews, camera: Camera, mixed: bool = True,
+                 pixels: np.ndarray | None = None) -> Hits:
     """One ray per pixel centre into the mixed (or real) view: position, shading normal on
     the camera's side of the surface, diffuse albedo, role, shape index and camera-space
-    depth."""
+    depth; ``(H, W, ...)``, or ``(1, P, ...)`` for the flat pixel indices ``pixels``
+    (``row·W + column``)."""
     view = views.mixed if mixed else views.real
     h, w = camera.height, camera.width
+    if pixels is not None:
+        h, w = 1, len(pixels)
     # pixel centres, the lens centre (a pinhole ray), generated in the kernel: building
     # 307k rays in NumPy took longer than tracing them
     centre = mi.Point2f(0.5, 0.5)
-    ray = mi.Ray3f(rays_from_samples(camera, dr.arange(mi.UInt32, h * w), centre, centre))
+    index = (dr.arange(mi.UInt32, h * w) if pixels is None
+             else mi.UInt32(np.asarray(pixels, np.uint32)))
+    ray = mi.Ray3f(rays_from_samples(camera, index, centre, centre))
     si = view.scene.ray_intersect(ray)
     valid = si.is_valid()
     # the side facing the camera from the geometric normal; the shading normal on that side
@@ -350,7 +357,8 @@ class FrameResult:
         observations: ``(T_real, b, albedo)`` rows that entered E5 (to fit several frames).
         mixed, delta, mask: shading layers ``(H, W, 3)``/``(H, W)`` when shading was asked.
         stats: ``rays`` (visibility rays cast), ``samples`` (regular + dense),
-            ``dense_samples``, ``free_samples`` (state cache), ``cache_hits`` /
+            ``dense_samples``, ``hidden_samples`` (grid pixels a virtual object covers,
+            traced in the real view for E5), ``free_samples`` (state cache), ``cache_hits`` /
             ``cache_misses`` (reprojection), ``time_rt`` (everything before E5, of which
             ``time_hits``: the primary hits),
             ``time_estimate``, ``time_shade`` (s).
@@ -611,18 +619,38 @@ class Pipeline:
         stats["rays"] += t_dense.rays
         stats["samples"] = float(len(rr) + len(dr_))
         stats["dense_samples"] = float(len(dr_))
-        t1 = time.perf_counter()
-        # light estimate (E5) over the regular real samples
-        use = need_r.copy()
-        if depth is not None:
-            ds = np.asarray(depth, np.float64)[rr, cc]
-            zs = hits.z[rr, cc]
-            with np.errstate(invalid="ignore"):
-                use &= np.isfinite(ds) & (ds > 0) & (np.abs(ds - zs) <= 0.05 * zs)
         if frame is None:
             raise ValueError("process needs the frame: its pixels are the observations of E5")
-        obs = (t_reg.real[use], np.asarray(frame, np.float64)[rr[use], cc[use]],
-               hits.albedo[rr[use], cc[use]])
+        # E5's observations are the frame's pixels, and the frame shows the real scene also
+        # where a virtual object will be drawn: those grid pixels are traced in the real view
+        # (all directions, no cache; they are few)
+        pix = rr * w + cc
+        obs_t, obs_px = [t_reg.real[need_r]], [pix[need_r]]
+        obs_a, obs_z = [hits.albedo[rr, cc][need_r]], [hits.z[rr, cc][need_r]]
+        hidden = pix[hits.role[rr, cc] == ROLE_VIRTUAL]
+        if len(hidden):
+            hr = primary_hits(self.views, camera, mixed=False, pixels=hidden)
+            ok = hr.role[0] == ROLE_REAL
+            if np.any(ok):
+                t_h = self._full(hr.position[0][ok], hr.normal[0][ok],
+                                 np.ones(int(ok.sum()), bool))
+                stats["rays"] += t_h.rays
+                stats["hidden_samples"] = float(ok.sum())
+                obs_t.append(t_h.real)
+                obs_px.append(hidden[ok])
+                obs_a.append(hr.albedo[0][ok])
+                obs_z.append(hr.z[0][ok])
+        t1 = time.perf_counter()
+        # light estimate (E5) over the regular real samples
+        T_obs, px_obs = np.concatenate(obs_t), np.concatenate(obs_px)
+        use = np.ones(len(px_obs), bool)
+        if depth is not None:
+            ds = np.asarray(depth, np.float64).reshape(-1)[px_obs]
+            zs = np.concatenate(obs_z)
+            with np.errstate(invalid="ignore"):
+                use &= np.isfinite(ds) & (ds > 0) & (np.abs(ds - zs) <= 0.05 * zs)
+        obs = (T_obs[use], np.asarray(frame, np.float64).reshape(-1, 3)[px_obs[use]],
+               np.concatenate(obs_a)[use])
         fit = estimate_light(*obs, ridge=st.ridge)
         t2 = time.perf_counter()
         stats["time_rt"] = t1 - t0
