@@ -15,13 +15,22 @@ Two parts, both against a studio served on a loopback port by this process:
 
     .venv/bin/python benchmarks/bench_studio.py [--write] [--only load|latency]
 
-``--write`` stores the section in RESULTS.md (## arlight studio).
+* **video rate** (issue #32, ``--only video``) — the same page at 640×480 with adaptive
+  resolution: per method, ``--drags`` (12) continuous pointer drags (``--moves`` pointer
+  events ``--move-ms`` apart each), every frame shown during a drag timed from the pointer
+  event it shows to its draw on the canvas (p50, p95), the scale factors used, and the time
+  from the last pointer event (the pointer rests) to the full-size frame drawn; then the
+  render time per scale of each method with the object moving (what an unloaded machine
+  would scale), and the machine's load (``uptime``, CPU pressure) before and after.
+
+``--write`` stores the sections in RESULTS.md (## arlight studio; ## Studio at video rate).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import json
 import random
 import statistics
@@ -38,6 +47,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.results import cpu_pressure, publish  # noqa: E402
 
 HEADING = "## arlight studio (issue #20)"
+VIDEO_HEADING = "## Studio at video rate (issue #32)"
+VIDEO_METHODS = ("dlpv", "dir", "dvct", "ibl", "prt")
+"""The methods of issue #32's acceptance."""
 
 
 def _engine(resolution: tuple[int, int], method: str = "dir"):
@@ -194,6 +206,161 @@ def run_latency(rounds: int, resolution: tuple[int, int],
     return {"rounds": rounds, "resolution": resolution, "latency": lat, "render": render}
 
 
+def _percentile(xs: list[float], q: float) -> float:
+    """The ``q``-th percentile (0–100) of ``xs``, linear interpolation; NaN when empty."""
+    return float(np.percentile(xs, q)) if xs else float("nan")
+
+
+def _load() -> dict:
+    """The machine's load now: 1/5/15-minute load averages, CPU pressure (avg60, %)."""
+    import os
+
+    return {"loadavg": os.getloadavg(), "cpu_pressure": cpu_pressure(),
+            "cpus": os.cpu_count()}
+
+
+def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict[int, float]]:
+    """Median ``method.render`` time (s) per method and downscale factor with the object
+    moving 1 cm every frame (on the render worker, between the page's frames)."""
+    from dataclasses import replace
+
+    from arlight.methods import get_method
+    from arlight.studio.engine import _transforms
+
+    def measure(name: str) -> dict[int, float]:
+        fn, state = get_method(name), engine.prepared(name)
+        rest = engine.rest_poses["bunny"]
+        out = {}
+        for k in engine.factors:
+            ts = []
+            for i in range(reps + 1):  # the first one warms up
+                pose = rest.moved_to(rest.position + [0.01 * (i % 2 + 1), 0.0, 0.0])
+                view = replace(engine.views[k], object_transforms=_transforms(
+                    {"bunny": pose}))
+                t0 = time.perf_counter()
+                fn.render(state, view, engine.settings)
+                ts.append(time.perf_counter() - t0)
+            out[k] = statistics.median(ts[1:])
+        return out
+
+    return {n: engine.call(measure, n).result(3600) for n in names}
+
+
+def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int],
+              methods: tuple[str, ...], reps: int) -> dict:
+    """Continuous drags in Chromium with adaptive resolution (see the module doc)."""
+    from playwright.sync_api import sync_playwright
+
+    from arlight.studio.browser import why_no_browser
+    from arlight.studio.server import BackgroundServer
+
+    if (why := why_no_browser()) is not None:
+        raise SystemExit(f"video-rate benchmark: {why}")
+    load0 = _load()
+    engine = _engine(resolution)
+    names = [n for n in methods if n in engine.catalogue
+             and not engine.catalogue[n].unsupported]
+    lat = {n: [] for n in names}  # (ms, factor) per frame shown while dragging
+    first = {n: [] for n in names}  # the first frame of each drag, ms
+    settle = {n: [] for n in names}  # last pointer event -> full-size frame drawn, ms
+    renders = {n: [] for n in names}  # (factor, render_s) of the frames shown
+    rng = random.Random(1)
+    w, h = engine.width, engine.height
+    with BackgroundServer(engine) as srv, sync_playwright() as p:
+        browser, page, box = _open_page(p, srv.url, 1100, 640)
+
+        def client(x, y):
+            return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
+
+        for r in range(drags + 1):  # round 0 warms up (prepare, kernel compilation)
+            for name in names:
+                page.select_option("#method", name)
+                page.wait_for_function(
+                    f"window.studio.header.method === '{name}' && "
+                    "window.studio.sendTimes.size === 0 && window.studio.header.factor === 1",
+                    timeout=900_000)
+                pos = page.evaluate("window.studio.header.objects.bunny.position")
+                start = engine.proxy.project(np.array(pos) + [0.0, 0.03, 0.0])
+                target = (rng.uniform(0.25 * w, 0.75 * w), rng.uniform(0.65 * h, 0.9 * h))
+                page.mouse.move(*client(*start))
+                page.mouse.down()
+                page.wait_for_function("window.studio.messages.some(m => m.type === "
+                                       "'picked' && m.object)", timeout=60_000)
+                page.evaluate("window.studio.messages = []")
+                n0 = page.evaluate("window.studio.latencies.length")
+                for t in np.linspace(0.0, 1.0, moves + 1)[1:]:
+                    page.mouse.move(*client(start[0] + t * (target[0] - start[0]),
+                                            start[1] + t * (target[1] - start[1])))
+                    page.wait_for_timeout(move_ms)
+                last = page.evaluate("window.studio.lastSent")
+                page.wait_for_function(
+                    f"window.studio.shownLog.some(f => f.seq >= {last['seq']} && "
+                    "f.factor === 1)", timeout=900_000)
+                page.mouse.up()
+                if r == 0:
+                    continue
+                recs = page.evaluate(f"window.studio.latencies.slice({n0})")
+                log = page.evaluate("window.studio.shownLog")
+                done = min(f["at"] for f in log
+                           if f["seq"] is not None and f["seq"] >= last["seq"]
+                           and f["factor"] == 1)
+                settle[name].append(done - last["t"])
+                drag = [x for x in recs if x["type"] == "drag"]
+                lat[name] += [(x["ms"], x["factor"]) for x in drag]
+                renders[name] += [(x["factor"], x["render_s"]) for x in drag]
+                if drag:
+                    first[name].append(drag[0]["ms"])
+        browser.close()
+        load1 = _load()
+        per_scale = _scale_times(engine, names, reps)
+    return {"drags": drags, "moves": moves, "move_ms": move_ms, "resolution": resolution,
+            "budget_ms": engine.config.frame_budget_ms, "rest_ms": engine.config.rest_ms,
+            "factors": engine.factors, "latency": lat, "first": first, "settle": settle,
+            "renders": renders, "per_scale": per_scale, "load": [load0, load1]}
+
+
+def video_report(v: dict) -> str:
+    """The ``## Studio at video rate`` section of RESULTS.md."""
+    w, h = v["resolution"]
+    loads = "; ".join(f"{when}: load average {a:.1f} / {b:.1f} / {c:.1f} (1/5/15 min) on "
+                      f"{x['cpus']} CPUs, CPU pressure (avg60) {x['cpu_pressure'] or 'n/a'} %"
+                      for when, x in zip(("before", "after the drags"), v["load"],
+                                         strict=True) for a, b, c in [x["loadavg"]])
+    lines = [VIDEO_HEADING, "",
+             f"`benchmarks/bench_studio.py --only video`: the studio at {w}×{h} in headless "
+             f"Chromium with adaptive resolution (render budget {v['budget_ms']:.0f} ms, rest "
+             f"after {v['rest_ms']:.0f} ms; factors {', '.join(map(str, v['factors']))}); per "
+             f"method {v['drags']} drags of {v['moves']} pointer events {v['move_ms']:.0f} ms "
+             "apart (methods interleaved, after a warm-up round). *drag → composite*: every "
+             "frame drawn during a drag, from the pointer event it shows to its draw on the "
+             "canvas. *rest → full size*: from the last pointer event to the full-size frame "
+             "drawn (includes the rest interval). Machine load — " + loads + ".", "",
+             "| method | frames | drag → composite p50 (ms) | p95 (ms) | first frame of a "
+             "drag p50 (ms) | factors used (share of frames) | rest → full size p50 / max "
+             "(ms) |", "|---|---|---|---|---|---|---|"]
+    for name, xs in v["latency"].items():
+        ms = [m for m, _ in xs]
+        used = collections.Counter(k for _, k in xs)
+        share = ", ".join(f"1/{k}: {c / max(len(xs), 1):.0%}" if k > 1 else
+                          f"full: {c / max(len(xs), 1):.0%}" for k, c in sorted(used.items()))
+        st = v["settle"][name]
+        lines.append(f"| {name} | {len(ms)} | {_percentile(ms, 50):.0f} | "
+                     f"{_percentile(ms, 95):.0f} | {_percentile(v['first'][name], 50):.0f} | "
+                     f"{share} | {_percentile(st, 50):.0f} / "
+                     f"{max(st) if st else float('nan'):.0f} |")
+    facs = v["factors"]
+    lines += ["", "`method.render` time per scale with the object moving every frame (median "
+              "of 3 after a warm-up, same process, measured right after the drags), ms — "
+              "the share of a frame that shrinks with the pixel count, and the fixed "
+              "per-frame cost (light injection, propagation, voxelisation, pose) that does "
+              "not:", "",
+              "| method | " + " | ".join(f"{w // k}×{h // k}" for k in facs) + " |",
+              "|---|" + "---|" * len(facs)]
+    for name, per in v["per_scale"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{per[k] * 1e3:.0f}" for k in facs) + " |")
+    return "\n".join(lines)
+
+
 def _open_page(p, url: str, width: int, height: int):
     """A browser showing the studio at ``url`` after its first frame: ``(browser, page,
     bounding box of the frame image)``."""
@@ -297,7 +464,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=("load", "latency"))
+    ap.add_argument("--only", choices=("load", "latency", "video"))
     ap.add_argument("--screenshot", type=Path, help="only save a screenshot of the page "
                     "(docs/images/studio.png) and exit")
     ap.add_argument("--clients", type=int, default=8)
@@ -308,10 +475,21 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--methods", default=",".join(FAST_METHODS),
                     help="latency: comma-separated methods, or 'all' interactive ones")
+    ap.add_argument("--drags", type=int, default=12, help="video: drags per method")
+    ap.add_argument("--moves", type=int, default=20, help="video: pointer events per drag")
+    ap.add_argument("--move-ms", type=float, default=33.0,
+                    help="video: milliseconds between pointer events")
+    ap.add_argument("--video-methods", default=",".join(VIDEO_METHODS))
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
     if args.screenshot:
         print(screenshot(args.screenshot))
+        return
+    if args.only == "video":
+        video = run_video(args.drags, args.moves, args.move_ms, args.latency_resolution,
+                          tuple(args.video_methods.split(",")), reps=3)
+        print(json.dumps(video, default=str))
+        publish(video_report(video), args.write)
         return
     load = latency = None
     if args.only in (None, "load"):

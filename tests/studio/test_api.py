@@ -249,10 +249,10 @@ def test_a_failing_render_is_reported_to_its_tab_only(studio_server, studio_engi
     failing: set[int] = set()
     render = studio_engine._render
 
-    def flaky(s, refine):
+    def flaky(s, refine, settle=False):
         if s.id in failing:
             raise RuntimeError("render exploded")
-        return render(s, refine)
+        return render(s, refine, settle)
 
     monkeypatch.setattr(studio_engine, "_render", flaky)
 

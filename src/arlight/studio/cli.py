@@ -102,6 +102,14 @@ def studio_command(
     max_sessions: Annotated[int, typer.Option("--max-sessions", help="most tabs open at "
                             "once; a further one is refused (HTTP 503)", min=1,
                             max=4096)] = 16,
+    frame_budget_ms: Annotated[float, typer.Option("--frame-budget-ms", help="render budget "
+                               "of a frame while the pointer drags, milliseconds: frames are "
+                               "rendered at 1/2, 1/4 or 1/8 of the size to keep it and "
+                               "upsampled (0: always full size)", min=0.0,
+                               max=60000.0)] = 100.0,
+    rest_ms: Annotated[float, typer.Option("--rest-ms", help="the pointer rests after this "
+                       "many milliseconds without a drag; the frame is then rendered at full "
+                       "size once", min=0.0, max=60000.0)] = 150.0,
 ) -> None:
     """Live AR composite in the browser: drag the virtual object, switch methods.
 
@@ -124,7 +132,8 @@ def studio_command(
     config = StudioConfig(scene=scene, resolution=_resolution(resolution), method=method,
                           save_dir=save_dir, ground_truth=ground_truth,
                           image_format=image_format.lower(), quality=quality,
-                          max_sessions=max_sessions)
+                          max_sessions=max_sessions, frame_budget_ms=frame_budget_ms,
+                          rest_ms=rest_ms)
     engine = Engine(config)
     console = Console(stderr=True)
     if not is_loopback(host):

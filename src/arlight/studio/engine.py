@@ -25,6 +25,13 @@
   folded into running means by Kán Eq. 4.12
   (:class:`arlight.progressive.Accumulator`), exactly as ``arlight render --progressive``
   does; any change restarts at ``n = 1``.
+* **Adaptive resolution** (:mod:`arlight.studio.adaptive`, issue #32): while drag and
+  pose messages keep coming, a frame is rendered at 1/k of the size, k chosen per method
+  from the measured render times against :attr:`StudioConfig.frame_budget_ms`, and its
+  layers are upsampled (bilinear) and composited over the full-size photo; once no motion
+  message came for :attr:`StudioConfig.rest_ms` the frame is rendered at full size once
+  (progressive methods then refine as before). Each frame's header gives its rendered
+  ``width``/``height``, ``factor`` and ``latency_ms`` (newest change → frame posted).
 * Errors stay in their session: a failing render or a bad message is reported to that
   client only.
 """
@@ -53,6 +60,7 @@ from arlight.progressive import Accumulator, frame_settings
 from arlight.scene.load import PATH_KEYS
 from arlight.scene.model import ARScene
 from arlight.studio import imaging
+from arlight.studio.adaptive import ScaleController, at_rest, drag_factors, until_rest, upsample
 from arlight.studio.pose import ObjectPose
 from arlight.studio.protocol import Message, ProtocolError
 
@@ -93,6 +101,10 @@ class StudioConfig:
         seed: base seed of the Monte Carlo methods.
         max_refine: most frames a progressive method accumulates while idle.
         max_sessions: most sessions (tabs) open at once; a further one is refused.
+        frame_budget_ms: render budget of a frame while the pointer drags, milliseconds
+            (0: always render at full size).
+        rest_ms: the pointer rests when no drag or pose message came for this long,
+            milliseconds; a frame rendered smaller is then rendered again at full size.
     """
 
     scene: Path
@@ -105,6 +117,12 @@ class StudioConfig:
     seed: int = 0
     max_refine: int = 256
     max_sessions: int = 16
+    frame_budget_ms: float = 100.0
+    rest_ms: float = 150.0
+
+
+MOTION = frozenset({"drag", "pose"})
+"""Messages that mean the pointer is moving something (rendered at the adaptive scale)."""
 
 
 class SessionLimit(RuntimeError):
@@ -155,10 +173,15 @@ class Session:
     frames_sent: int = 0
     superseded: int = 0
     errors: int = 0
+    changed_at: float = 0.0  # time.monotonic() of the newest change (latency)
+    motion_at: float | None = None  # ... of the newest drag or pose message
+    motion_version: int = 0  # the version that message made
+    factor: int = 1  # downscale factor of the layers shown (1: full size)
 
     def bump(self, seq: int | None) -> None:
         """Mark a change that needs a new render (call with ``lock`` held)."""
         self.version += 1
+        self.changed_at = time.monotonic()
         if seq is not None:
             self.seq = seq
 
@@ -232,6 +255,10 @@ class Engine:
         if not 1 <= config.max_sessions <= 4096:
             raise InputError(f"must be in [1, 4096], got {config.max_sessions}",
                              field="--max-sessions")
+        for name, v in (("--frame-budget-ms", config.frame_budget_ms),
+                        ("--rest-ms", config.rest_ms)):
+            if not 0 <= v <= 60000:
+                raise InputError(f"must be in [0, 60000] ms, got {v}", field=name)
         self.source = Path(config.scene).resolve()
         self.full = load_scene(self.source)
         if self.full.frame is None:
@@ -244,6 +271,13 @@ class Engine:
         self.scene = _resized(self.full, config.resolution, str(self.source))
         self.view = self.scene.view
         self.width, self.height = self.scene.resolution
+        self.factors = (drag_factors(self.width, self.height)
+                        if config.frame_budget_ms > 0 else (1,))
+        self.views = {k: self.scene.resized(self.width // k, self.height // k).view
+                      for k in self.factors}  # the camera resized, photo box-filtered
+        self.rest_s = config.rest_ms / 1e3
+        self._scales: dict[str, ScaleController] = {}  # per method; worker thread only
+        self._wake_at = float("inf")  # the earliest rest of a session shown downscaled
         self.save_dir = Path(config.save_dir or self.source.parent).resolve()
         self.inputs = self._input_files()
         self.ground_truth = self._ground_truth()
@@ -411,7 +445,8 @@ class Engine:
                     work = self._next_work() if call is None else None
                     if call is not None or work is not None:
                         break
-                    self._cond.wait(timeout=REFINE_IDLE_S / 2)
+                    self._cond.wait(timeout=min(REFINE_IDLE_S / 2, max(
+                        0.001, self._wake_at - time.monotonic())))
             if self._handoff:  # arrays from a preparation thread: a new scope first
                 with self._cond:
                     self._handoff = False
@@ -428,7 +463,9 @@ class Engine:
 
     def _next_work(self) -> tuple[Session, str] | None:
         """The next (session, kind) round robin: renders and re-encodes before refinement
-        (call with ``_cond`` held)."""
+        (call with ``_cond`` held); sets :attr:`_wake_at` to the earliest time a session
+        shown downscaled comes to rest."""
+        self._wake_at = float("inf")
         for want in ("render", "refine"):
             for _ in range(len(self._rr)):
                 sid = self._rr[0]
@@ -437,15 +474,16 @@ class Engine:
                 if s is None:
                     continue
                 kind = self._work_of(s)
-                if kind == want or (want == "render" and kind in ("display", "prepfail")):
+                if kind == want or (want == "render"
+                                    and kind in ("display", "prepfail", "settle")):
                     return s, kind
         return None
 
     def _work_of(self, s: Session) -> str | None:
         """What the worker would do for ``s`` now (call with ``_cond`` held): ``render``,
-        ``display`` (re-encode), ``refine``, ``prepfail`` (report a failed preparation) or
-        None — also when the render waits for the method's preparation, which this starts
-        on its own thread."""
+        ``display`` (re-encode), ``settle`` (full size again once the pointer rests),
+        ``refine``, ``prepfail`` (report a failed preparation) or None — also when the
+        render waits for the method's preparation, which this starts on its own thread."""
         with s.lock:
             if s.closed:
                 return None
@@ -463,6 +501,13 @@ class Engine:
                 return None
             if s.display_version != s.displayed_version:
                 return "display"
+            if s.factor > 1:  # shown downscaled: full size once the pointer rests
+                now = time.monotonic()
+                if at_rest(now, s.motion_at, self.rest_s):
+                    return "settle"
+                self._wake_at = min(self._wake_at, now + until_rest(now, s.motion_at,
+                                                                     self.rest_s))
+                return None
             if (s.refine and self.catalogue[s.method].progressive
                     and s.refine < self.config.max_refine
                     and self._quiet(s)):
@@ -485,13 +530,14 @@ class Engine:
                 exc = fut.exception() if fut is not None else None
                 if exc is not None:
                     raise exc
-            else:
-                self._render(s, refine=kind == "refine")
+            else:  # render, settle (at rest: full size), refine
+                self._render(s, refine=kind == "refine", settle=kind == "settle")
         except Exception as exc:  # noqa: BLE001 — one session's failure stays in it
             with s.lock:
                 s.errors += 1
                 s.rendered_version = s.version  # do not retry the same state forever
                 s.refine = 0
+                s.factor = 1  # nor its full-size frame at rest
             s.post("json", {"type": "error", "message": f"{type(exc).__name__}: {exc}",
                             "request": kind})
 
@@ -529,8 +575,14 @@ class Engine:
         return fut
 
     def _prepare_state(self, name: str) -> Prepared:
-        """``method.prepare`` for the studio's world (on a preparation thread)."""
-        return get_method(name).prepare(self.scene.world, self.settings)
+        """``method.prepare`` for the studio's world, then one frame at each downscaled
+        size (on a preparation thread, before the worker gets the state: Dr.Jit compiles
+        kernels per image size, seconds each, which must not stall the first drag)."""
+        fn = get_method(name)
+        state = fn.prepare(self.scene.world, self.settings)
+        for k in self.factors[1:]:
+            fn.render(state, self.views[k], self.settings)
+        return state
 
     @property
     def preparing(self) -> list[str]:
@@ -578,6 +630,8 @@ class Engine:
         kind = msg.type
         with s.lock:
             s.last_message = time.monotonic()
+            if kind in MOTION:
+                s.motion_at = s.last_message
         if kind == "pick":
             return self.call(self._pick, s, msg["x"], msg["y"], msg.seq)
         if kind == "save":
@@ -622,6 +676,8 @@ class Engine:
                                         "studio with --ground-truth FILE.exr)")
                 s.layer = msg["name"]
                 s.display_version += 1
+            if kind in MOTION:  # rendered at the adaptive scale, full size at rest
+                s.motion_version = s.version
         self.wake()
         return None
 
@@ -665,24 +721,64 @@ class Engine:
             s.poses[name] = s.poses[name].moved_to(hit.position)
         return version, seq
 
-    def _render(self, s: Session, refine: bool) -> None:
+    def scale_controller(self, method: str) -> ScaleController:
+        """The method's :class:`ScaleController` (render times differ per method)."""
+        if method not in self._scales:
+            self._scales[method] = ScaleController(
+                self.factors, budget_s=self.config.frame_budget_ms / 1e3)
+        return self._scales[method]
+
+    def _factor(self, s: Session, method: str, version: int, full: bool) -> int:
+        """The downscale factor of the frame of ``version`` to render now: the
+        controller's when a drag or pose message made that version (also when the pointer
+        came to rest before the worker got to it: the move is shown at once, the full-size
+        frame follows), else — and for ``full`` (at rest, refinement) — 1."""
+        with s.lock:
+            motion = version == s.motion_version
+        if full or not motion or len(self.factors) == 1:
+            return 1
+        return self.scale_controller(method).choose()
+
+    def _full_size(self, layers: Layers, factor: int) -> Layers:
+        """``layers`` rendered at 1/``factor`` of the size as full-size layers: mixed, delta
+        and mask upsampled bilinearly (:func:`arlight.studio.adaptive.upsample`), the
+        composite recomputed over the full-size photo."""
+        from arlight.layers import composite
+
+        if factor == 1:
+            return layers
+        h, w = self.height, self.width
+        mixed, delta, mask = (upsample(a, h, w) for a in (layers.mixed, layers.delta,
+                                                             layers.mask))
+        return Layers(self.view.frame, mixed, delta, mask,
+                      composite(self.view.frame, mixed, delta, mask).astype(np.float32,
+                                                                             copy=False),
+                      stats=layers.stats, method=layers.method)
+
+    def _render(self, s: Session, refine: bool, settle: bool = False) -> None:
+        """Render the session's newest state and send it: a new version (at the adaptive
+        scale if a motion message made it), ``settle`` (the same version at full size once
+        the pointer rests) or ``refine`` (the next progressive frame, full size)."""
         t0 = time.perf_counter()
         with s.lock:
             version, seq = s.version, s.seq
             if s.method not in self._states:  # switched since the worker chose this work
                 return
             s.prep = None
+            settle = settle and version == s.rendered_version  # else a new change came
         if not refine:
             version, seq = self._resolve_drag(s)
         with s.lock:
             method, poses, denoise = s.method, dict(s.poses), s.denoise
             n = s.refine + 1 if refine else 1
+            changed_at = s.changed_at
         t_place = time.perf_counter() - t0
         fn = get_method(method)
         state = self._states.get(method)
         if state is None:  # switched meanwhile: the worker prepares it first
             return
-        view = replace(self.view, object_transforms=_transforms(poses))
+        factor = self._factor(s, method, version, full=refine or settle)
+        view = replace(self.views[factor], object_transforms=_transforms(poses))
         progressive = self.catalogue[method].progressive
         settings = self.settings
         if progressive:  # frame n of the refinement (onepass: samples continue one sequence)
@@ -692,9 +788,13 @@ class Engine:
             settings = replace(settings, options={**settings.options, "denoise": "oidn"})
         t1 = time.perf_counter()
         layers = fn.render(state, view, settings)
-        if denoise and progressive:  # denoise the running mean of the raw frames instead
+        if denoise and progressive and factor == 1:  # denoise the running mean instead
             layers = self._denoised_mean(s, fn, state, view, settings, layers, n)
         t_render = time.perf_counter() - t1
+        self.scale_controller(method).observe(factor, t_render)
+        t2 = time.perf_counter()
+        layers = self._full_size(layers, factor)
+        t_upsample = time.perf_counter() - t2
         with s.lock:
             if s.closed:
                 return
@@ -705,13 +805,19 @@ class Engine:
                 s.superseded += 1
             else:
                 s.rendered_version = version
-            s.images, s.refine = self._fold(s, layers, n, progressive)
+            # a downscaled frame is shown as it is; refinement starts from the full-size one
+            s.images, s.refine = self._fold(s, layers, n, progressive and factor == 1)
+            s.factor = factor
             s.shown = {"seq": seq, "version": version, "method": method,
-                       "objects": {k: p.to_json() for k, p in poses.items()}}
+                       "objects": {k: p.to_json() for k, p in poses.items()},
+                       "width": self.width // factor, "height": self.height // factor,
+                       "factor": factor}
             s.stats = {**{k: float(v) for k, v in layers.stats.items()
                           if k.startswith("time_")},
                        "time_place": t_place, "render_s": t_render}
-        self._send_frame(s, superseded=stale)
+            if factor > 1:
+                s.stats["upsample_s"] = t_upsample
+        self._send_frame(s, superseded=stale, changed_at=changed_at)
 
     def _denoised_mean(self, s: Session, fn: Method, state: Prepared, view, settings,
                        layers: Layers, n: int) -> Layers:
@@ -757,7 +863,11 @@ class Engine:
             s.accumulators = {k: Accumulator() for k in IMAGE_LAYERS}
         return {k: s.accumulators[k].add(v) for k, v in current.items()}, n
 
-    def _send_frame(self, s: Session, superseded: bool) -> None:
+    def _send_frame(self, s: Session, superseded: bool,
+                    changed_at: float | None = None) -> None:
+        """Encode the session's current layers and post them; ``changed_at``: the
+        ``time.monotonic()`` of the change a new render shows (the header's ``latency_ms``:
+        from then to this post; None for a re-encode)."""
         t0 = time.perf_counter()
         with s.lock:
             if s.images is None or s.closed:
@@ -780,6 +890,8 @@ class Engine:
 
         with s.lock:
             s.frames_sent += 1
+        if changed_at is not None:
+            header["latency_ms"] = (time.monotonic() - changed_at) * 1e3
         s.post("frame", frame_message(header, data))
 
     # ------------------------------------------------------------------ saving

@@ -10,7 +10,7 @@ const ctx = canvas.getContext("2d");
 const studio = {
   info: null, header: null, frames: 0, errors: [], messages: [], latencies: [],
   selected: null, connected: false, ready: false, sendTimes: new Map(), seq: 0,
-  send: null,
+  send: null, shownLog: [], lastSent: null,
 };
 window.studio = studio;
 
@@ -35,6 +35,7 @@ function send(msg, track) {
     studio.seq += 1;
     msg.seq = studio.seq;
     studio.sendTimes.set(msg.seq, {t: performance.now(), type: msg.type});
+    studio.lastSent = {seq: msg.seq, t: studio.sendTimes.get(msg.seq).t};
   }
   ws.send(JSON.stringify(msg));
   return msg.seq;
@@ -131,6 +132,8 @@ function shown(h) {
   if ($("status").textContent.startsWith("preparing")) setStatus("", false);
   studio.header = h;
   studio.frames += 1;
+  studio.shownLog.push({at: now, seq: h.seq, factor: h.factor, refine: h.refine});
+  if (studio.shownLog.length > 256) studio.shownLog.shift();  // the benchmark reads it
   frameTimes.push(now);
   while (frameTimes.length && now - frameTimes[0] > 2000) frameTimes.shift();
   if (frameTimes.length > 1) {
@@ -143,13 +146,20 @@ function shown(h) {
         if (seq === h.seq) {
           const ms = now - sent.t;
           studio.latencies.push({seq, ms, method: h.method, type: sent.type,
-                                  render_s: h.stats.render_s});
+                                  render_s: h.stats.render_s, factor: h.factor,
+                                  server_ms: h.latency_ms, at: now});
           $("latency").textContent = `${ms.toFixed(0)} ms`;
         }
         studio.sendTimes.delete(seq);
       }
     }
   }
+  // what this frame is: rendered size (upsampled to the canvas while dragging) and the
+  // server's latency from the change it shows to the frame sent
+  const size = h.width ? `${h.width}×${h.height}` : "";
+  const scale = h.factor > 1 ? ` (1/${h.factor}, upsampled)` : "";
+  const lat = h.latency_ms != null ? ` · ${h.latency_ms.toFixed(0)} ms` : "";
+  $("overlay").textContent = size + scale + lat;
   const prog = h.refine > 0 ? `refining: ${h.refine} frame${h.refine > 1 ? "s" : ""}` : "";
   $("refine").textContent = prog + (h.rmse != null ? ` · RMSE ${h.rmse.toFixed(5)}` : "");
   const body = $("stages").querySelector("tbody");

@@ -1,0 +1,70 @@
+"""Adaptive resolution in the running studio (issue #32): a drag frame is rendered
+downscaled and upsampled to the studio's size, its header says so and gives its latency,
+and once the pointer rests the same state is rendered once at full size."""
+
+from __future__ import annotations
+
+import io
+from dataclasses import replace
+
+import numpy as np
+from PIL import Image
+
+from arlight.studio.adaptive import ScaleController, upsample
+from tests.studio.conftest import SIZE, run_clients
+
+
+def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, studio_engine,
+                                                             monkeypatch):
+    """Rejects: a drag frame rendered at full size although over budget; a downscaled
+    frame that is not the render at that size upsampled and composited over the photo; a
+    studio that never goes back to full size at rest, or keeps re-rendering it."""
+    from arlight.methods import get_method
+    from arlight.studio.engine import _transforms
+
+    eng = studio_engine
+    assert eng.factors == (1, 2)
+    slow = ScaleController(eng.factors, budget_s=1e-9)  # nothing fits: the coarsest
+    slow.observe(1, 1.0)
+    monkeypatch.setattr(eng, "_scales", {"dir": slow})
+    monkeypatch.setattr(eng, "rest_s", 1.0)  # time to read the downscaled frame's layers
+    rest = eng.rest_poses["bunny"]
+    head = eng.proxy.project(rest.position + [0.0, 0.05, 0.0])
+
+    async def go(a):
+        await a.wait_frame()
+        await a.send({"type": "pick", "x": head[0], "y": head[1]})
+        assert (await a.wait_json("picked"))["object"] == "bunny"
+        await a.send({"type": "drag", "x": head[0] - 20.0, "y": head[1] + 10.0, "seq": 7})
+        small, img = await a.wait_frame(lambda h: h["seq"] == 7)
+        s = max(eng.sessions, key=lambda s: s.id)
+        shown = eng.call(lambda: (dict(s.poses), s.images["composite"].copy())).result(60)
+        full, _ = await a.wait_frame(lambda h: h["seq"] == 7 and h["factor"] == 1,
+                                     timeout=60)
+        try:  # nothing more: one full-size frame at rest, not a loop
+            extra = await a.next(timeout=1.0)
+        except TimeoutError:
+            extra = None
+        return small, img, shown, full, extra
+
+    small, img, (poses, composite), full, extra = run_clients(studio_server, go)
+    assert (small["factor"], small["width"], small["height"]) == (2, SIZE[0] // 2,
+                                                                  SIZE[1] // 2)
+    assert np.asarray(Image.open(io.BytesIO(img))).shape == (SIZE[1], SIZE[0], 3)
+    assert 0 < small["latency_ms"] < full["latency_ms"]
+    assert full["latency_ms"] >= 1000.0  # rendered only after the 1 s rest
+    assert (full["width"], full["height"]) == SIZE and not full["superseded"]
+    assert extra is None
+
+    def expected():
+        fn = get_method("dir")
+        view = replace(eng.views[2], object_transforms=_transforms(poses))
+        layers = fn.render(eng.prepared("dir"), view, eng.settings)
+        h, w = SIZE[1], SIZE[0]
+        m, d, k = (upsample(x, h, w) for x in (layers.mixed, layers.delta, layers.mask))
+        from arlight.layers import composite as comp
+
+        return comp(eng.view.frame, m, d, k)
+
+    want = eng.call(expected).result(120)
+    np.testing.assert_allclose(composite, want, rtol=0, atol=1e-6)
