@@ -219,28 +219,35 @@ def _load() -> dict:
             "cpus": os.cpu_count()}
 
 
-def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict[int, float]]:
+def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
     """Median ``method.render`` time (s) per method and downscale factor with the object
-    moving 1 cm every frame (on the render worker, between the page's frames)."""
+    moving 2 cm along the table every frame, and the median of its ``time_pose`` stage (on
+    the render worker, after the page's frames)."""
     from dataclasses import replace
 
     from arlight.methods import get_method
     from arlight.studio.engine import _transforms
 
-    def measure(name: str) -> dict[int, float]:
+    def measure(name: str) -> dict:
         fn, state = get_method(name), engine.prepared(name)
         rest = engine.rest_poses["bunny"]
-        out = {}
+        out: dict = {"pose": []}
+        step = 0
         for k in engine.factors:
             ts = []
             for i in range(reps + 1):  # the first one warms up
-                pose = rest.moved_to(rest.position + [0.01 * (i % 2 + 1), 0.0, 0.0])
+                step += 1
+                pose = rest.moved_to(rest.position + [0.02 * (step % 8) - 0.08, 0.0,
+                                                      0.01 * (step % 3)])
                 view = replace(engine.views[k], object_transforms=_transforms(
                     {"bunny": pose}))
                 t0 = time.perf_counter()
-                fn.render(state, view, engine.settings)
+                layers = fn.render(state, view, engine.settings)
                 ts.append(time.perf_counter() - t0)
+                if i:
+                    out["pose"].append(layers.stats.get("time_pose", float("nan")))
             out[k] = statistics.median(ts[1:])
+        out["pose"] = statistics.median(out["pose"])
         return out
 
     return {n: engine.call(measure, n).result(3600) for n in names}
@@ -307,7 +314,7 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
                 settle[name].append(done - last["t"])
                 drag = [x for x in recs if x["type"] == "drag"]
                 lat[name] += [(x["ms"], x["factor"]) for x in drag]
-                renders[name] += [(x["factor"], x["render_s"]) for x in drag]
+                renders[name] += [(x["factor"], x["render_s"], x.get("pose_s")) for x in drag]
                 if drag:
                     first[name].append(drag[0]["ms"])
         browser.close()
@@ -349,15 +356,27 @@ def video_report(v: dict) -> str:
                      f"{share} | {_percentile(st, 50):.0f} / "
                      f"{max(st) if st else float('nan'):.0f} |")
     facs = v["factors"]
-    lines += ["", "`method.render` time per scale with the object moving every frame (median "
-              "of 3 after a warm-up, same process, measured right after the drags), ms — "
-              "the share of a frame that shrinks with the pixel count, and the fixed "
-              "per-frame cost (light injection, propagation, voxelisation, pose) that does "
-              "not:", "",
-              "| method | " + " | ".join(f"{w // k}×{h // k}" for k in facs) + " |",
-              "|---|" + "---|" * len(facs)]
+    lines += ["", "Render time of the drag frames drawn (server `method.render`, pose "
+              "included), median per size, ms (frames), and the median `pose` stage:", "",
+              "| method | " + " | ".join(f"{w // k}×{h // k}" for k in facs)
+              + " | pose |", "|---|" + "---|" * (len(facs) + 1)]
+    for name, recs in v["renders"].items():
+        cells = []
+        for k in facs:
+            ts = [r[1] for r in recs if r[0] == k]
+            cells.append(f"{statistics.median(ts) * 1e3:.0f} ({len(ts)})" if ts else "–")
+        poses = [r[2] for r in recs if r[2] is not None]
+        cells.append(f"{statistics.median(poses) * 1e3:.0f}" if poses else "–")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", "`method.render` time per size with the object moving 2 cm along the table "
+              "every frame (median of 3 after a warm-up, same process, measured right after "
+              "the drags), ms — what shrinks with the pixel count, and the fixed per-frame "
+              "cost (pose, light injection and propagation, voxelisation) that does not:", "",
+              "| method | " + " | ".join(f"{w // k}×{h // k}" for k in facs)
+              + " | pose |", "|---|" + "---|" * (len(facs) + 1)]
     for name, per in v["per_scale"].items():
-        lines.append(f"| {name} | " + " | ".join(f"{per[k] * 1e3:.0f}" for k in facs) + " |")
+        lines.append(f"| {name} | " + " | ".join(f"{per[k] * 1e3:.0f}" for k in facs)
+                     + f" | {per['pose'] * 1e3:.0f} |")
     return "\n".join(lines)
 
 

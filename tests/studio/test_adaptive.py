@@ -74,6 +74,20 @@ def test_goes_back_to_full_size_when_the_load_drops():
     assert chosen[-1] == 1 and all(fast(k) <= 0.100 for k in chosen), chosen
 
 
+def test_cheap_still_frames_do_not_pull_the_drag_to_full_size():
+    """Rejects a controller fed with the frames at rest as if they were drag frames: a
+    still full-size frame (no pose) takes 0.060 s, a moving one 0.230 s; after the first
+    drag, still frames between drags must not make the next drag start at full size."""
+    ctl = ScaleController(LADDER, budget_s=0.100)
+    ctl.seed(1, 0.060)  # the first frame, at rest: all that is known
+    moving = model(0.0, 0.230)
+    first = run(ctl, moving, 6)
+    assert first[0] == 1 and first[-1] == 2  # one slow frame, then within budget
+    for _ in range(3):
+        ctl.seed(1, 0.060)  # full-size frames at rest between drags
+        assert run(ctl, moving, 3) == [2, 2, 2]
+
+
 def test_forgets_measurements_of_scales_not_rendered_for_a_long_time():
     """Rejects a controller that trusts a stale full-size time forever: an old slow
     measurement at k=1 stops blocking once k=4 frames show the machine got faster."""

@@ -8,8 +8,9 @@ when the pointer rests — pure logic, no clock and no rendering (the engine fee
   ladder (:func:`drag_factors`) is the powers of two that divide both sides, down to a
   height of :data:`MIN_DRAG_HEIGHT` pixels.
 * **Which scale** (:class:`ScaleController`): an exponential moving average of the
-  measured render time (seconds) per factor; a factor without a recent measurement is
-  predicted from the nearest one measured, in proportion to its pixel count. The finest
+  measured render time (seconds) of drag frames per factor (a still frame only seeds it);
+  a factor without a recent measurement is predicted from the nearest one measured, in
+  proportion to its pixel count. The finest
   factor whose prediction fits the budget is chosen; going *finer* than the current one
   needs the prediction to fit ``up_margin`` × the budget (hysteresis: no flip-flop
   between a scale just over and one just under the budget). When none fits, the coarsest.
@@ -78,6 +79,7 @@ class ScaleController:
     _mean: dict[int, float] = field(default_factory=dict)
     _seen: dict[int, int] = field(default_factory=dict)
     _count: int = 0
+    _seeded: bool = False
 
     def __post_init__(self) -> None:
         if not self.factors or self.factors[0] != 1 or list(self.factors) != sorted(
@@ -90,11 +92,21 @@ class ScaleController:
         """Record the render time (seconds) of a frame rendered at ``factor``."""
         if factor not in self.factors or not math.isfinite(seconds) or seconds < 0:
             return
+        if self._seeded:  # the first drag frame replaces the still frame's time
+            self._mean, self._seen, self._seeded = {}, {}, False
         self._count += 1
         old = self._fresh().get(factor)
         self._mean[factor] = seconds if old is None else (
             self.alpha * seconds + (1 - self.alpha) * old)
         self._seen[factor] = self._count
+
+    def seed(self, factor: int, seconds: float) -> None:
+        """Record the render time (seconds) of a frame that moved nothing (a full-size frame
+        at rest, a switch): used only until the first drag frame is measured — a still
+        frame skips the pose and would pull the next drag to a size it cannot keep."""
+        if not self._mean:
+            self.observe(factor, seconds)
+            self._seeded = True
 
     def _fresh(self) -> dict[int, float]:
         return {k: v for k, v in self._mean.items()

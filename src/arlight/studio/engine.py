@@ -728,14 +728,18 @@ class Engine:
                 self.factors, budget_s=self.config.frame_budget_ms / 1e3)
         return self._scales[method]
 
+    @staticmethod
+    def _is_motion(s: Session, version: int) -> bool:
+        """Whether a drag or pose message made ``version`` of the session."""
+        with s.lock:
+            return version == s.motion_version
+
     def _factor(self, s: Session, method: str, version: int, full: bool) -> int:
         """The downscale factor of the frame of ``version`` to render now: the
         controller's when a drag or pose message made that version (also when the pointer
         came to rest before the worker got to it: the move is shown at once, the full-size
         frame follows), else — and for ``full`` (at rest, refinement) — 1."""
-        with s.lock:
-            motion = version == s.motion_version
-        if full or not motion or len(self.factors) == 1:
+        if full or not self._is_motion(s, version) or len(self.factors) == 1:
             return 1
         return self.scale_controller(method).choose()
 
@@ -791,7 +795,11 @@ class Engine:
         if denoise and progressive and factor == 1:  # denoise the running mean instead
             layers = self._denoised_mean(s, fn, state, view, settings, layers, n)
         t_render = time.perf_counter() - t1
-        self.scale_controller(method).observe(factor, t_render)
+        ctl = self.scale_controller(method)
+        if self._is_motion(s, version) and not (refine or settle):
+            ctl.observe(factor, t_render)
+        else:
+            ctl.seed(factor, t_render)
         t2 = time.perf_counter()
         layers = self._full_size(layers, factor)
         t_upsample = time.perf_counter() - t2

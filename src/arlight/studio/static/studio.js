@@ -147,6 +147,7 @@ function shown(h) {
           const ms = now - sent.t;
           studio.latencies.push({seq, ms, method: h.method, type: sent.type,
                                   render_s: h.stats.render_s, factor: h.factor,
+                                  pose_s: h.stats.time_pose,
                                   server_ms: h.latency_ms, at: now});
           $("latency").textContent = `${ms.toFixed(0)} ms`;
         }
