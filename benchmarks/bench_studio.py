@@ -270,7 +270,8 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     lat = {n: [] for n in names}  # (ms, factor) per frame shown while dragging
     first = {n: [] for n in names}  # the first frame of each drag, ms
     settle = {n: [] for n in names}  # last pointer event -> full-size frame drawn, ms
-    renders = {n: [] for n in names}  # (factor, render_s) of the frames shown
+    renders = {n: [] for n in names}  # (factor, render_s, pose_s) of the frames shown
+    log_drags: list[dict] = []  # per drag: its last seq, (seq, factor, ms) of its frames
     rng = random.Random(1)
     w, h = engine.width, engine.height
     with BackgroundServer(engine) as srv, sync_playwright() as p:
@@ -313,6 +314,8 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
                            and f["factor"] == 1)
                 settle[name].append(done - last["t"])
                 drag = [x for x in recs if x["type"] == "drag"]
+                log_drags.append({"method": name, "last": last["seq"], "frames": [
+                    (x["seq"], x["factor"], round(x["ms"])) for x in drag]})
                 lat[name] += [(x["ms"], x["factor"]) for x in drag]
                 renders[name] += [(x["factor"], x["render_s"], x.get("pose_s")) for x in drag]
                 if drag:
@@ -323,7 +326,8 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     return {"drags": drags, "moves": moves, "move_ms": move_ms, "resolution": resolution,
             "budget_ms": engine.config.frame_budget_ms, "rest_ms": engine.config.rest_ms,
             "factors": engine.factors, "latency": lat, "first": first, "settle": settle,
-            "renders": renders, "per_scale": per_scale, "load": [load0, load1]}
+            "renders": renders, "per_scale": per_scale, "load": [load0, load1],
+            "drag_log": log_drags}
 
 
 def video_report(v: dict) -> str:

@@ -769,13 +769,13 @@ class Engine:
             if s.method not in self._states:  # switched since the worker chose this work
                 return
             s.prep = None
-            settle = settle and version == s.rendered_version  # else a new change came
         if not refine:
             version, seq = self._resolve_drag(s)
         with s.lock:
             method, poses, denoise = s.method, dict(s.poses), s.denoise
             n = s.refine + 1 if refine else 1
             changed_at = s.changed_at
+            settle = settle and version == s.rendered_version  # else a new change came
         t_place = time.perf_counter() - t0
         fn = get_method(method)
         state = self._states.get(method)
