@@ -703,23 +703,24 @@ class Engine:
             fut = self._start_preparing(name)
         return fut.result(timeout)
 
-    def _resolve_drag(self, s: Session) -> tuple[int, int | None]:
+    def _resolve_drag(self, s: Session) -> tuple[int, int | None, bool]:
         """Stand the picked object on the surface under the pending drag target; returns
         the session version and client seq this covers (a later message makes the frame
-        stale)."""
+        stale) and whether a drag or pose message made that version."""
         with s.lock:
             version, seq, target, name = s.version, s.seq, s.pending_drag, s.selected
             s.pending_drag = None
+            motion = version == s.motion_version
         if target is None or name is None:
-            return version, seq
+            return version, seq, motion
         hit = self.proxy.support(*target)
         if hit is None:
             s.post("json", {"type": "status", "message": "no real surface to stand on "
                             "there; the object stays"})
-            return version, seq
+            return version, seq, motion
         with s.lock:
             s.poses[name] = s.poses[name].moved_to(hit.position)
-        return version, seq
+        return version, seq, motion
 
     def scale_controller(self, method: str) -> ScaleController:
         """The method's :class:`ScaleController` (render times differ per method)."""
@@ -728,18 +729,12 @@ class Engine:
                 self.factors, budget_s=self.config.frame_budget_ms / 1e3)
         return self._scales[method]
 
-    @staticmethod
-    def _is_motion(s: Session, version: int) -> bool:
-        """Whether a drag or pose message made ``version`` of the session."""
-        with s.lock:
-            return version == s.motion_version
-
-    def _factor(self, s: Session, method: str, version: int, full: bool) -> int:
-        """The downscale factor of the frame of ``version`` to render now: the
-        controller's when a drag or pose message made that version (also when the pointer
-        came to rest before the worker got to it: the move is shown at once, the full-size
-        frame follows), else — and for ``full`` (at rest, refinement) — 1."""
-        if full or not self._is_motion(s, version) or len(self.factors) == 1:
+    def _factor(self, method: str, motion: bool) -> int:
+        """The downscale factor of the frame to render now: the controller's for a version
+        a drag or pose message made (``motion``; also when the pointer came to rest before
+        the worker got to it: the move is shown at once, the full-size frame follows),
+        else 1 (full size: at rest, refinement, other changes)."""
+        if not motion or len(self.factors) == 1:
             return 1
         return self.scale_controller(method).choose()
 
@@ -769,8 +764,9 @@ class Engine:
             if s.method not in self._states:  # switched since the worker chose this work
                 return
             s.prep = None
+        motion = False
         if not refine:
-            version, seq = self._resolve_drag(s)
+            version, seq, motion = self._resolve_drag(s)
         with s.lock:
             method, poses, denoise = s.method, dict(s.poses), s.denoise
             n = s.refine + 1 if refine else 1
@@ -781,7 +777,7 @@ class Engine:
         state = self._states.get(method)
         if state is None:  # switched meanwhile: the worker prepares it first
             return
-        factor = self._factor(s, method, version, full=refine or settle)
+        factor = self._factor(method, motion and not (refine or settle))
         view = replace(self.views[factor], object_transforms=_transforms(poses))
         progressive = self.catalogue[method].progressive
         settings = self.settings
@@ -796,7 +792,7 @@ class Engine:
             layers = self._denoised_mean(s, fn, state, view, settings, layers, n)
         t_render = time.perf_counter() - t1
         ctl = self.scale_controller(method)
-        if self._is_motion(s, version) and not (refine or settle):
+        if motion and not (refine or settle):
             ctl.observe(factor, t_render)
         else:
             ctl.seed(factor, t_render)
