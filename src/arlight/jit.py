@@ -16,11 +16,13 @@ specific ``libLLVM.so``).
 from __future__ import annotations
 
 import os
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from arlight.errors import ArlightError
 from arlight.interrupts import shielded, test_point
+
+if TYPE_CHECKING:  # NumPy is imported where used: `arlight --help` loads no heavy module
+    import numpy as np
 
 _PREFERRED = ("cuda_ad_rgb", "llvm_ad_rgb")
 
@@ -75,6 +77,8 @@ def aligned(a, dtype) -> np.ndarray:
     (dic's records, whose count changes every frame) was compiled again whenever that
     changed: seconds on the CPU. Aligned inputs give one kernel.
     """
+    import numpy as np
+
     src = np.asarray(a, dtype=dtype)
     raw = np.empty(src.nbytes + ALIGN_BYTES, np.uint8)
     start = (-raw.ctypes.data) % ALIGN_BYTES
@@ -86,6 +90,8 @@ def aligned(a, dtype) -> np.ndarray:
 def columns(a, dtype) -> list[np.ndarray]:
     """The columns of an ``(N, k)`` array as :func:`aligned` 1-D arrays (build e.g. a
     ``mi.Point3f(*columns(p, np.float32))`` from them)."""
+    import numpy as np
+
     a = np.asarray(a)
     return [aligned(a[:, c], dtype) for c in range(a.shape[1])]
 

@@ -401,12 +401,12 @@ def server_process():
     port = _free_port()
     proc = subprocess.Popen([sys.executable, "-m", "arlight.entry", "serve-light", "--bind",
                              f"tcp://127.0.0.1:{port}", "--rate", "20", "--vals", "8",
-                             "--duration", "120"], cwd=ROOT, stdout=subprocess.DEVNULL,
+                             "--duration", "600"], cwd=ROOT, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE)
     eps = (f"tcp://127.0.0.1:{port}", f"tcp://127.0.0.1:{port + 1}")
     try:
-        with LightClient(*eps) as c:  # up and serving
-            c.wait_for(2, timeout=60)
+        with LightClient(*eps) as c:  # up and serving (a start on saturated CI cores took
+            c.wait_for(2, timeout=240)  # over 60 s: imports, the first projection)
         yield psutil.Process(proc.pid), eps
     finally:
         proc.kill()

@@ -103,20 +103,6 @@ class Method(Protocol):
         """Layers of one frame of the prepared world."""
         ...
 
-    def _render_posed(self, state: Prepared, view: FrameView, opts: Options,
-                      settings: RenderSettings, timer: StageTimer) -> Layers:
-        """Pose the state for ``view`` (stage ``pose``), render and denoise it."""
-        data = state.data
-        if view.object_transforms or self.incremental_pose:
-            with timer.stage("pose"):
-                data = self.pose(state, view.object_transforms, settings)
-            view = replace(view, object_transforms={})
-        layers = self.render_view(data, view, opts, settings, timer)
-        denoise = DenoiseSettings.from_options(opts)
-        if denoise is not None:
-            layers = self.denoise(layers, data, view, denoise, timer)
-        return layers
-
     def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
         """One-shot: prepare and render ``scene``."""
         ...
@@ -273,11 +259,15 @@ class BaseMethod(ABC):
 
     def _render_posed(self, state: Prepared, view: FrameView, opts: Options,
                       settings: RenderSettings, timer: StageTimer) -> Layers:
-        """Pose the state for ``view`` (stage ``pose``), render and denoise it."""
+        """Pose the state for ``view`` (stage ``pose``, recorded when the frame moves an
+        object or returns the state to its rest pose), render and denoise it."""
         data = state.data
         if view.object_transforms or self.incremental_pose:
-            with timer.stage("pose"):
-                data = self.pose(state, view.object_transforms, settings)
+            moves = bool(view.object_transforms or state.last_transforms)
+            t0 = time.perf_counter()
+            data = self.pose(state, view.object_transforms, settings)
+            if moves:  # a still frame of a still state poses nothing: no stage
+                timer.add("pose", time.perf_counter() - t0)
             view = replace(view, object_transforms={})
         layers = self.render_view(data, view, opts, settings, timer)
         denoise = DenoiseSettings.from_options(opts)
