@@ -36,6 +36,7 @@ def test_ray_is_imported_only_by_the_ray_path():
     assert r.stdout.strip() == "[]"
 
 
+@pytest.mark.slow  # ~130 s (Ray's worker restart): the slowest test of the fast tier
 def test_worker_killed_mid_task_run_completes_with_all_frames(tiny, tmp_path):
     """Each frame in two parts (``--split 2``: two tasks per frame); the worker rendering a
     part of frame 3 is killed; the frames equal a sequential ``--split 2`` run's."""
