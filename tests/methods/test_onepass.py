@@ -10,6 +10,7 @@ from arlight.methods import RenderSettings, get_method
 from arlight.scene.load import parse_scene
 from arlight.stats import agreement_fraction
 from tests.conftest import LOOK, real_room
+from tests.kernels import traced_kernels
 
 
 def table_scene(width: int = 40, height: int = 30, virtual: bool = True,
@@ -291,22 +292,6 @@ def test_sample_offsets_continue_one_sequence(mode):
         x, y, z = (getattr(r, layer) for r in (a, b, c))
         np.testing.assert_allclose(0.5 * (x + y), z, rtol=1e-4, atol=1e-6)
     assert not np.allclose(a.mixed, b.mixed, rtol=1e-3)
-
-
-def traced_kernels(render) -> set[str]:
-    """Hashes of the large kernels (≥ 100 operations: the tracer's, not the small
-    reductions whose block size is the spp) that ``render()`` launches. Hashes identify the
-    code, whether it came from Dr.Jit's memory or disk cache or was compiled."""
-    import drjit as dr
-
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        render()
-    finally:
-        history = dr.kernel_history()
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    return {k["hash"] for k in history
-            if k.get("type") == dr.KernelType.JIT and k.get("operation_count", 0) >= 100}
 
 
 @pytest.mark.parametrize("name", ["onepass", "dic"])

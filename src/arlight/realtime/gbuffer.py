@@ -83,7 +83,8 @@ def render_gbuffer(view: SceneView, camera: Camera, spp: int = 1, seed: int = 0)
     lanes = dr.arange(mi.UInt32, w * h * spp)
     pixel = lanes // spp
     k = lanes % spp
-    rays = generate_rays(camera, pixel, k, spp, mi.UInt32(seed))
+    rays = generate_rays(camera, pixel, k, spp, dr.opaque(mi.UInt32, seed))  # opaque: one
+    # kernel for every frame's seed
     ray = mi.Ray3f(rays)
     si = view.scene.ray_intersect(ray)
     role = view.hit_role(si)

@@ -41,6 +41,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.jit import aligned
 from arlight.scene.model import World
 from arlight.sphere.envmap import resize_equirect, rotate_equirect
 
@@ -301,10 +302,11 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
     lane = dr.arange(mi.UInt32, K * rays)
     pix = lane // rays
     s = lane % rays
-    r1 = mi.sample_tea_float32(pix, mi.UInt32(seed))
-    r2 = mi.sample_tea_float32(pix, mi.UInt32(seed + 0x9E3779B9 & 0xFFFFFFFF))
-    x1 = dr.gather(mi.Float, mi.Float(u1.astype(np.float32)), s) + r1
-    x2 = dr.gather(mi.Float, mi.Float(u2.astype(np.float32)), s) + r2
+    # the seed opaque and the point set aligned: one kernel for every frame (arlight.jit)
+    r1 = mi.sample_tea_float32(pix, dr.opaque(mi.UInt32, seed))
+    r2 = mi.sample_tea_float32(pix, dr.opaque(mi.UInt32, seed + 0x9E3779B9 & 0xFFFFFFFF))
+    x1 = dr.gather(mi.Float, mi.Float(aligned(u1, np.float32)), s) + r1
+    x2 = dr.gather(mi.Float, mi.Float(aligned(u2, np.float32)), s) + r2
     x1 -= dr.floor(x1)
     x2 -= dr.floor(x2)
     local = mi.warp.square_to_cosine_hemisphere(mi.Point2f(x1, x2))

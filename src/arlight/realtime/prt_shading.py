@@ -197,7 +197,7 @@ def shade_virtual(data: PRTShadingState, gb: GBuffer, view: FrameView,
     table = mi.Float(aligned(vals.reshape(-1), np.float32))
     k = idx % gb.spp
     ray = mi.Ray3f(generate_rays(view.camera, dr.gather(mi.UInt32, gb.pixel, idx), k,
-                                 gb.spp, mi.UInt32(seed)))
+                                 gb.spp, dr.opaque(mi.UInt32, seed)))
     pi = data.views.mixed.scene.ray_intersect_preliminary(ray)
     reg = dr.reinterpret_array(mi.UInt32, pi.shape)
     shape = dr.gather(mi.Int32, data.views.mixed.shape_index, reg)

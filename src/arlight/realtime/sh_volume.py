@@ -38,6 +38,10 @@ import numpy as np
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.shading import on_active
 
+
+def _opaque(x: float) -> mi.Float:
+    return dr.opaque(mi.Float, float(x))
+
 Y00 = 0.5 / math.sqrt(math.pi)
 """``Y_00 = 1/(2√π) ≈ 0.282095``."""
 Y1 = math.sqrt(3.0 / (4.0 * math.pi))
@@ -122,6 +126,19 @@ class Grid:
     def centre(self) -> np.ndarray:
         return self.origin + 0.5 * self.size
 
+    def lo(self) -> list[mi.Float]:
+        """The origin as opaque Dr.Jit scalars: a kernel reading it serves the volume
+        wherever it moves with its object (a literal compiled a new kernel per position)."""
+        return [_opaque(x) for x in self.origin]
+
+    def hi(self) -> list[mi.Float]:
+        """The far corner (origin + size, summed in float64 as before) as opaque scalars."""
+        return [_opaque(float(x) + self.size) for x in self.origin]
+
+    def inv(self, length: float) -> mi.Float:
+        """``1 / length`` (e.g. the cell or the edge, metres) as an opaque scalar."""
+        return _opaque(1.0 / length)
+
     @staticmethod
     def around(lo: np.ndarray, hi: np.ndarray, n: int, scale: float = 2.0) -> Grid:
         """Franke's placement (thesis §4.4.1, §5.3): a cube of edge ``scale`` × the largest
@@ -174,8 +191,8 @@ def _channel_sums(c: mi.Color3f) -> np.ndarray:
 
 def cell_index(grid: Grid, p: mi.Point3f) -> tuple[mi.UInt32, mi.Bool]:
     """Flat cell index of world points and whether they lie inside the volume."""
-    inv = 1.0 / grid.cell
-    o = [float(x) for x in grid.origin]
+    inv = grid.inv(grid.cell)
+    o = grid.lo()
     ix = mi.Int32(dr.floor((p.x - o[0]) * inv))
     iy = mi.Int32(dr.floor((p.y - o[1]) * inv))
     iz = mi.Int32(dr.floor((p.z - o[2]) * inv))
@@ -371,8 +388,8 @@ def query_irradiance(vol: SHVolume, p: mi.Point3f, n: mi.Vector3f,
     [KD10]: radiance ≈ intensity / s²). Zero outside the volume (Franke's cut-off)."""
     g = vol.grid
     n_ = g.n
-    inv = 1.0 / g.cell
-    o = [float(x) for x in g.origin]
+    inv = g.inv(g.cell)
+    o = g.lo()
     fx = (p.x - o[0]) * inv - 0.5
     fy = (p.y - o[1]) * inv - 0.5
     fz = (p.z - o[2]) * inv - 0.5
@@ -408,8 +425,7 @@ def query_irradiance_compact(vol: SHVolume, p: mi.Point3f, n: mi.Vector3f,
     ``dr.compress``, scattered back; zero elsewhere): the trilinear lookup costs 96 gathers per
     lane, so skipping the inactive ones pays off when few are active."""
     g = vol.grid
-    lo = [float(x) for x in g.origin]
-    hi = [x + g.size for x in lo]
+    lo, hi = g.lo(), g.hi()
     inside = active & (p.x > lo[0]) & (p.y > lo[1]) & (p.z > lo[2]) & (p.x < hi[0]) & (
         p.y < hi[1]) & (p.z < hi[2])
     return on_active(lambda pc, nc: query_irradiance(vol, pc, nc), p, n, inside)

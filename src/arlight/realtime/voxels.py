@@ -409,8 +409,7 @@ class ConeVolumes:
 def box_interval(grid: Grid, o: mi.Point3f, d: mi.Vector3f) -> tuple[mi.Float, mi.Float]:
     """Slab test: ``(t_in, t_out)`` of rays ``o + t d`` through the grid's cube (empty when
     ``t_in > t_out``)."""
-    lo = [float(x) for x in grid.origin]
-    hi = [x + grid.size for x in lo]
+    lo, hi = grid.lo(), grid.hi()
     t0, t1 = mi.Float(-dr.inf), mi.Float(dr.inf)
     for k in range(3):
         dk = d[k]
@@ -436,8 +435,8 @@ def _sample_level(vols: list[MipVolume], tables: tuple[mi.UInt32, mi.UInt32], gr
     off = dr.gather(mi.UInt32, offsets, lvl, active)
     n_l = dr.gather(mi.UInt32, sizes, lvl, active)
     nf = mi.Float(n_l)
-    inv = nf * (1.0 / grid.size)
-    o = [float(x) for x in grid.origin]
+    inv = nf * grid.inv(grid.size)
+    o = grid.lo()
     f = [(p[k] - o[k]) * inv - 0.5 for k in range(3)]
     i0 = [mi.Int32(dr.floor(fk)) for fk in f]
     w1 = [fk - mi.Float(ik) for fk, ik in zip(f, i0, strict=True)]

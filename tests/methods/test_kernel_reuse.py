@@ -1,0 +1,46 @@
+"""Every interactive method compiles its kernels once per world: frames with the virtual
+object moved, the camera moved and a new seed reuse them (issue #32: a kernel compiled per
+frame costs seconds on the CPU). Rejects per-frame values compiled into a kernel as literals
+— seeds, camera poses, volume origins that follow the object, light SH measured from the
+object's new centre, lamp positions — and NumPy buffers of varying alignment
+(:func:`arlight.jit.aligned`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from arlight.demo import DEMO_DIR
+from arlight.methods import RenderSettings, get_method
+from arlight.scene.load import load_scene
+from arlight.scene.model import FrameView
+from tests.kernels import traced_kernels
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return load_scene(DEMO_DIR / "scene.toml").resized(64, 48)
+
+
+@pytest.mark.parametrize("name", ["dir", "dlpv", "dvct", "ibl", "prt", "onepass"])
+def test_moving_frames_reuse_the_compiled_kernels(demo, name):
+    method = get_method(name)
+    state = method.prepare(demo.world)
+    view = demo.view
+    obj = next(s.name for s in demo.world.shapes if s.is_virtual)
+    seen: set[str] = set()
+    for k in range(4):
+        t = np.eye(4)
+        t[0, 3], t[2, 3] = 0.01 * k, 0.005 * k
+        pose = view.camera.world_from_camera.copy()
+        pose[:3, 3] += [0.003 * k, 0.0, 0.0]
+        frame = FrameView(dataclasses.replace(view.camera, world_from_camera=pose),
+                          frame=view.frame, depth=view.depth,
+                          object_transforms={obj: t} if k else {})
+        kernels = traced_kernels(lambda f=frame, k=k: method.render(
+            state, f, RenderSettings(spp=1, seed=k)))
+        if k >= 2:  # frame 1 is the first moved one (its pose path); then nothing is new
+            assert kernels <= seen, f"{len(kernels - seen)} kernels new in moving frame {k}"
+        seen |= kernels
