@@ -170,10 +170,25 @@ class BaseMethod(ABC):
              settings: RenderSettings) -> Any:
         """Data for the world posed by ``transforms`` (default: prepare it again).
 
-        A method with ``incremental_pose`` updates ``state.data`` in place instead and
-        returns it (``transforms`` empty: back to the rest pose); its renders must then be
+        A method with ``incremental_pose`` moves the data of its last pose in place with
+        :meth:`move` instead (:func:`posed_data`; ``transforms`` empty: back to the rest
+        pose), preparing from scratch where ``move`` cannot; its renders must then be
         bitwise those of ``prepare(state.world.posed(transforms))``."""
-        return self.prepare_world(state.world.posed(transforms), state.options, settings)
+        def prepare() -> Any:
+            return self.prepare_world(state.world.posed(transforms), state.options, settings)
+
+        if not self.incremental_pose:
+            return prepare()
+        return posed_data(state, transforms,
+                          lambda data: self.move(data, state.world, transforms, state.options),
+                          prepare)
+
+    def move(self, data: Any, world: World, transforms: dict[str, np.ndarray],
+             options: Options) -> Any | None:
+        """``data`` (prepared for ``world`` in any pose) moved in place to
+        ``world.posed(transforms)``, or None where that cannot be done (e.g. a real shape
+        moved): the hook of ``incremental_pose`` methods."""
+        raise NotImplementedError(f"{self.spec.name} sets incremental_pose without move()")
 
     def aux_view(self, data: Any) -> Any:
         """The Mitsuba scene (a :class:`~arlight.backend.mitsuba_scene.SceneView` of the

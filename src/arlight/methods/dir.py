@@ -39,10 +39,8 @@ from arlight.backend.mitsuba_scene import SceneViews, build_views
 from arlight.methods.base import (
     BaseMethod,
     Layers,
-    Prepared,
     RenderSettings,
     place_views,
-    posed_data,
 )
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -267,17 +265,13 @@ class DIRMethod(BaseMethod):
                                area_grid=options.area_grid)
         return DIRData(world, views, lights, scene_bounds(views.mixed))
 
-    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
-             settings: RenderSettings) -> DIRData:
+    def move(self, data: DIRData, world: World, transforms: dict[str, np.ndarray],
+             options: Options) -> DIRData | None:
         """The shapes moved in place (the lights do not depend on them), the bounds
         measured again; nothing else is kept between frames."""
-        def move(data: DIRData) -> DIRData | None:
-            posed = place_views(data.views, state.world, transforms, real_moves=True)
-            return None if posed is None else DIRData(posed, data.views, data.lights,
-                                                      scene_bounds(data.views.mixed))
-
-        return posed_data(state, transforms, move, lambda: self.prepare_world(
-            state.world.posed(transforms), state.options, settings))
+        posed = place_views(data.views, world, transforms, real_moves=True)
+        return None if posed is None else DIRData(posed, data.views, data.lights,
+                                                  scene_bounds(data.views.mixed))
 
     def render_view(self, data: DIRData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -70,10 +70,8 @@ from arlight.jit import aligned
 from arlight.methods.base import (
     BaseMethod,
     Layers,
-    Prepared,
     RenderSettings,
     place_views,
-    posed_data,
 )
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -776,13 +774,7 @@ class DVCTMethod(BaseMethod):
                       ) -> DVCTData:
         return prepare(world, options)
 
-    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
-             settings: RenderSettings) -> DVCTData:
-        """:func:`pose` from the last posed data; a moved real shape prepares again."""
-        return posed_data(state, transforms, lambda data: pose(data, state.world, transforms,
-                                                   state.options),
-                          lambda: self.prepare_world(state.world.posed(transforms),
-                                                     state.options, settings))
+    move = staticmethod(pose)  # in place; a moved real shape prepares again
 
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

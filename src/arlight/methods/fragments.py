@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from arlight.methods.base import BaseMethod, Prepared, RenderSettings, place_views, posed_data
+from arlight.methods.base import BaseMethod, RenderSettings, place_views
 from arlight.methods.spec import Field, Options
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.scene.model import World
@@ -41,18 +41,15 @@ class PathScenesMethod(BaseMethod):
         """The mixed view: the denoiser's albedo and normal buffers are traced there."""
         return data.views.mixed
 
-    def pose_in_place(self, state: Prepared, transforms: dict[str, np.ndarray],
-                      settings: RenderSettings) -> PathScenes:
+    def move_in_place(self, data: PathScenes, world: World,
+                      transforms: dict[str, np.ndarray], options: Options) -> PathScenes | None:
         """The incremental pose of a path tracer (issue #32; a subclass with
-        ``incremental_pose = True`` uses it as its ``pose``): the shapes move in place in both
-        Mitsuba views (:meth:`~arlight.backend.mitsuba_scene.SceneViews.place`, real shapes
-        too), nothing else is prepared. Not ``pose`` itself: ``dic`` keeps its own."""
-        def move(data: PathScenes) -> PathScenes | None:
-            posed = place_views(data.views, state.world, transforms, real_moves=True)
-            return None if posed is None else PathScenes(posed, data.views)
-
-        return posed_data(state, transforms, move, lambda: self.prepare_world(
-            state.world.posed(transforms), state.options, settings))
+        ``incremental_pose = True`` uses it as its ``move``): the shapes move in place in
+        both Mitsuba views (:meth:`~arlight.backend.mitsuba_scene.SceneViews.place`, real
+        shapes too), nothing else is prepared. Not ``move`` itself: ``dic`` keeps its own
+        pose."""
+        posed = place_views(data.views, world, transforms, real_moves=True)
+        return None if posed is None else PathScenes(posed, data.views)
 
 
 __all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS"]

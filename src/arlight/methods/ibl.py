@@ -47,10 +47,8 @@ from arlight.backend.rays import np3
 from arlight.methods.base import (
     BaseMethod,
     Layers,
-    Prepared,
     RenderSettings,
     place_views,
-    posed_data,
 )
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -238,13 +236,7 @@ class IBLMethod(BaseMethod):
                       ) -> IBLData:
         return prepare(world, options)
 
-    def pose(self, state: Prepared, transforms: dict[str, np.ndarray],
-             settings: RenderSettings) -> IBLData:
-        """:func:`pose` from the last posed data; a moved real shape prepares again."""
-        return posed_data(state, transforms, lambda data: pose(data, state.world, transforms,
-                                                   state.options),
-                          lambda: self.prepare_world(state.world.posed(transforms),
-                                                     state.options, settings))
+    move = staticmethod(pose)  # in place; a moved real shape prepares again
 
     def render_view(self, data: IBLData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

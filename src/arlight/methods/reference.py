@@ -191,7 +191,7 @@ class ReferenceMethod(PathScenesMethod):
     )
 
     incremental_pose = True
-    pose = PathScenesMethod.pose_in_place
+    move = PathScenesMethod.move_in_place
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
