@@ -46,9 +46,8 @@ from arlight.methods.base import (
     BaseMethod,
     Layers,
     RenderSettings,
-    place_views,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, follow_volume
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
@@ -184,13 +183,12 @@ def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], option
     lights when the snapped volume moved, :func:`~arlight.realtime.rsm.moved_maps`). Bitwise
     the data :func:`prepare` makes of the posed world; None (nothing changed) when a real
     shape moves."""
-    posed = place_views(data.views, world, transforms)
-    if posed is None:
+    moved = follow_volume(data.views, data.grid, world, transforms, options)
+    if moved is None:
         return None
-    if data.grid is None or data.real_maps is None:
+    posed, grid, bounds = moved
+    if grid is None or data.real_maps is None:
         return replace(data, world=posed)
-    bounds = virtual_bounds(posed, data.views.mixed)
-    grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
     return replace(data, world=posed, grid=grid,
                    real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds))
 

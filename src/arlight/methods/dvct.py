@@ -71,9 +71,8 @@ from arlight.methods.base import (
     BaseMethod,
     Layers,
     RenderSettings,
-    place_views,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, follow_volume
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
@@ -276,13 +275,12 @@ def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], option
     :func:`~arlight.realtime.rsm.moved_maps` says; only the virtual objects' triangles are
     transformed (they are voxelised every frame anyway). Bitwise the data :func:`prepare`
     makes of the posed world; None (nothing changed) when a real shape moves."""
-    posed = place_views(data.views, world, transforms)
-    if posed is None:
+    moved = follow_volume(data.views, data.grid, world, transforms, options)
+    if moved is None:
         return None
-    if data.grid is None or data.real_maps is None:
+    posed, grid, bounds = moved
+    if grid is None or data.real_maps is None:
         return replace(data, world=posed)
-    bounds = virtual_bounds(posed, data.views.mixed)
-    grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
     real = data.real_voxels if same_grid(data.grid, grid) else voxelize_shapes(
         posed.real_shapes, grid)
     tris = np.concatenate([shape_triangles(s) for s in posed.virtual_shapes])

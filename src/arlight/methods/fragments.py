@@ -18,6 +18,9 @@ import numpy as np
 from arlight.methods.base import BaseMethod, RenderSettings, place_views
 from arlight.methods.spec import Field, Options
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
+from arlight.realtime.oof import move_occluder
+from arlight.realtime.sh_volume import Grid
+from arlight.realtime.shading import virtual_bounds
 from arlight.scene.model import World
 from arlight.tracing.scenes import PathScenes, prepare_scenes
 
@@ -52,4 +55,34 @@ class PathScenesMethod(BaseMethod):
         return None if posed is None else PathScenes(posed, data.views)
 
 
-__all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS"]
+
+def place_occluded(views, occluder, world: World, before: World,
+                   transforms: dict[str, np.ndarray]):
+    """``views`` and the AR-OOF ``occluder`` (:func:`~arlight.realtime.oof.move_occluder`)
+    moved in place from ``before`` to ``world.posed(transforms)`` (ibl and prt): ``(posed
+    world, occluder)``, or None when a real shape moved or the occluder cannot follow."""
+    posed = place_views(views, world, transforms)
+    if posed is None:
+        return None
+    ok, moved = move_occluder(occluder, before, posed)
+    return (posed, moved) if ok else None
+
+
+def follow_volume(views, grid, world: World, transforms: dict[str, np.ndarray],
+                  options: Options):
+    """``views`` moved in place to ``world.posed(transforms)`` and the volume placed again
+    around the virtual objects' new bounds (dlpv and dvct, Franke's placement:
+    :meth:`~arlight.realtime.sh_volume.Grid.around`): ``(posed world, new grid, bounds)``
+    — grid and bounds None when the data has no volume (``grid`` None) — or None when a
+    real shape moved."""
+    posed = place_views(views, world, transforms)
+    if posed is None:
+        return None
+    if grid is None:
+        return posed, None, None
+    bounds = virtual_bounds(posed, views.mixed)
+    return posed, Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale), bounds
+
+
+__all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS", "follow_volume",
+           "place_occluded"]

@@ -48,9 +48,8 @@ from arlight.methods.base import (
     BaseMethod,
     Layers,
     RenderSettings,
-    place_views,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, place_occluded
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
@@ -68,7 +67,6 @@ from arlight.realtime.oof import (
     OcclusionField,
     field_from_options,
     make_occluder,
-    move_occluder,
     pose_field,
     render_layers,
 )
@@ -178,13 +176,10 @@ def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options
     world-space field is sampled again); lights, environment and tables are kept. Bitwise
     the data :func:`prepare` makes of the posed world; None (nothing changed) when a real
     shape moves."""
-    before = data.world
-    posed = place_views(data.views, world, transforms)
-    if posed is None:
+    moved = place_occluded(data.views, data.occluder, world, data.world, transforms)
+    if moved is None:
         return None
-    ok, occluder = move_occluder(data.occluder, before, posed)
-    if not ok:
-        return None
+    posed, occluder = moved
     return replace(data, world=posed, occluder=occluder,
                    field=pose_field(data.field, posed, options),
                    ao_distance=_ao_distance(posed, data.views, options))

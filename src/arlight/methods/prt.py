@@ -48,9 +48,8 @@ from arlight.methods.base import (
     BaseMethod,
     Layers,
     RenderSettings,
-    place_views,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
+from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, place_occluded
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.ibl_shading import (
     MipEnvironment,
@@ -65,7 +64,6 @@ from arlight.realtime.oof import (
     OcclusionField,
     field_from_options,
     make_occluder,
-    move_occluder,
     pose_field,
     render_layers,
 )
@@ -213,13 +211,10 @@ def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options
     moves or a virtual primitive (its object mesh is read back from the loaded mesh) does."""
     if any(world.shapes[o.shape].mesh is None for o in data.objects):
         return None
-    before = data.world
-    posed = place_views(data.views, world, transforms)
-    if posed is None:
+    moved = place_occluded(data.views, data.occluder, world, data.world, transforms)
+    if moved is None:
         return None
-    ok, occluder = move_occluder(data.occluder, before, posed)
-    if not ok:
-        return None
+    posed, occluder = moved
     objects = [replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
                for o in data.objects]
     light = light_sh(posed, options.order, _centre(posed, data.views), options.area_grid,
