@@ -519,6 +519,18 @@ def quantiles(xs: list[float]) -> tuple[float, float, float]:
 # One scene
 # --------------------------------------------------------------------------------------------
 
+def export_or_skip(name: str, exports: list[tuple], max_depth: int) -> str | None:
+    """Export each ``(scene, path, catcher)`` for Cycles; the reason (also printed) when a
+    scene cannot be translated, else None."""
+    try:
+        for scene, path, catcher in exports:
+            export_scene(scene, path, max_depth, catcher=catcher)
+    except Untranslatable as exc:
+        print(name, "skipped:", exc, flush=True)
+        return str(exc)
+    return None
+
+
 def measure(name: str, world, proxy, photo, args, labels: list[str], tmp: Path) -> dict:
     """Translate, check and time one scene; a dict of what was found (``skip`` when the
     scene cannot be translated)."""
@@ -526,13 +538,10 @@ def measure(name: str, world, proxy, photo, args, labels: list[str], tmp: Path) 
 
     scene = proxy.with_frame(photo.frame)
     res: dict = {"name": name}
-    try:
-        export_scene(scene, tmp / f"{name}_ar.npz", args.max_depth, catcher=True)
-        export_scene(world, tmp / f"{name}_world.npz", args.max_depth, catcher=False)
-    except Untranslatable as exc:
-        res["skip"] = str(exc)
-        print(name, "skipped:", exc, flush=True)
-        return res
+    skip = export_or_skip(name, [(scene, tmp / f"{name}_ar.npz", True),
+                                 (world, tmp / f"{name}_world.npz", False)], args.max_depth)
+    if skip:
+        return {**res, "skip": skip}
     gt = photo.ground_truth.astype(np.float64)
     wc = Cycles(args.bpy_python, tmp / f"{name}_world.npz", None, tmp)
     try:

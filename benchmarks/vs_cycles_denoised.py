@@ -19,7 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from bench_vs_cycles import Cycles, Untranslatable, export_scene, lights_mask
+from bench_vs_cycles import Cycles, export_or_skip, lights_mask
 
 HEADING = ("## Held-out worlds: denoised onepass vs denoised Cycles at equal time (issue #31)")
 LABELS = ("onepass", "onepass + OIDN", "cycles", "cycles + OIDN")
@@ -53,12 +53,9 @@ def measure_denoised(name: str, proxy, photo, args, tmp: Path) -> dict:
 
     scene = proxy.with_frame(photo.frame)
     res: dict = {"name": name}
-    try:
-        export_scene(scene, tmp / f"{name}_ar.npz", args.max_depth, catcher=True)
-    except Untranslatable as exc:
-        res["skip"] = str(exc)
-        print(name, "skipped:", exc, flush=True)
-        return res
+    skip = export_or_skip(name, [(scene, tmp / f"{name}_ar.npz", True)], args.max_depth)
+    if skip:
+        return {**res, "skip": skip}
     gt = photo.ground_truth.astype(np.float64)
     keep = lights_mask(gt)
     method = get_method("onepass")
