@@ -96,4 +96,21 @@ def columns(a, dtype) -> list[np.ndarray]:
     return [aligned(a[:, c], dtype) for c in range(a.shape[1])]
 
 
-__all__ = ["ALIGN_BYTES", "aligned", "columns", "MAX_LANES", "ensure_variant"]
+
+def opaque(x: float):
+    """``x`` as an opaque Dr.Jit ``Float`` scalar: read from memory by the kernel, not
+    compiled into it, so one kernel serves every value (a moved camera, object or lamp,
+    another spp or seed) without compiling again (seconds on the CPU)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return dr.opaque(mi.Float, float(x))
+
+
+def opaques(values) -> list:
+    """:func:`opaque` of every element of ``values`` (flattened), e.g. a position's x, y, z."""
+    import numpy as np
+
+    return [opaque(x) for x in np.ravel(values)]
+
+__all__ = ["ALIGN_BYTES", "aligned", "columns", "opaque", "opaques", "MAX_LANES", "ensure_variant"]

@@ -22,6 +22,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from arlight.jit import opaque
 from arlight.sampling.stream import pixel_key
 from arlight.scene.camera import Camera
 
@@ -39,13 +40,6 @@ def _lens_permutation(spp: int) -> int:
     while math.gcd(a, spp) != 1:
         a += 1
     return a
-
-
-def opaque(x: float) -> mi.Float:
-    """``x`` as an opaque Dr.Jit scalar: read from memory by the kernel, not compiled into
-    it, so a kernel that uses it serves any value (a moved camera, another resolution, another
-    spp) without compiling again (seconds on the CPU)."""
-    return dr.opaque(mi.Float, float(x))
 
 
 def stratified_2d(key: mi.UInt32, k: mi.UInt32, spp: int, salt: int) -> mi.Point2f:

@@ -35,12 +35,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.jit import opaque
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.shading import on_active
-
-
-def _opaque(x: float) -> mi.Float:
-    return dr.opaque(mi.Float, float(x))
 
 Y00 = 0.5 / math.sqrt(math.pi)
 """``Y_00 = 1/(2√π) ≈ 0.282095``."""
@@ -129,15 +126,15 @@ class Grid:
     def lo(self) -> list[mi.Float]:
         """The origin as opaque Dr.Jit scalars: a kernel reading it serves the volume
         wherever it moves with its object (a literal compiled a new kernel per position)."""
-        return [_opaque(x) for x in self.origin]
+        return [opaque(x) for x in self.origin]
 
     def hi(self) -> list[mi.Float]:
         """The far corner (origin + size, summed in float64 as before) as opaque scalars."""
-        return [_opaque(float(x) + self.size) for x in self.origin]
+        return [opaque(float(x) + self.size) for x in self.origin]
 
     def inv(self, length: float) -> mi.Float:
         """``1 / length`` (e.g. the cell or the edge, metres) as an opaque scalar."""
-        return _opaque(1.0 / length)
+        return opaque(1.0 / length)
 
     @staticmethod
     def around(lo: np.ndarray, hi: np.ndarray, n: int, scale: float = 2.0) -> Grid:

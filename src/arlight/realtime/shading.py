@@ -10,6 +10,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView
+from arlight.jit import opaques
 from arlight.realtime.light_reduction import LightSet, ReducedLight
 from arlight.scene.model import World
 
@@ -17,21 +18,14 @@ SHADOW_EPS = 1e-4
 """Offset of shadow-ray origins along the normal, metres."""
 
 
-def _opaque(values) -> list[mi.Float]:
-    """``values`` (light positions, axes, intensities, SH fits: per frame or per pose) as
-    opaque Dr.Jit scalars: one compiled kernel serves a moved lamp or a new light estimate
-    (literals compiled a kernel per value)."""
-    return [dr.opaque(mi.Float, float(x)) for x in np.ravel(values)]
-
-
 def emitted_intensity(light: ReducedLight, w_out: mi.Vector3f) -> mi.Color3f:
     """Radiant intensity (W/sr) of a point-like light towards unit ``w_out`` (from the
     light): isotropic, ``I0 <axis, ω>+`` (cosine) or Mitsuba's spot falloff (linear in angle
     between the beam and the cutoff)."""
-    i0 = mi.Color3f(*_opaque(light.intensity))
+    i0 = mi.Color3f(*opaques(light.intensity))
     if light.kind == "point":
         return i0 + 0.0 * w_out.x
-    axis = mi.Vector3f(*_opaque(light.axis))
+    axis = mi.Vector3f(*opaques(light.axis))
     c = dr.dot(axis, w_out)
     if light.kind == "cosine":
         return i0 * dr.maximum(c, 0.0)
@@ -56,11 +50,11 @@ def direct_irradiance(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Ve
     origin = p + n * SHADOW_EPS
     for lt in lights.lights:
         if lt.kind == "directional":
-            w = -mi.Vector3f(*_opaque(lt.axis))
-            e = mi.Color3f(*_opaque(lt.intensity))
+            w = -mi.Vector3f(*opaques(lt.axis))
+            e = mi.Color3f(*opaques(lt.intensity))
             dist = mi.Float(dr.inf)
         else:
-            to = mi.Point3f(*_opaque(lt.position)) - origin
+            to = mi.Point3f(*opaques(lt.position)) - origin
             dist = dr.norm(to)
             w = to / dr.maximum(dist, 1e-12)
             e = emitted_intensity(lt, -w) / dr.maximum(dist * dist, 1e-12)
@@ -122,9 +116,9 @@ def ambient_irradiance_dr(lights: LightSet, n: mi.Vector3f) -> mi.Color3f:
     feats = np.stack([x * x, y * y, z * z, x * y, y * z, x * z, x, y, z, np.ones_like(x)], 1)
     coef, *_ = np.linalg.lstsq(feats, e, rcond=None)  # (10, 3)
     terms = [n.x * n.x, n.y * n.y, n.z * n.z, n.x * n.y, n.y * n.z, n.x * n.z, n.x, n.y, n.z]
-    out = mi.Color3f(*_opaque(coef[9]))
+    out = mi.Color3f(*opaques(coef[9]))
     for f, row in zip(terms, coef[:9], strict=True):
-        out += mi.Color3f(*_opaque(row)) * f
+        out += mi.Color3f(*opaques(row)) * f
     return out
 
 
