@@ -26,8 +26,11 @@ SMALL: dict[str, dict] = {
     "prt": {"oof_directions": 64, "oof_shells": 6, "directions": 64},
     "onepass": {},
     "reference": {},
+    "probeless": {"variant": "REG4"},
+    "nearfield": {"directions": 64, "shadow_map_size": 32, "vals": 2},
 }
-"""Small options per method (the identities do not depend on the sizes)."""
+"""Small options per method (the identities do not depend on the sizes); nearfield also gets
+a light file (:func:`nearfield_light`)."""
 
 
 def rigid(angle_deg: float, shift) -> np.ndarray:
@@ -52,6 +55,32 @@ def demo():
     """The demo scene at 80×60 (the bunny is a mesh; a box, a sphere and a rectangle are
     real)."""
     return load_scene(DEMO_DIR / "scene.toml").resized(80, 60)
+
+
+@pytest.fixture(scope="module")
+def nearfield_light(tmp_path_factory) -> str:
+    """A NearFieldLight file for the demo: two VALs above the table (one of them close to the
+    bunny, so its shadow maps see the occluder) and the bunny's SH block."""
+    from arlight.nearfield.lightfile import save_light
+    from arlight.nearfield.state import NearFieldLight
+
+    sh = np.zeros((1, 9, 3))
+    sh[0, 0] = 0.4
+    sh[0, 1:4] = [[0.2, 0.1, 0.05], [0.1, 0.1, 0.1], [0.15, 0.05, 0.1]]  # not y-symmetric
+    light = NearFieldLight(np.array([[0.0, 0.6, 0.0], [0.25, 0.3, 0.1]]),
+                           np.array([[0.0, -1.0, 0.0], [-0.6, -0.8, 0.0]]),
+                           np.array([[3.0, 2.5, 2.0], [1.0, 1.0, 1.5]]),
+                           np.array([0.01, 0.004]), sh)
+    path = tmp_path_factory.mktemp("nearfield") / "vals.json"
+    save_light(light, path)
+    return str(path)
+
+
+def options_for(method: str, request) -> dict:
+    """:data:`SMALL`'s options of ``method`` (nearfield's with the light file)."""
+    if method == "nearfield":
+        return {**SMALL[method], "light": request.getfixturevalue("nearfield_light")}
+    return SMALL[method]
 
 
 def _equal(a, b) -> bool:
@@ -109,15 +138,17 @@ def test_place_refuses_what_is_not_a_pose(demo):
 
 
 @pytest.mark.parametrize("method", ["dir", "dlpv", "dvct", "ibl", "prt", "onepass",
-                                    "reference"])
-def test_incremental_pose_equals_a_fresh_preparation(demo, method):
+                                    "reference", "probeless", "nearfield"])
+def test_incremental_pose_equals_a_fresh_preparation(demo, method, request):
     """For each of two rigid moves of the virtual bunny, the frame rendered from the one
     prepared state equals bitwise the frame of ``prepare(world.posed(T))``; afterwards the
     rest pose renders bitwise as before the moves. Rejects a pose that forgets to move the
     Mitsuba shape, a cache of the object (occlusion field, transfer, voxels) or the bounds,
-    and a state left in the last pose when the view moves nothing."""
+    and a state left in the last pose when the view moves nothing (nearfield: the virtual
+    occluder scene, the rotation of the PRT transfer, the bounding sphere of the shadow maps
+    and the cached maps; probeless: the views)."""
     m = get_method(method)
-    s = RenderSettings(spp=1, options=SMALL[method])
+    s = RenderSettings(spp=1, options=options_for(method, request))
     state = m.prepare(demo.world, s)
     rest = m.render(state, demo.view, s)
     for transforms in POSES:

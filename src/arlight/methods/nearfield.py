@@ -30,7 +30,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
-from arlight.methods.base import BaseMethod, Layers, Prepared, RenderSettings
+from arlight.methods.base import BaseMethod, Layers, Prepared, RenderSettings, place_views
 from arlight.methods.fragments import GBUFFER_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.nearfield.shading import (
@@ -160,12 +160,33 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
                        directions=options.directions, bounces=0, shadowed=True)
         pdata = PerObjectSH(views=views, objects=d.objects, face_offset=d.face_offset,
                             faces=d.faces, sog=None, env=None, sh=np.zeros((len(names), 9, 3)))
-        b = occluder.bbox()
-        lo, hi = np.array([b.min.x, b.min.y, b.min.z]), np.array([b.max.x, b.max.y, b.max.z])
-        sphere = ((lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0)
+        sphere = _bounding_sphere(occluder)
     return NearFieldData(world, views, proxy, occluder, pdata,
                          material_table(world, list(options.metal_k)), sphere, light, names,
                          stats, server)
+
+
+def _bounding_sphere(occluder: mi.Scene) -> tuple[np.ndarray, float]:
+    """Centre (m) and radius (m) of the sphere around the occluder's bounding box."""
+    b = occluder.bbox()
+    lo, hi = np.array([b.min.x, b.min.y, b.min.z]), np.array([b.max.x, b.max.y, b.max.z])
+    return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0
+
+
+def _server_light(server, world: World, light: NearFieldLight) -> NearFieldLight:
+    """``light`` with its SH probes re-traced at ``world``'s virtual objects where
+    ``server`` (a NearFieldServer, or None) made it; otherwise ``light`` itself."""
+    from arlight.nearfield.indirect import IndirectProbes
+    from arlight.nearfield.pipeline import virtual_objects
+
+    if server is None or server.last is None:
+        return light
+    probes = IndirectProbes(server.mesh.vertices, server.mesh.faces, server.layout,
+                            virtual_objects(world), server.settings.cube_resolution)
+    v = server.last.vals
+    sh = probes.coefficients(server.last.indirect_atlas, np.zeros_like(light.sh),
+                             (v.positions, v.normals, v.intensity, v.area))
+    return replace(light, sh=sh)
 
 
 def _check_light(data: NearFieldData) -> None:
@@ -246,23 +267,40 @@ class NearFieldMethod(BaseMethod):
                       ) -> NearFieldData:
         return prepare(world, options)
 
-    def pose(self, state: Prepared, transforms, settings: RenderSettings) -> NearFieldData:
-        """The posed geometry with the same VALs; where this state's own server made the
-        light, the SH probes are re-traced at the moved objects (as a server does when
-        it is told the new poses); a given light is kept as it is."""
-        from arlight.nearfield.indirect import IndirectProbes
-        from arlight.nearfield.pipeline import virtual_objects
+    incremental_pose = True
 
-        world = state.world.posed(transforms)
-        light, srv = state.data.light, state.data.server
-        if srv is not None and srv.last is not None:
-            probes = IndirectProbes(srv.mesh.vertices, srv.mesh.faces, srv.layout,
-                                    virtual_objects(world), srv.settings.cube_resolution)
-            v = srv.last.vals
-            sh = probes.coefficients(srv.last.indirect_atlas, np.zeros_like(light.sh),
-                                     (v.positions, v.normals, v.intensity, v.area))
-            light = replace(light, sh=sh)
-        return prepare(world, state.options, light, srv)
+    def move(self, data: NearFieldData, world: World, transforms: dict[str, np.ndarray],
+             options: Options) -> NearFieldData | None:
+        """``data`` (prepared for ``world`` in any pose) moved in place to
+        ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views and in
+        the virtual occluder scene, each object keeps its object-space PRT transfer and takes
+        its new rotation, the bounding sphere is measured again and the shadow maps dropped
+        (they see the occluder); the proxy, the material table and the VALs are kept. Where
+        this state's own server made the light, the SH probes are re-traced at the moved
+        objects (as a server does when it is told the new poses); a given light is kept as
+        it is. Bitwise the data :func:`prepare` makes of the posed world with that light;
+        None when a real shape moves (the proxy and the light would change) or a virtual
+        primitive does (its object mesh is read back from the loaded mesh)."""
+        from arlight.realtime.oof import move_virtual_scene
+        from arlight.realtime.prt_transfer import rotation_part
+
+        if data.prt is not None and any(world.shapes[o.shape].mesh is None
+                                        for o in data.prt.objects):
+            return None
+        before = replace(world, shapes=list(data.views.shapes))  # where views and occluder are
+        posed = place_views(data.views, world, transforms)
+        if posed is None:
+            return None
+        sphere, prt = data.sphere, data.prt
+        if data.occluder is not None:
+            move_virtual_scene(data.occluder, before, posed)
+            sphere = _bounding_sphere(data.occluder)
+        if prt is not None:
+            prt = PerObjectSH(**{**vars(prt), "objects": [
+                replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
+                for o in prt.objects]})
+        return replace(data, world=posed, prt=prt, sphere=sphere,
+                       light=_server_light(data.server, posed, data.light), map_cache={})
 
     def render_view(self, data: NearFieldData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
@@ -273,8 +311,11 @@ class NearFieldMethod(BaseMethod):
 
 
 def with_light(state: Prepared, light: NearFieldLight) -> Prepared:
-    """A prepared state that renders with ``light`` (the original is not modified)."""
-    return replace(state, data=replace(state.data, light=light))
+    """A prepared state that renders with ``light`` (the original is not modified; both
+    share the Mitsuba scenes, which follow the pose of the last frame rendered from
+    either): the rest data and the last posed data both take ``light``."""
+    last = None if state.last is None else replace(state.last, light=light)
+    return replace(state, data=replace(state.data, light=light), last=last)
 
 
 __all__ = ["OPTIONS", "SPEC", "NearFieldData", "NearFieldMethod", "prepare",

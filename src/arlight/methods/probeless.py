@@ -30,7 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews, build_views
-from arlight.methods.base import BaseMethod, Layers, RenderSettings, require_frame
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    RenderSettings,
+    place_views,
+    require_frame,
+)
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.probeless.estimate import DEFAULT_RIDGE
 from arlight.probeless.pipeline import VARIANTS, Pipeline, Settings
@@ -74,6 +80,19 @@ class ProbelessMethod(BaseMethod):
     def prepare_world(self, world: World, options: Options, settings: RenderSettings
                       ) -> ProbelessData:
         return ProbelessData(world, build_views(world))
+
+    incremental_pose = True
+
+    def move(self, data: ProbelessData, world: World, transforms: dict[str, np.ndarray],
+             options: Options) -> ProbelessData | None:
+        """``data`` (prepared for ``world`` in any pose) moved in place to
+        ``world.posed(transforms)`` (issue #32): the shapes move in both Mitsuba views, real
+        ones too (:func:`~arlight.methods.base.place_views`); nothing else is prepared — the
+        transfer (E3) is traced from the views every frame. Bitwise the data
+        :meth:`prepare_world` makes of the posed world; None (prepare again) when the views hold
+        another world."""
+        posed = place_views(data.views, world, transforms, real_moves=True)
+        return None if posed is None else ProbelessData(posed, data.views)
 
     def render_view(self, data: ProbelessData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -159,12 +159,19 @@ def move_occluder(occluder: Occluder | None, before: World, after: World
         return (True, occluder.posed(frame)) if frame is not None else (False, None)
     if frame is not None:
         return False, None
+    move_virtual_scene(occluder, before, after)
+    return True, occluder
+
+
+def move_virtual_scene(scene: mi.Scene, before: World, after: World) -> None:
+    """Move the shapes of a :func:`virtual_scene` of ``before`` in place to where they are
+    in ``after`` (the same world posed otherwise): bitwise where ``virtual_scene(after)``
+    loads them; one acceleration-structure rebuild, none when nothing moved."""
     moved = {str(i): geometry_params(describe_geometry(b)) for i, (a, b) in
              enumerate(zip(before.shapes, after.shapes, strict=True))
              if b.is_virtual and not np.array_equal(a.to_world, b.to_world)}
     if moved:
-        SceneView(occluder, mi.Int32(0), mi.Int32(0)).set_geometry(moved)
-    return True, occluder
+        SceneView(scene, mi.Int32(0), mi.Int32(0)).set_geometry(moved)
 
 
 def occlusion_rays(scene: mi.Scene, origins: np.ndarray, dirs: np.ndarray,
@@ -672,6 +679,7 @@ def render_layers(data: RelitState, view: FrameView, options: GBufferOptions, se
 __all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "Occluder", "PosedOccluder",
            "RAY_CHUNK", "RelitState", "ShadeVirtual", "build_field", "cosine_transfer",
            "field_for_world", "field_from_options", "make_occluder", "move_occluder",
+           "move_virtual_scene",
            "object_frame", "occlusion_rays", "octahedral_index", "octahedral_normals",
            "pose_field", "render_layers", "shade_real", "shadow_factor", "shell_samples",
            "similarity", "virtual_scene"]
