@@ -11,6 +11,7 @@
     arlight insert PHOTO ...           insert a virtual object into a photo with a marker
     arlight studio SCENE               live AR composite in the browser (drag, switch methods)
     arlight sequence SCENE ...         render an AR video (resumable, optionally on Ray)
+    arlight live --example             live AR from a camera or video, shown in the studio
 
 Errors in the input print one line naming the file and field and exit with status 2.
 """
@@ -33,6 +34,7 @@ from arlight.importers.cli import import_mitsuba_command
 from arlight.insert.cli import insert_command
 from arlight.light import cli as light_cli
 from arlight.lightserver.cli import client_command, serve_light_command
+from arlight.live.cli import live_command
 from arlight.nearfield.cli import atlas as atlas_command
 from arlight.probeless.cli import probeless as probeless_command
 from arlight.sequence.cli import sequence_command
@@ -290,6 +292,7 @@ app.command("serve-light")(serve_light_command)
 app.command("client")(client_command)
 app.command("studio")(studio_command)
 app.command("sequence")(sequence_command)
+app.command("live")(live_command)
 
 
 def _usage_error_types() -> tuple[type[BaseException], ...]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,9 +27,12 @@ from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.camera import Camera
 from arlight.scene.model import ARScene
-from arlight.sequence.frames import FrameSource
+from arlight.sequence.frames import FrameSource, InputFrame
 from arlight.sequence.job import SequenceJob
 from arlight.sequence.poses import camera_poses, object_transforms
+
+if TYPE_CHECKING:
+    from arlight.insert.registration import Calibration, MarkerSpec
 
 
 def fit_camera(camera: Camera, size: tuple[int, int], where: str) -> Camera:
@@ -44,29 +48,48 @@ def fit_camera(camera: Camera, size: tuple[int, int], where: str) -> Camera:
     return camera.resized(w, h)
 
 
+def marker_codes(frame: InputFrame, camera: Camera) -> np.ndarray:
+    """The 8-bit code values the marker is detected in: the frame's own codes (16-bit ones
+    shifted down), or an HDR frame's radiance through the camera's transfer function."""
+    if frame.codes is not None:
+        return frame.codes if frame.codes.dtype == np.uint8 else \
+            (frame.codes >> 8).astype(np.uint8)
+    assert frame.radiance is not None
+    return camera.transfer.to_display(frame.radiance)
+
+
+def marker_pose(frame: InputFrame, calib: Calibration, spec: MarkerSpec, camera: Camera,
+                where: str) -> np.ndarray:
+    """``world_from_camera`` (4×4, OpenCV axes, m) of one frame registered on the marker
+    (:func:`arlight.insert.registration.register`, distortion included); InputError naming
+    ``where`` when the marker is not found. The one per-frame tracking step of ``sequence
+    --poses marker`` and ``arlight live``."""
+    from arlight.insert.registration import register
+
+    return register(marker_codes(frame, camera), calib, spec, where).world_from_camera
+
+
+def calibrated_camera(camera: Camera, calib: Calibration, size: tuple[int, int]) -> Camera:
+    """The scene camera with the calibration's intrinsics at ``size`` (w, h) px (OpenCV's
+    integer pixel centres shifted by +0.5 to arlight's), its lens and transfer kept."""
+    K = calib.K
+    return replace(camera, width=size[0], height=size[1], fx=float(K[0, 0]),
+                   fy=float(K[1, 1]), cx=float(K[0, 2]) + 0.5, cy=float(K[1, 2]) + 0.5)
+
+
 def marker_poses(source: FrameSource, calib_path: str | Path, marker: str,
                  camera: Camera) -> tuple[Camera, list[np.ndarray], object]:
     """Camera (calibrated intrinsics, the scene camera's transfer) and per-frame poses
     registered on the marker; InputError naming the first frame where it is not found."""
-    from arlight.insert.registration import load_calibration, parse_marker, register
+    from arlight.insert.registration import load_calibration, parse_marker
 
     calib = load_calibration(calib_path)
     spec = parse_marker(marker)
     w, h = source.size
     calib.check_size(w, h, str(source.path))
-    poses = []
-    for fr in source:
-        if fr.codes is not None:
-            codes = fr.codes if fr.codes.dtype == np.uint8 else (fr.codes >> 8).astype(np.uint8)
-        else:
-            assert fr.radiance is not None
-            codes = camera.transfer.to_display(fr.radiance)
-        poses.append(register(codes, calib, spec, f"{source.path} frame {fr.index} "
-                              f"({fr.name})").world_from_camera)
-    K = calib.K
-    cam = replace(camera, width=w, height=h, fx=float(K[0, 0]), fy=float(K[1, 1]),
-                  cx=float(K[0, 2]) + 0.5, cy=float(K[1, 2]) + 0.5)
-    return cam, poses, calib
+    poses = [marker_pose(fr, calib, spec, camera, f"{source.path} frame {fr.index} "
+                         f"({fr.name})") for fr in source]
+    return calibrated_camera(camera, calib, (w, h)), poses, calib
 
 
 def sequence_inputs(raw: dict, scene: str | Path, source: FrameSource,
@@ -153,4 +176,5 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
                        frames_fingerprint=source.fingerprint, split=split)
 
 
-__all__ = ["build_job", "fit_camera", "marker_poses", "sequence_inputs"]
+__all__ = ["build_job", "calibrated_camera", "fit_camera", "marker_codes", "marker_pose",
+           "marker_poses", "sequence_inputs"]

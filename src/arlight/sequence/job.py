@@ -139,11 +139,17 @@ class SequenceJob:
         q, r = divmod(self.settings.spp, self.split)
         return q + (1 if part < r else 0)
 
-    def view(self, frame: InputFrame, depth: np.ndarray | None = None) -> FrameView:
+    def view(self, frame: InputFrame, depth: np.ndarray | None = None,
+             pose: np.ndarray | None = None,
+             objects: dict[str, np.ndarray] | None = None) -> FrameView:
         """The view of ``frame``: its pose, object transforms, background (linear radiance,
-        undistorted with :attr:`calibration`), optional depth and timestamp ``i / fps``."""
+        undistorted with :attr:`calibration`), optional depth and timestamp ``i / fps``.
+        ``pose`` / ``objects``: this frame's camera pose and object transforms when they are
+        not in :attr:`poses` / :attr:`objects` (``arlight live`` tracks them per frame)."""
         i = frame.index
-        cam = replace(self.camera, world_from_camera=np.asarray(self.poses[i], np.float64))
+        pose = self.poses[i] if pose is None else pose
+        objects = self.objects[i] if objects is None else objects
+        cam = replace(self.camera, world_from_camera=np.asarray(pose, np.float64))
         codes = frame.codes
         if codes is not None:
             if self.calibration is not None:
@@ -159,7 +165,7 @@ class SequenceJob:
 
                 radiance = undistort(radiance, self.calibration)
         return FrameView(camera=cam, frame=np.asarray(radiance, np.float32), frame_codes=codes,
-                         depth=depth, object_transforms=dict(self.objects[i]),
+                         depth=depth, object_transforms=dict(objects),
                          timestamp=i / self.fps if self.fps > 0 else None)
 
 
@@ -244,15 +250,18 @@ def _test_hook(job: SequenceJob, index: int) -> None:
 
 
 def render_frame(job: SequenceJob, frame: InputFrame, depth: np.ndarray | None = None,
-                 part: int = 0) -> FrameResult:
+                 part: int = 0, pose: np.ndarray | None = None,
+                 objects: dict[str, np.ndarray] | None = None) -> FrameResult:
     """Render frame ``frame.index`` of ``job`` (the method prepared once per process); with
-    ``job.split > 1`` only part ``part`` of it (its layers always hold the composite)."""
+    ``job.split > 1`` only part ``part`` of it (its layers always hold the composite).
+    ``pose`` / ``objects``: see :meth:`SequenceJob.view` — ``arlight live`` renders every
+    frame through this function with the pose it tracked."""
     import socket
 
     _test_hook(job, frame.index)
     t0 = time.perf_counter()
     method, state, prep = prepared(job)
-    view = job.view(frame, depth)
+    view = job.view(frame, depth, pose, objects)
     layers = method.render(state, view, job.frame_settings(frame.index, part))
     cam = view.camera
     # the bit depth of the input frame (as arlight.layer_files.display_dtype)

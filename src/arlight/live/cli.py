@@ -1,0 +1,231 @@
+"""``arlight live``: live AR from a camera or a video, shown in the studio page."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from arlight.bounds import MAX_SEED, MAX_SPP
+from arlight.errors import InputError
+
+DATA = Path(__file__).resolve().parent.parent / "data" / "live"
+EXAMPLE = {"scene": DATA / "scene.toml", "video": DATA / "marker_orbit.mp4",
+           "calib": DATA / "calibration.json",
+           "marker": "charuco:5x7:0.04:0.03:DICT_4X4_50"}
+"""The bundled example (``--example``): a synthetic moving-camera video of a ChArUco board
+(:mod:`arlight.live.marker_video`), its calibration, and a scene with a virtual bunny."""
+
+
+def live_command(
+    scene: Annotated[Path | None, typer.Argument(
+        help="AR scene file whose world frame is the marker's (+Y up out of the board, m), "
+             "as `arlight insert` writes; its render table gives defaults. Omit with "
+             "--example")] = None,
+    video: Annotated[Path | None, typer.Option(
+        "--video", help="play a video file (or a folder of images) at its own frame rate "
+                        "(frames arriving while one renders are dropped, never queued)")] = None,
+    camera: Annotated[int | None, typer.Option(
+        "--camera", help="OpenCV VideoCapture index of a camera (0: the first)", min=0,
+        max=255)] = None,
+    calib: Annotated[Path | None, typer.Option(
+        "--calib", help="camera calibration (OpenCV YAML/XML or JSON K/dist/size) at the "
+                        "frames' resolution")] = None,
+    marker: Annotated[str | None, typer.Option(
+        "--marker", help="printed target tracked per frame: "
+                         "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT or "
+                         "aruco:SIDE_M:DICT[:ID] (sizes in metres)")] = None,
+    example: Annotated[bool, typer.Option(
+        "--example", help="the bundled example: its scene, video, calibration and marker "
+                          "(each replaceable by its own option)")] = False,
+    method: Annotated[str | None, typer.Option(
+        "--method", "-m", help="registered interactive method (default: the scene's render "
+                               "table, else dir)")] = None,
+    light: Annotated[Path | None, typer.Option(
+        "--light", help="light estimate JSON (`arlight light estimate`) replacing the "
+                        "scene's lights")] = None,
+    spp: Annotated[int | None, typer.Option("--spp", help="samples per pixel", min=1,
+                                            max=MAX_SPP)] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="seed of every frame", min=0,
+                                             max=MAX_SEED)] = None,
+    option: Annotated[list[str] | None, typer.Option(
+        "--option", help="method option key=value (repeatable)")] = None,
+    fps: Annotated[float | None, typer.Option(
+        "--fps", help="play the video at this many frames per second (default: its own, "
+                      "else 30)", min=0.1, max=1000)] = None,
+    unpaced: Annotated[bool, typer.Option(
+        "--unpaced", help="take every video frame as fast as it renders (no wall clock, no "
+                          "drops; deterministic)")] = False,
+    loops: Annotated[int, typer.Option(
+        "--loop", help="play the video this many times (0: until Ctrl-C)", min=0,
+        max=1_000_000)] = 1,
+    max_frames: Annotated[int | None, typer.Option(
+        "--max-frames", help="stop after this many composited frames", min=1,
+        max=100_000_000)] = None,
+    studio: Annotated[bool, typer.Option(
+        "--studio/--no-studio", help="show the frames in the studio page (printed URL with "
+                                     "its token)")] = True,
+    host: Annotated[str, typer.Option("--host", help="studio address to bind")] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", help="studio port (0: any free port)", min=0,
+                                      max=65535)] = 8000,
+    token: Annotated[str | None, typer.Option(
+        "--token", help="the studio page's access token (default: $ARLIGHT_STUDIO_TOKEN, "
+                        "else random)")] = None,
+    record: Annotated[Path | None, typer.Option(
+        "--record", help="keep the composites: a video (.mp4/.webm, at the composited "
+                         "rate) or a folder of PNG frames; never an input or a user's "
+                         "file")] = None,
+    log: Annotated[Path | None, typer.Option(
+        "--log", help="JSON lines, one per composited frame: capture and show times, "
+                      "latency and stage times (ms), frames dropped before it, pose")] = None,
+    threads: Annotated[int | None, typer.Option(
+        "--threads", help="Dr.Jit threads (default: all cores)", min=1, max=1024)] = None,
+) -> None:
+    """Live AR: track a printed marker in every frame of a camera or a video, render the
+    virtual objects with an interactive method and show the composites in the studio page.
+
+    Units: sizes in metres, --fps in frames per second, times in the log in milliseconds
+    (latency: from the frame's capture — its arrival time when a video is played — to the
+    composite handed to the page and the recorder). At the end it prints frames composited,
+    frames per second, frames dropped, and the latency p50/p95.
+    """
+    from arlight.errors import InputError
+    from arlight.live.loop import LiveCompositor, MarkerTracker, run_live
+    from arlight.live.setup import live_job, with_light_estimate
+    from arlight.live.sources import CameraSource, VideoSource, WallClock, paced, unpaced
+    from arlight.methods import RenderSettings
+    from arlight.methods.spec import parse_option_pairs
+    from arlight.scene.load import load_scene, render_settings_for
+
+    if example:
+        scene = scene or EXAMPLE["scene"]
+        if camera is None:
+            video = video or EXAMPLE["video"]
+        calib = calib or EXAMPLE["calib"]
+        marker = marker or str(EXAMPLE["marker"])
+    if scene is None:
+        raise InputError("give a scene file (or --example)", field="SCENE")
+    if (video is None) == (camera is None):
+        raise InputError("give exactly one of --video FILE and --camera INDEX",
+                         field="--video")
+    if calib is None:
+        raise InputError("the marker's pose needs the camera's calibration", field="--calib")
+    if marker is None:
+        raise InputError("give the printed target to track", field="--marker")
+    if unpaced and camera is not None:
+        raise InputError("a camera cannot be unpaced (it delivers at its own rate)",
+                         field="--unpaced")
+    given = render_settings_for(scene, method, spp, None, seed,
+                                parse_option_pairs(option or []))
+    name = method or (given["method"] if given["method"] != "reference" else "dir")
+    settings = RenderSettings(spp=given["spp"], seed=given["seed"],
+                              max_depth=given["max_depth"], options=given["options"])
+    sc = load_scene(scene)
+    if light is not None:
+        sc = with_light_estimate(sc, light)
+    inputs = [Path(scene), Path(calib), *([Path(video)] if video is not None else []),
+              *([Path(light)] if light is not None else [])]
+    if record is not None:
+        from arlight.live.record import check_record
+        from arlight.sequence.build import sequence_inputs
+
+        found = [*inputs, *(p for p in sequence_inputs(sc.raw, scene, _NoFrames())
+                            if p != _NoFrames.path)]
+        check_record(record, found)
+    if log is not None:
+        from arlight.output_guard import check_outputs
+
+        check_outputs({"--log": log}, inputs, overwrite=False)
+    if video is not None:
+        src = VideoSource(video, loops=loops, fps=fps)
+    else:
+        assert camera is not None
+        src = CameraSource(camera, size=(sc.camera.width, sc.camera.height))
+    fps_in = src.fps if fps is None else float(fps)
+    job, calibration, spec = live_job(sc, src.size, name, settings, calib, marker, fps_in,
+                                      threads, src.name)
+    clock = WallClock()
+    comp = LiveCompositor(job, MarkerTracker(calibration, spec, job.camera), clock)
+    typer.echo(f"live: preparing {name} for {Path(scene).name} at {src.size[0]}×"
+               f"{src.size[1]} ...")
+    prep = comp.prepare()
+    sinks = []
+    feed = server = recorder = None
+    if studio:
+        from arlight.live.studio import LiveFeed
+        from arlight.methods import get_method
+
+        feed = LiveFeed(f"live: {src.name}", name, get_method(name).spec.description,
+                        src.size)
+        server = _serve(feed, host, port, token)
+        typer.echo(f"arlight live: {server.url}  (Ctrl-C stops)")
+        sinks.append(feed)
+    if record is not None:
+        from arlight.live.record import Recorder
+
+        recorder = Recorder(record)
+        sinks.append(recorder)
+    if video is not None:
+        assert isinstance(src, VideoSource)
+        caps = unpaced(src.frames(), clock) if unpaced else paced(src.frames(), fps_in, clock)
+    else:
+        assert isinstance(src, CameraSource)
+        caps = src.captures(clock)
+    fh = open(log, "w", encoding="utf-8") if log is not None else None  # noqa: SIM115
+    ok = False
+    summary = None
+    try:
+        summary = run_live(caps, comp, sinks, clock, fh, max_frames)
+        summary.prepare_seconds = prep
+        ok = True
+    finally:
+        if fh is not None:
+            fh.close()
+            if ok:
+                from arlight.output_guard import record_written
+
+                record_written([log])
+        out = None
+        if recorder is not None:
+            out = recorder.close(summary.fps if summary is not None and not unpaced
+                                 else fps_in, ok)
+        if server is not None:
+            server.__exit__(None, None, None)
+    assert summary is not None
+    d = summary.as_dict()
+    typer.echo(f"{name}: {d['frames']} frames composited in {d['seconds']:.1f} s, "
+               f"{d['frames_per_second']:.2f} frames/s, {d['dropped']} dropped, "
+               f"{d['lost']} without the marker; latency p50 {d['latency_ms_p50']:.0f} ms, "
+               f"p95 {d['latency_ms_p95']:.0f} ms (prepare {prep:.1f} s)")
+    typer.echo("stages (median ms): " + json.dumps(
+        {k: round(v, 1) for k, v in d["stage_ms_median"].items()}))
+    if out is not None:
+        typer.echo(f"recorded: {out}")
+
+
+class _NoFrames:
+    """A stand-in frame source for :func:`arlight.sequence.build.sequence_inputs` (the
+    scene's referenced files only)."""
+
+    path = Path("")
+    files: list[Path] = []
+
+
+def _serve(feed, host: str, port: int, token: str | None):
+    """The studio server on ``host:port`` in a background thread, serving ``feed``."""
+    import errno
+
+    from arlight.studio.server import BackgroundServer, resolve_token
+
+    srv = BackgroundServer(feed, host=host, port=port, token=resolve_token(token))
+    try:
+        return srv.__enter__()
+    except OSError as exc:
+        raise InputError(f"cannot serve on {host}:{port}: {exc.strerror or exc}",
+                         field="--port" if exc.errno == errno.EADDRINUSE
+                         else "--host") from exc
+
+
+__all__ = ["EXAMPLE", "live_command"]
