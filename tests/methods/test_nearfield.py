@@ -83,13 +83,16 @@ def test_no_virtual_object_gives_the_frame_bitwise(tmp_path):
     assert np.array_equal(client.render(sc.view, _light(0)).composite, sc.view.frame)
 
 
-def test_render_is_deterministic_and_only_darkens_real_pixels():
+def test_render_is_deterministic_and_casts_a_shadow():
+    """Same light, same frame; the cube darkens some real pixels. (``delta <= 0`` is not
+    asserted: ``delta = −V(1 − V̂)L_VAL`` is non-positive by construction, so the assert
+    could not fail; the size of the loss is checked analytically by the Eq. 14 test.)"""
     sc = scene(room(virtual=[vbox(at=(0.0, 0.3, 0.3))]))
     client = NearFieldClient(sc.world, {"shadows": "rays"})
     a = client.render(sc.view, _light(1, 0.5))
     b = client.render(sc.view, _light(1, 0.5))
     assert np.array_equal(a.composite, b.composite)
-    assert np.all(a.delta <= 0) and np.any(a.delta < 0) and a.mask.sum() > 10
+    assert np.any(a.delta < 0) and a.mask.sum() > 10
     none = client.render(sc.view, empty_light(1))
     assert np.all(none.delta == 0)
     # Eq. 8: constant radiance L = 1 (C_0 = 2 sqrt(pi)) on a convex object gives rho
