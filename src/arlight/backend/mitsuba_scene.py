@@ -717,6 +717,14 @@ def load_view(view: Node, roles: dict[str, int]) -> SceneView:
              if is_shape_node(node) and f"{name}.to_world" in params}
     if moved:
         out.set_geometry(moved)
+    # emitters' to_world likewise (spot, directional, envmap): a light updated in place
+    # (methods.base.relight_views) is then bitwise one loaded there
+    turned = [f"{name}.to_world" for name, node in objects.items()
+              if not is_shape_node(node) and f"{name}.to_world" in params]
+    for key in turned:
+        params[key] = transform_parameter(params[key])
+    if turned:
+        params.update()
     ids, idx, role = [], [], []
     for sh in scene.shapes():
         reg = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(sh))[0])

@@ -19,7 +19,7 @@ from __future__ import annotations
 import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
@@ -32,7 +32,7 @@ from arlight.errors import InputError
 from arlight.layers import Layers
 from arlight.methods.spec import MethodSpec, Options
 from arlight.scene.load import RENDER_DEFAULTS
-from arlight.scene.model import ARScene, FrameView, World
+from arlight.scene.model import ARScene, FrameView, Light, World
 from arlight.timing import StageTimer
 
 if TYPE_CHECKING:
@@ -116,7 +116,8 @@ class Prepared:
         method: name of the method that prepared it (render checks it).
         world: the world it was prepared for (rest pose).
         options: the validated options it was prepared with.
-        data: what the method's ``prepare_world`` returned.
+        data: what the method's ``prepare_world`` returned (after :meth:`BaseMethod.relight`
+            of a state with ``incremental_pose``: the relit data of the last pose).
         seconds: wall time of the preparation (``time_prepare``), seconds.
     """
 
@@ -190,6 +191,48 @@ class BaseMethod(ABC):
         moved): the hook of ``incremental_pose`` methods."""
         raise NotImplementedError(f"{self.spec.name} sets incremental_pose without move()")
 
+    def relight(self, state: Prepared, lights: Sequence[Light],
+                settings: RenderSettings | None = None) -> None:
+        """Give the prepared ``state`` new real lights in place (issue #32: a new light
+        estimate, a moved lamp): the method's :meth:`relit` recomputes only what depends on
+        the light (reduced lights, RSMs, light SH, the mip-mapped environment, the Mitsuba
+        views' emitters) and keeps the rest (the views' shapes, proxy voxels, occlusion
+        fields, PRT transfer); where it cannot, the world with the new lights is prepared
+        from scratch. Later renders are bitwise those of ``prepare(replace(state.world,
+        lights=lights))`` in any pose. Thread-safe with :meth:`render` (the state's lock).
+
+        Args:
+            state: what :meth:`prepare` returned (modified in place: ``world``, ``data``,
+                ``last``).
+            lights: the new lights (:class:`~arlight.scene.model.Light`, e.g. from a scene
+                file's ``[[lights]]`` or ``LightEstimate.to_scene_lights`` loaded as a
+                scene); the same lights again do nothing.
+            settings: those of the preparation, for a method that prepares again.
+        """
+        lights = list(lights)
+        with state.lock:
+            if same_lights(state.world.lights, lights):
+                return
+            world = replace(state.world, lights=lights)
+            transforms = state.last_transforms or {}
+            current = state.last if state.last is not None else state.data
+            posed = world.posed(transforms)
+            data = self.relit(current, posed, state.options)
+            if data is None:
+                data = self.prepare_world(posed, state.options, settings or RenderSettings())
+            state.world = world
+            state.data = data  # posed for an incremental method: its move goes anywhere
+            if state.last is not None:
+                state.last = data
+
+    def relit(self, data: Any, world: World, options: Options) -> Any | None:
+        """``data`` (prepared for a world with other lights, shapes posed as in ``world``)
+        with its light-dependent parts recomputed for ``world``'s lights — bitwise the data
+        ``prepare_world(world)`` makes — or None (the default) where the method prepares
+        again: the hook of :meth:`relight`. May update ``data``'s Mitsuba views in place
+        (:func:`relight_views`)."""
+        return None
+
     def aux_view(self, data: Any) -> Any:
         """The Mitsuba scene (a :class:`~arlight.backend.mitsuba_scene.SceneView` of the
         mixed world) the denoiser's albedo and normal buffers are traced in, or None (the
@@ -197,28 +240,34 @@ class BaseMethod(ABC):
         return None
 
     def denoise(self, layers: Layers, data: Any, view: FrameView,
-                denoise: DenoiseSettings, timer: StageTimer) -> Layers:
+                denoise: DenoiseSettings, timer: StageTimer,
+                transforms: dict[str, np.ndarray] | None = None) -> Layers:
         """The frame's layers denoised (``denoise = oidn``, methods with Monte Carlo noise;
         :func:`arlight.denoise.differential.denoise_layers`): stages ``denoise_aux`` (the
-        auxiliary buffers of the denoised window) and ``denoise``; the raw layers stay in
-        the result's ``noisy``."""
+        auxiliary buffers of the denoised window; reused from an earlier frame of the same
+        scene view, camera and ``transforms`` through
+        :data:`arlight.denoise.aux.AUX_CACHE`, stat ``denoise_aux_cached``) and ``denoise``;
+        the raw layers stay in the result's ``noisy``."""
         from arlight.denoise.differential import denoise_layers
 
         scene_view = self.aux_view(data) if denoise.aux else None
-        aux, aux_seconds = None, [0.0]
+        aux, aux_seconds, cached = None, [0.0], [0.0]
         if scene_view is not None:
-            from arlight.denoise.aux import aux_buffers
+            from arlight.denoise.aux import AUX_CACHE
 
             def aux(rows, cols):
                 t0 = time.perf_counter()
-                buffers = aux_buffers(scene_view, view.camera, denoise.aux_spp, rows, cols)
+                buffers, hit = AUX_CACHE.get(scene_view, view.camera, denoise.aux_spp,
+                                             transforms, rows, cols)
                 aux_seconds[0] += time.perf_counter() - t0
+                cached[0] = float(hit)
                 return buffers
         with timer.stage("denoise"):  # stages do not nest: the buffers' time is moved out
             out = denoise_layers(layers, denoise, aux)
         if aux_seconds[0]:
             timer.seconds["denoise"] -= aux_seconds[0]
             timer.add("denoise_aux", aux_seconds[0])
+            out.stats["denoise_aux_cached"] = cached[0]
         return out
 
     # --------------------------------------------------------------- protocol
@@ -276,7 +325,7 @@ class BaseMethod(ABC):
                       settings: RenderSettings, timer: StageTimer) -> Layers:
         """Pose the state for ``view`` (stage ``pose``, recorded when the frame moves an
         object or returns the state to its rest pose), render and denoise it."""
-        data = state.data
+        data, transforms = state.data, view.object_transforms
         if view.object_transforms or self.incremental_pose:
             moves = bool(view.object_transforms or state.last_transforms)
             t0 = time.perf_counter()
@@ -287,7 +336,7 @@ class BaseMethod(ABC):
         layers = self.render_view(data, view, opts, settings, timer)
         denoise = DenoiseSettings.from_options(opts)
         if denoise is not None:
-            layers = self.denoise(layers, data, view, denoise, timer)
+            layers = self.denoise(layers, data, view, denoise, timer, transforms)
         return layers
 
     def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
@@ -323,6 +372,64 @@ def place_views(views: SceneViews, world: World, transforms: dict[str, np.ndarra
         return None
     views.place(posed.shapes)
     return posed
+
+
+def _same_value(a: Any, b: Any) -> bool:
+    """Recursive equality of light parameters (dicts, sequences, arrays, scalars)."""
+    if isinstance(a, dict) or isinstance(b, dict):
+        return (isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys()
+                and all(_same_value(a[k], b[k]) for k in a))
+    if isinstance(a, str) or isinstance(b, str) or a is None or b is None:
+        return a == b
+    return np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def same_lights(a: Sequence[Light], b: Sequence[Light]) -> bool:
+    """Whether two light lists are equal (type, name, parameters, radiance map)."""
+    return len(a) == len(b) and all(
+        x.type == y.type and x.name == y.name and _same_value(x.params, y.params)
+        and _same_value(x.radiance_map, y.radiance_map) for x, y in zip(a, b, strict=True))
+
+
+def relight_views(views: SceneViews, before: Sequence[Light], after: Sequence[Light]
+                  ) -> bool:
+    """Give the emitters of ``views`` (loaded with the lights ``before``) the lights
+    ``after`` in place, through the scenes' parameters (issue #32): each changed light is
+    loaded alone (:func:`~arlight.backend.mitsuba_scene.load_view`, as a full build loads
+    it) and its parameters (position, ``to_world``, intensity, radiance, environment data,
+    area-light geometry) copied into both views, whose acceleration structures then follow
+    an area lamp; what a tracer cached on the views (``_light_samplers``, ``_environment``)
+    is dropped. The views then trace
+    and sample bitwise what views built with ``after`` do. False, views untouched, when the
+    lights differ in number or type (the views must be built again)."""
+    import mitsuba as mi
+
+    from arlight.backend.mitsuba_scene import LIGHT_PREFIX, describe_light, load_view
+
+    if len(before) != len(after) or any(
+            a.type != b.type for a, b in zip(before, after, strict=True)):
+        return False
+    changed = {f"{LIGHT_PREFIX}{i}": describe_light(b) for i, (a, b) in
+               enumerate(zip(before, after, strict=True)) if not same_lights([a], [b])}
+    if not changed:
+        return True
+    fresh = mi.traverse(load_view({"objects": changed}, {}).scene)
+    keys = [k for k in fresh.keys() if k.split(".", 1)[0] in changed]
+    targets = []
+    for view in {id(v): v for v in (views.real, views.mixed)}.values():
+        params = view.__dict__.get("_params")
+        if params is None:  # as SceneView.set_geometry keeps it (references)
+            params = view.__dict__["_params"] = mi.traverse(view.scene)
+        if any(k not in params for k in keys):
+            return False
+        targets.append((view, params))
+    for view, params in targets:
+        for k in keys:
+            params[k] = fresh[k]
+        params.update()
+        for key in [k for k in view.__dict__ if k.startswith("_") and k != "_params"]:
+            del view.__dict__[key]  # caches made from the emitters (light samplers, env)
+    return True
 
 
 def _same_transforms(a: dict[str, np.ndarray] | None, b: dict[str, np.ndarray]) -> bool:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from arlight.methods.base import BaseMethod, RenderSettings, place_views
+from arlight.methods.base import BaseMethod, RenderSettings, place_views, relight_views
 from arlight.methods.spec import Field, Options
 from arlight.realtime.light_reduction import OPTIONS as REDUCTION_OPTIONS
 from arlight.realtime.oof import move_occluder
@@ -53,6 +53,16 @@ class PathScenesMethod(BaseMethod):
         pose."""
         posed = place_views(data.views, world, transforms, real_moves=True)
         return None if posed is None else PathScenes(posed, data.views)
+
+    def relit_in_place(self, data: PathScenes, world: World, options: Options
+                       ) -> PathScenes | None:
+        """The light update of a path tracer (issue #32; ``relit`` of ``onepass`` and
+        ``reference``): the emitters change in place in both Mitsuba views
+        (:func:`~arlight.methods.base.relight_views`), nothing else is prepared; None when
+        the lights differ in number or type. Not ``relit`` itself: ``dic``'s cache depends
+        on the light."""
+        ok = relight_views(data.views, data.world.lights, world.lights)
+        return PathScenes(world, data.views) if ok else None
 
 
 

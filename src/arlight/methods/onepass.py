@@ -172,6 +172,7 @@ class OnePassMethod(PathScenesMethod):
 
     incremental_pose = True
     move = PathScenesMethod.move_in_place
+    relit = PathScenesMethod.relit_in_place
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

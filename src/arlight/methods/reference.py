@@ -192,6 +192,7 @@ class ReferenceMethod(PathScenesMethod):
 
     incremental_pose = True
     move = PathScenesMethod.move_in_place
+    relit = PathScenesMethod.relit_in_place
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
