@@ -92,9 +92,10 @@ def live_command(
     frames per second, frames dropped, and the latency p50/p95.
     """
     from arlight.errors import InputError
+    from arlight.live import sources
     from arlight.live.loop import LiveCompositor, MarkerTracker, run_live
     from arlight.live.setup import live_job, with_light_estimate
-    from arlight.live.sources import CameraSource, VideoSource, WallClock, paced, unpaced
+    from arlight.live.sources import CameraSource, VideoSource, WallClock
     from arlight.methods import RenderSettings
     from arlight.methods.spec import parse_option_pairs
     from arlight.scene.load import load_scene, render_settings_for
@@ -169,7 +170,8 @@ def live_command(
         sinks.append(recorder)
     if video is not None:
         assert isinstance(src, VideoSource)
-        caps = unpaced(src.frames(), clock) if unpaced else paced(src.frames(), fps_in, clock)
+        caps = (sources.unpaced(src.frames(), clock) if unpaced
+                else sources.paced(src.frames(), fps_in, clock))
     else:
         assert isinstance(src, CameraSource)
         caps = src.captures(clock)

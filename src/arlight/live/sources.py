@@ -103,7 +103,10 @@ class VideoSource:
     (0: forever); frames are re-indexed by stream position."""
 
     def __init__(self, path: str | Path, loops: int = 1, fps: float | None = None) -> None:
-        self.source = FrameSource(path)  # InputError naming --frames for a bad file
+        try:
+            self.source = FrameSource(path)
+        except InputError as exc:  # named after live's option
+            raise InputError(exc.message, file=exc.file, field="--video") from exc
         self.loops = int(loops)
         self.fps = float(fps or self.source.fps or 30.0)
         self.size = self.source.size
@@ -164,11 +167,16 @@ class CameraSource:
                 self._slot = (cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), t)
                 self._cond.notify_all()
 
+    def start(self, clock: Clock) -> None:
+        """Start the reader thread (:meth:`captures` does when it has not been)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._read, args=(clock,),
+                                            name="arlight-live-camera", daemon=True)
+            self._thread.start()
+
     def captures(self, clock: Clock) -> Iterator[Captured]:
         """The newest frame each time the loop asks (blocking until one arrives)."""
-        self._thread = threading.Thread(target=self._read, args=(clock,),
-                                        name="arlight-live-camera", daemon=True)
-        self._thread.start()
+        self.start(clock)
         k = 0
         try:
             while True:
