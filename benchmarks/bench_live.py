@@ -1,0 +1,131 @@
+"""Benchmark: `arlight live` on the bundled moving-camera marker video (issue #32).
+
+The bundled example (``arlight live --example``: a 640×480, 30 frames/s synthetic video of a
+ChArUco board seen from an orbiting camera, a virtual bunny on it, :mod:`arlight.live.
+marker_video`) is played at its own rate against the wall clock — frames that arrive while
+one renders are dropped, as in a live run — for ``--loops`` passes, with each method (dlpv
+and dir by default) in a process of its own. Every frame is tracked on the board, rendered
+through ``sequence``'s per-frame function and handed to a studio feed with one open tab
+(the JPEG encode is part of "shown") — the CLI's code path without the web socket.
+``--warmup`` frames are rendered first, unpaced (kernels compiled, not counted).
+
+Reported per method: composited frames per second of wall time (target ≥ 10), frames
+dropped, the latency from a frame's arrival to its composite shown (p50, p95, ms), and the
+median time of every stage (track, render and the method's own stages, show); with the
+``uptime`` load and the CPU pressure of the shared machine at the end of the run.
+
+    .venv/bin/python benchmarks/bench_live.py [--methods dlpv,dir] [--loops 2] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from results import cpu_pressure, publish
+
+HEADING = "## arlight live (issue #32)"
+HERE = Path(__file__).resolve().parent
+METHODS = ["dlpv", "dir"]
+TARGET_FPS = 10.0
+
+
+def measure(method: str, loops: int, warmup: int) -> dict:
+    """One method: warm-up frames unpaced, then the video paced ``loops`` times."""
+    from arlight.live import sources
+    from arlight.live.cli import EXAMPLE
+    from arlight.live.loop import LiveCompositor, MarkerTracker, run_live
+    from arlight.live.setup import live_job
+    from arlight.live.studio import LiveFeed
+    from arlight.methods import RenderSettings
+    from arlight.scene.load import load_scene, render_settings_for
+
+    given = render_settings_for(EXAMPLE["scene"], method, None, None, None, {})
+    settings = RenderSettings(spp=given["spp"], seed=given["seed"],
+                              max_depth=given["max_depth"], options=given["options"])
+    sc = load_scene(EXAMPLE["scene"])
+    clock = sources.WallClock()
+    src = sources.VideoSource(EXAMPLE["video"], loops=loops)
+    job, calib, spec = live_job(sc, src.size, method, settings, EXAMPLE["calib"],
+                                str(EXAMPLE["marker"]), src.fps, None, src.name)
+    comp = LiveCompositor(job, MarkerTracker(calib, spec, job.camera), clock)
+    t0 = time.perf_counter()
+    prep = comp.prepare()
+    feed = LiveFeed("bench", method, "", src.size)
+    feed.open_session(lambda kind, payload: None)  # one tab: every frame encoded and posted
+    warm = sources.VideoSource(EXAMPLE["video"], loops=1)
+    run_live(sources.unpaced(warm.frames(), clock), comp, [feed], clock,
+             max_frames=warmup)
+    warm_s = time.perf_counter() - t0
+    s = run_live(sources.paced(src.frames(), src.fps, clock), comp, [feed], clock)
+    d = s.as_dict()
+    d.update(prepare_s=prep, warmup_s=warm_s, arrived=src.source.count * loops,
+             video_fps=src.fps)
+    return d
+
+
+def table(results: dict[str, dict], loops: int, load: str, psi: str) -> str:
+    any_r = next(iter(results.values()))
+    lines = [HEADING, "",
+             f"`benchmarks/bench_live.py --loops {loops}`: the bundled marker video "
+             f"(640×480, {any_r['video_fps']:.0f} frames/s, {any_r['arrived']} frames "
+             "arriving in real time) played live — track the board, render, encode for the "
+             "studio page — one process per method, after warm-up frames. Latency: a frame's "
+             "arrival to its composite encoded and posted to the page.", "",
+             "| method | composited frames/s | dropped | latency p50 (ms) | latency p95 (ms) "
+             "| track (ms) | render (ms) | show (ms) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, r in results.items():
+        st = r["stage_ms_median"]
+        lines.append(f"| {name} | {r['frames_per_second']:.1f} | {r['dropped']} of "
+                     f"{r['arrived']} | {r['latency_ms_p50']:.0f} | {r['latency_ms_p95']:.0f} "
+                     f"| {st.get('track', 0):.1f} | {st.get('render', 0):.0f} | "
+                     f"{st.get('show', 0):.1f} |")
+    lines += ["", "Median stage times inside render (ms):", ""]
+    for name, r in results.items():
+        inner = {k: round(v, 1) for k, v in r["stage_ms_median"].items()
+                 if k not in ("track", "render", "show")}
+        lines.append(f"- {name}: " + ", ".join(f"{k} {v}" for k, v in inner.items()))
+    met = [n for n, r in results.items() if r["frames_per_second"] >= TARGET_FPS]
+    lines += ["", f"Target ≥ {TARGET_FPS:.0f} composited frames/s met by {len(met)} of "
+              f"{len(results)}: {', '.join(met) or 'none'}.",
+              "", f"Load at the end of the run (`uptime`): {load}"
+              + (f"; CPU pressure (PSI some avg60): {psi} %" if psi else "") + "."]
+    return "\n".join(lines)
+
+
+def child(name: str, loops: int, warmup: int) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--child", name, "--loops", str(loops),
+                          "--warmup", str(warmup)], capture_output=True, text=True,
+                         check=True, cwd=str(HERE)).stdout
+    line = next(x for x in out.splitlines() if x.startswith("RESULT"))
+    return json.loads(line[len("RESULT"):])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--loops", type=int, default=2, help="passes over the 3 s video")
+    ap.add_argument("--warmup", type=int, default=5)
+    ap.add_argument("--write", action="store_true", help="store the table in RESULTS.md")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        print("RESULT" + json.dumps(measure(args.child, args.loops, args.warmup)))
+        return
+    results = {}
+    for name in args.methods.split(","):
+        t0 = time.perf_counter()
+        results[name] = child(name, args.loops, args.warmup)
+        print(f"{name}: {json.dumps(results[name])} ({time.perf_counter() - t0:.0f} s)",
+              flush=True)
+    load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    publish(table(results, args.loops, load, cpu_pressure()), args.write)
+
+
+if __name__ == "__main__":
+    main()
