@@ -21,10 +21,17 @@ Albedo: Mitsuba's ``eval_diffuse_reflectance`` (π·f(wi, n) at the hit; the dif
 reflectance of diffuse and Phong surfaces, the normal-incidence lobe of rough conductors),
 clamped to [0, 1]. Normal: the world-space shading normal, in [-1, 1] (averaged over the
 samples, not renormalised). Misses (the environment): albedo 0, normal 0.
+
+Between frames (the studio, sequences) :class:`AuxCache` reuses the buffers while nothing
+they depend on changed: the same Mitsuba scene object, the same camera (all but its
+transfer function), the same object transforms and sample count (``AUX_CACHE``, used by
+:meth:`arlight.methods.base.BaseMethod.denoise`).
 """
 
 from __future__ import annotations
 
+import threading
+import weakref
 from dataclasses import dataclass
 
 import drjit as dr
@@ -124,4 +131,76 @@ def aux_buffers(view: SceneView, camera: Camera, samples: int = 4,
                       normal.reshape(h, w, 3).astype(np.float32))
 
 
-__all__ = ["AUX_SEED", "AuxBuffers", "MAX_SPECULAR", "aux_buffers"]
+def camera_key(camera: Camera) -> tuple:
+    """Everything of ``camera`` that the buffers depend on: resolution, intrinsics, pose,
+    lens (not the transfer function: the buffers are not exposed)."""
+    return (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+            np.asarray(camera.world_from_camera, np.float64).tobytes(),
+            camera.aperture_radius, camera.focus_distance, camera.aperture_shape)
+
+
+def transforms_key(transforms: dict[str, np.ndarray] | None) -> tuple:
+    """The object transforms a view was posed with, as a hashable key (empty: rest pose)."""
+    return tuple(sorted((name, np.asarray(m, np.float64).tobytes())
+                        for name, m in (transforms or {}).items()))
+
+
+class AuxCache:
+    """The auxiliary buffers of recent frames, reused while nothing they depend on changed.
+
+    An entry is keyed by the Mitsuba scene view (by identity, held weakly: a view prepared
+    again is a new object, and a dead one never matches), :func:`camera_key`,
+    :func:`transforms_key` (a view moved in place by an incremental pose is the same object
+    in another pose) and the sample count. A window inside the cached one is a crop of it
+    (bitwise what :func:`aux_buffers` of that window gives: every pixel is traced alone); a
+    window reaching outside traces the union of both windows again. At most ``capacity``
+    entries, least recently used dropped first.
+    """
+
+    def __init__(self, capacity: int = 4) -> None:
+        self.capacity = capacity
+        self.entries: list[tuple[weakref.ref, tuple, slice, slice, AuxBuffers]] = []
+        self.hits = 0
+        self.misses = 0
+        self.lock = threading.Lock()
+
+    def clear(self) -> None:
+        with self.lock:
+            self.entries.clear()
+
+    def get(self, view: SceneView, camera: Camera, samples: int,
+            transforms: dict[str, np.ndarray] | None, rows: slice, cols: slice
+            ) -> tuple[AuxBuffers, bool]:
+        """The buffers of window ``(rows, cols)`` and whether they came from the cache
+        (arguments as :func:`aux_buffers`; ``transforms``: the pose ``view`` is in)."""
+        key = (camera_key(camera), transforms_key(transforms), samples)
+        q0, q1, _ = rows.indices(camera.height)
+        p0, p1, _ = cols.indices(camera.width)
+        r0, r1, c0, c1 = q0, q1, p0, p1  # the window to trace on a miss
+        with self.lock:
+            self.entries = [e for e in self.entries if e[0]() is not None]
+            found = next((e for e in self.entries if e[0]() is view and e[1] == key), None)
+            if found is not None:
+                self.entries.remove(found)
+                _, _, er, ec, buf = found
+                if er.start <= q0 and q1 <= er.stop and ec.start <= p0 and p1 <= ec.stop:
+                    self.entries.append(found)
+                    self.hits += 1
+                    return buf.crop(slice(q0 - er.start, q1 - er.start),
+                                    slice(p0 - ec.start, p1 - ec.start)), True
+                r0, r1 = min(q0, er.start), max(q1, er.stop)
+                c0, c1 = min(p0, ec.start), max(p1, ec.stop)
+            self.misses += 1
+        buf = aux_buffers(view, camera, samples, slice(r0, r1), slice(c0, c1))
+        with self.lock:
+            self.entries.append((weakref.ref(view), key, slice(r0, r1), slice(c0, c1), buf))
+            del self.entries[:-self.capacity]
+        return buf.crop(slice(q0 - r0, q1 - r0), slice(p0 - c0, p1 - c0)), False
+
+
+AUX_CACHE = AuxCache()
+"""The process's cache of auxiliary buffers (:meth:`arlight.methods.base.BaseMethod.denoise`)."""
+
+
+__all__ = ["AUX_CACHE", "AUX_SEED", "AuxBuffers", "AuxCache", "MAX_SPECULAR", "aux_buffers",
+           "camera_key", "transforms_key"]
