@@ -16,26 +16,44 @@ from arlight.methods import RenderSettings, get_method
 from arlight.methods.base import relight_views
 from arlight.scene.load import parse_world
 from arlight.scene.model import Light
-from tests.methods.test_pose_incremental import MOVES, SMALL, _equal, demo  # noqa: F401
+from tests.methods.test_pose_incremental import (  # noqa: F401
+    MOVES,
+    SMALL,
+    _equal,
+    demo,
+    nearfield_light,
+    options_for,
+)
 
-RELIT = ["dir", "dlpv", "dvct", "ibl", "prt", "onepass", "reference", "probeless"]
-"""Methods whose ``relit`` keeps the Mitsuba views (the others prepare again)."""
+RELIT = ["dir", "dlpv", "dvct", "ibl", "prt", "onepass", "reference", "probeless",
+         "nearfield"]
+"""Methods whose ``relit`` keeps the Mitsuba views (ibl and prt not when the environment
+changes: they prepare again)."""
+UNLIT = {"probeless", "nearfield"}
+"""Methods whose frames do not depend on the scene's lights (probeless estimates the light
+from the frame; nearfield's comes from its light file)."""
 
 
-def moved_lamp(lights: list[Light]) -> list[Light]:
-    """The demo's lights with the area lamp 20 cm further along -x and 10 cm lower, warmer,
-    and the environment turned by 40° and brighter (same types: an update in place)."""
+def changed_lights(lights: list[Light], change: str) -> list[Light]:
+    """The demo's lights with ``change``: ``lamp`` — the area lamp 20 cm further along -x,
+    10 cm lower and warmer; ``environment`` — the environment map turned by 40° and
+    brighter (same types: updates in place)."""
     out = []
     for lt in lights:
         p = dict(lt.params)
-        if lt.type == "area":
+        if lt.type == "area" and change == "lamp":
             m = np.array(p["to_world"], np.float64)
             m[:3, 3] += [-0.2, -0.1, 0.0]
             p.update(to_world=m, radiance=[50.0, 40.0, 25.0])
-        elif lt.type == "envmap":
+        elif lt.type == "envmap" and change == "environment":
             p.update(scale=0.9, rotation_deg=40.0)
         out.append(replace(lt, params=p))
     return out
+
+
+def moved_lamp(lights: list[Light]) -> list[Light]:
+    """Both changes of :func:`changed_lights` at once."""
+    return changed_lights(changed_lights(lights, "lamp"), "environment")
 
 
 def estimate_lights() -> list[Light]:
@@ -47,30 +65,30 @@ def estimate_lights() -> list[Light]:
         ).lights
 
 
+@pytest.mark.parametrize("change", ["lamp", "environment"])
 @pytest.mark.parametrize("method", RELIT)
-def test_relight_equals_a_fresh_preparation(demo, method):  # noqa: F811
-    """A state rendered at rest and in a pose, then relit with a moved lamp and a turned,
-    brighter environment, renders (in that pose, another pose and at rest) bitwise what a
-    state prepared from scratch with those lights renders, and keeps its Mitsuba views.
-    Rejects a relight that keeps the old reduced lights, RSMs, light SH or environment,
-    leaves the views' emitters (or the area lamp's geometry) where they were, updates only
-    the rest data and not the posed data, or prepares everything again."""
+def test_relight_equals_a_fresh_preparation(demo, method, change, request):  # noqa: F811
+    """A state rendered at rest and in a pose, then relit (a moved, warmer lamp; or a
+    turned, brighter environment), renders in that pose, another pose and at rest bitwise
+    what a state prepared from scratch with those lights renders, and keeps its Mitsuba
+    views. Rejects a relight that keeps the old reduced lights, RSMs, cone radii, ambient or
+    light SH, leaves the views' emitters (or the area lamp's geometry) where they were,
+    updates only the rest data and not the posed data, or prepares everything again."""
     m = get_method(method)
-    s = RenderSettings(spp=1, options=SMALL[method])
+    s = RenderSettings(spp=1, options=options_for(method, request))
     state = m.prepare(demo.world, s)
     views = state.data.views
     posed_view = replace(demo.view, object_transforms={"bunny": MOVES[0]})
     before = m.render(state, posed_view, s)
-    m.relight(state, moved_lamp(demo.world.lights), s)
-    assert state.data.views is views
-    world = replace(demo.world, lights=moved_lamp(demo.world.lights))
-    fresh = m.prepare(world, s)
+    lights = changed_lights(demo.world.lights, change)
+    m.relight(state, lights, s)
+    assert (state.data.views is views) == (method not in ("ibl", "prt")
+                                           or change == "lamp")
+    fresh = m.prepare(replace(demo.world, lights=lights), s)
     for view in (posed_view, replace(demo.view, object_transforms={"bunny": MOVES[1]}),
                  demo.view):
-        a, b = m.render(state, view, s), m.render(fresh, view, s)
-        assert _equal(a, b)
-    if method != "probeless":  # probeless estimates the light from the frame
-        assert not _equal(m.render(state, posed_view, s), before)
+        assert _equal(m.render(state, view, s), m.render(fresh, view, s))
+    assert _equal(m.render(state, posed_view, s), before) == (method in UNLIT)
 
 
 @pytest.mark.parametrize("method", ["dir", "ibl", "onepass"])
@@ -125,3 +143,18 @@ def test_relight_views_moves_the_lamp_geometry(demo):  # noqa: F811
         assert np.array_equal(moved[name], fresh[name], equal_nan=True)
         assert not np.array_equal(moved[name], before[name], equal_nan=True)
     assert not relight_views(views, new, estimate_lights())
+
+
+@pytest.mark.parametrize("method", ["dlpv", "dvct"])
+def test_relit_rsms_are_cast_for_the_new_lights(demo, method):  # noqa: F811
+    """After a relight the proxy's RSMs belong to the new reduced lights. Rejects a relight
+    that keeps the old maps: frames would still be right (``rsm_pair`` casts maps of
+    another light set again for that frame only) but every frame would pay for the
+    cast."""
+    m = get_method(method)
+    s = RenderSettings(spp=1, options=SMALL[method])
+    state = m.prepare(demo.world, s)
+    m.render(state, replace(demo.view, object_transforms={"bunny": MOVES[0]}), s)
+    m.relight(state, changed_lights(demo.world.lights, "lamp"), s)
+    assert state.last.real_maps.lights is state.last.lights
+    assert state.data.real_maps.lights is state.data.lights

@@ -391,6 +391,20 @@ def same_lights(a: Sequence[Light], b: Sequence[Light]) -> bool:
         and _same_value(x.radiance_map, y.radiance_map) for x, y in zip(a, b, strict=True))
 
 
+DISTANT_LIGHTS = frozenset({"envmap", "sh", "constant"})
+"""Light types at infinity: what the methods' environment tables (mip maps, distant SH) are
+made of."""
+
+
+def distant_changed(before: Sequence[Light], after: Sequence[Light]) -> bool:
+    """Whether the distant lights (:data:`DISTANT_LIGHTS`) differ between two light lists
+    (another count, type or parameters): a method keeping environment tables in
+    :meth:`BaseMethod.relit` then prepares again."""
+    a = [x for x in before if x.type in DISTANT_LIGHTS]
+    b = [x for x in after if x.type in DISTANT_LIGHTS]
+    return not same_lights(a, b)
+
+
 def relight_views(views: SceneViews, before: Sequence[Light], after: Sequence[Light]
                   ) -> bool:
     """Give the emitters of ``views`` (loaded with the lights ``before``) the lights

@@ -273,6 +273,20 @@ class DIRMethod(BaseMethod):
         return None if posed is None else DIRData(posed, data.views, data.lights,
                                                   scene_bounds(data.views.mixed))
 
+    def relit(self, data: DIRData, world: World, options: Options) -> DIRData | None:
+        """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
+        place, the lights reduced again, the bounds measured again (an area lamp is geometry
+        of the views); the VPLs are made per frame anyway."""
+        from dataclasses import replace
+
+        from arlight.methods.base import relight_views
+
+        if not relight_views(data.views, data.world.lights, world.lights):
+            return None
+        return replace(data, world=world, bounds=scene_bounds(data.views.mixed),
+                       lights=reduce_lights(world, env_lights=options.env_lights,
+                                            area_grid=options.area_grid))
+
     def render_view(self, data: DIRData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         with timer.stage("gbuffer"):

@@ -317,6 +317,20 @@ class DLPVMethod(BaseMethod):
 
     move = staticmethod(pose)  # in place; a moved real shape prepares again
 
+    def relit(self, data: DLPVData, world: World, options: Options) -> DLPVData | None:
+        """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
+        place, the lights reduced again and the proxy's RSMs cast again into the kept
+        volume; the volume placement and the scales are kept."""
+        from arlight.methods.base import relight_views
+
+        if not relight_views(data.views, data.world.lights, world.lights):
+            return None
+        lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
+        if data.real_maps is None:
+            return replace(data, world=world, lights=lights)
+        return replace(data, world=world, lights=lights, real_maps=real_maps(
+            data.views, lights, data.grid, options.rsm_size, data.real_maps.box))
+
     def render_view(self, data: DLPVData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         with timer.stage("gbuffer"):

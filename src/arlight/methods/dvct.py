@@ -774,6 +774,20 @@ class DVCTMethod(BaseMethod):
 
     move = staticmethod(pose)  # in place; a moved real shape prepares again
 
+    def relit(self, data: DVCTData, world: World, options: Options) -> DVCTData | None:
+        """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
+        place, the lights reduced again, their cone radii and the proxy's RSMs made again;
+        the volume, the proxy's voxels, the triangles and the materials are kept."""
+        from arlight.methods.base import relight_views
+
+        if not relight_views(data.views, data.world.lights, world.lights):
+            return None
+        lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
+        maps = None if data.real_maps is None else real_maps(
+            data.views, lights, data.grid, options.rsm_size, data.real_maps.box)
+        return replace(data, world=world, lights=lights, real_maps=maps,
+                       light_size=_light_sizes(world, lights, options))
+
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         with timer.stage("gbuffer"):

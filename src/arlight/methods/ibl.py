@@ -233,6 +233,20 @@ class IBLMethod(BaseMethod):
 
     move = staticmethod(pose)  # in place; a moved real shape prepares again
 
+    def relit(self, data: IBLData, world: World, options: Options) -> IBLData | None:
+        """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
+        place, the lights reduced again and the ambient SH projected again; the occluder,
+        its occlusion field, the environment and the material tables are kept. None
+        (prepare again) when a distant light changed: the environment is made from it."""
+        from arlight.methods.base import distant_changed, relight_views
+
+        if distant_changed(data.world.lights, world.lights) or not relight_views(
+                data.views, data.world.lights, world.lights):
+            return None
+        lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
+        return replace(data, world=world, lights=lights, ambient=ambient_sh(
+            world, lights, options.sh_order, environment_map(world)))
+
     def render_view(self, data: IBLData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         return render_layers(data, view, options, settings.seed, timer, shade_virtual)

@@ -30,7 +30,14 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
-from arlight.methods.base import BaseMethod, Layers, Prepared, RenderSettings, place_views
+from arlight.methods.base import (
+    BaseMethod,
+    Layers,
+    Prepared,
+    RenderSettings,
+    place_views,
+    relight_views,
+)
 from arlight.methods.fragments import GBUFFER_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.nearfield.shading import (
@@ -301,6 +308,18 @@ class NearFieldMethod(BaseMethod):
                 for o in prt.objects]})
         return replace(data, world=posed, prt=prt, sphere=sphere,
                        light=_server_light(data.server, posed, data.light), map_cache={})
+
+    def relit(self, data: NearFieldData, world: World, options: Options
+              ) -> NearFieldData | None:
+        """Light update (issue #32): the VALs and SH blocks come from the light state, not
+        from the world's lights, so a given light is kept and only the views' emitters
+        follow; a light this state's own server made from a synthetic capture of the world
+        is made again (None: prepare again). A new light *state* goes through
+        :func:`with_light` instead."""
+        if data.server is not None:
+            return None
+        ok = relight_views(data.views, data.world.lights, world.lights)
+        return replace(data, world=world) if ok else None
 
     def render_view(self, data: NearFieldData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

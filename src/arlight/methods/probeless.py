@@ -35,6 +35,7 @@ from arlight.methods.base import (
     Layers,
     RenderSettings,
     place_views,
+    relight_views,
     require_frame,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -93,6 +94,13 @@ class ProbelessMethod(BaseMethod):
         another world."""
         posed = place_views(data.views, world, transforms, real_moves=True)
         return None if posed is None else ProbelessData(posed, data.views)
+
+    def relit(self, data: ProbelessData, world: World, options: Options
+              ) -> ProbelessData | None:
+        """Light update (issue #32): the scene's lights are not used (the light is estimated
+        from the frame); only the views' emitters follow."""
+        ok = relight_views(data.views, data.world.lights, world.lights)
+        return ProbelessData(world, data.views) if ok else None
 
     def render_view(self, data: ProbelessData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -252,6 +252,21 @@ class PRTMethod(BaseMethod):
 
     move = staticmethod(pose)  # in place; a moved real shape prepares again
 
+    def relit(self, data: PRTData, world: World, options: Options) -> PRTData | None:
+        """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
+        place, the lights reduced again and the light SH measured again (distant part
+        kept); the transfer, the occluder, its occlusion field and the glossy tables are
+        kept. None (prepare again) when a distant light changed."""
+        from arlight.methods.base import distant_changed, relight_views
+
+        if distant_changed(data.world.lights, world.lights) or not relight_views(
+                data.views, data.world.lights, world.lights):
+            return None
+        return replace(data, world=world, lights=reduce_lights(
+            world, env_lights=options.env_lights, area_grid=options.area_grid),
+                       light=light_sh(world, options.order, _centre(world, data.views),
+                                      options.area_grid, data.distant))
+
     def render_view(self, data: PRTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
         layers = render_layers(data, view, options, settings.seed, timer, shade_virtual)
