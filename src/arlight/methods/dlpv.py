@@ -58,15 +58,19 @@ from arlight.realtime.rsm import (
     moved_maps,
     real_maps,
     rsm_pair,
+    same_grid,
 )
 from arlight.realtime.sh_volume import (
     Grid,
     SHVolume,
+    face_transmittance,
     inject,
     plane_response,
+    point_response,
     propagate,
     query_irradiance,
     query_irradiance_compact,
+    transmittance_dr,
 )
 from arlight.realtime.shading import (
     ambient_irradiance_dr,
@@ -74,18 +78,15 @@ from arlight.realtime.shading import (
     on_active,
     virtual_bounds,
 )
+from arlight.realtime.voxels import blocking_potential, shape_triangles
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
-CALIBRATE = 1.5
-"""Default ``calibrate``, the divisor of ``V_Δ`` reads: chosen on 8 training worlds
-(``benchmarks/tune_realtime.py``, issue #30) from 1 (KD10's raw scale), 1.25, 1.5, 1.628
-(the one-VPL response), 1.92 (:func:`~arlight.realtime.sh_volume.plane_response`, the
-default before) and 2.5; see docs/methods/dlpv.md for the held-out effect."""
+CALIBRATE = 1.0
+"""Default ``calibrate``, an extra divisor of ``V_Δ`` reads on top of the derived
+normalisation (:func:`injection_scales`; issue #33: 1, none)."""
 CALIBRATE_RHO = 1.0
-"""Default ``calibrate_rho``, the divisor of ``V_ρ`` reads: KD10's raw scale. The same grid
-on the training worlds could not tell 1 from 1.25 (0.01 dB), so the principled value won the
-tie; the plane response (the default before) cost 0.4 dB there."""
+"""Default ``calibrate_rho``, an extra divisor of ``V_ρ`` reads (1: none)."""
 
 OPTIONS: dict[str, Field] = {
     "volume_size": Field("int", 32, "cells per edge of V_Δ and V_ρ (Franke: 32³)", "cells",
@@ -97,13 +98,16 @@ OPTIONS: dict[str, Field] = {
                        "(Franke §4.4)"),
     "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
                            "§4.3.2); off: indirect change only"),
-    "calibrate": Field("float", CALIBRATE, "divisor of V_Δ reads (ours, not Franke's): 1 "
-                       "KD10's raw scale; 0 the LPV's response to a uniformly lit plane at "
-                       "this volume_size/steps/dampening (1.92 at the defaults); chosen on "
-                       "training worlds (issue #30)", "", min=0.0, max=100.0),
-    "calibrate_rho": Field("float", CALIBRATE_RHO, "divisor of V_ρ reads (the indirect light "
-                           "on the virtual objects; ours): as calibrate, 0 the plane response; "
-                           "chosen on training worlds (issue #30)", "", min=0.0, max=100.0),
+    "calibrate": Field("float", CALIBRATE, "extra divisor of V_Δ reads on top of the derived "
+                       "normalisation (direct lobes / the plane response, VPLs / the point "
+                       "response; docs/methods/dlpv.md); 1: none", "", min=0.0, max=100.0,
+                       exclusive_min=True),
+    "calibrate_rho": Field("float", CALIBRATE_RHO, "extra divisor of V_ρ reads (the indirect "
+                           "light on the virtual objects); 1: none", "", min=0.0, max=100.0,
+                           exclusive_min=True),
+    "geometry_volume": Field("bool", True, "KD10 fuzzy blocking: a geometry volume of the "
+                             "real proxy and the virtual objects attenuates propagation, so "
+                             "light does not leak through objects and thin walls"),
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
     **REDUCTION_OPTIONS,
@@ -124,8 +128,11 @@ SPEC = MethodSpec(
 @dataclass
 class DLPVData:
     """What ``prepare_world`` keeps: the world, its Mitsuba views, the reduced lights, the
-    volume grid, the scales of ``V_Δ`` and ``V_ρ`` reads (:func:`read_scales`) and the real
-    proxy's RSMs (grid and maps None without virtual objects)."""
+    volume grid, the scales of ``V_Δ`` and ``V_ρ`` reads (:func:`read_scales`), the real
+    proxy's RSMs (grid and maps None without virtual objects), the injection scales
+    (:func:`injection_scales`: direct lobes, VPLs) and the geometry volume: the real proxy's
+    blocking potential (kept while the grid stays) and the face transmittances of the mixed
+    scene (None with ``geometry_volume`` off)."""
 
     world: World
     views: SceneViews
@@ -134,6 +141,9 @@ class DLPVData:
     read_scale: float = 1.0
     real_maps: RealMaps | None = None
     rho_scale: float = 1.0
+    inject_scale: tuple[float, float] = (1.0, 1.0)
+    real_blocking: np.ndarray | None = None
+    transmittance: list | None = None
 
 
 @dataclass
@@ -151,28 +161,63 @@ class Volumes:
 
 
 def read_scales(options: Options) -> tuple[float, float]:
-    """``(1/calibrate, 1/calibrate_rho)``: the factors of ``V_Δ`` and ``V_ρ`` reads, a
-    divisor 0 standing for :func:`~arlight.realtime.sh_volume.plane_response` at the options'
-    volume size, steps and dampening."""
-    def scale(divisor: float) -> float:
-        if divisor == 0.0:
-            divisor = plane_response(options.volume_size, options.steps, options.dampening)
-        return 1.0 / float(divisor)
+    """``(1/calibrate, 1/calibrate_rho)``: the factors of ``V_Δ`` and ``V_ρ`` reads."""
+    return 1.0 / float(options.calibrate), 1.0 / float(options.calibrate_rho)
 
-    return scale(options.calibrate), scale(options.calibrate_rho)
+
+def injection_scales(options: Options) -> tuple[float, float]:
+    """The derived normalisation (issue #33): ``(1/plane_response, 1/point_response)``, the
+    factors of the flux of the direct lobes and of the VPLs at injection.
+
+    Both injections are cosine lobes, but they model different light: a direct lobe is a
+    sample of a surface lit densely, cell by cell — an LPV reading such a layer at a cell of
+    it counts the neighbours' lobes too and over-reads the irradiance by
+    :func:`~arlight.realtime.sh_volume.plane_response` (1.92 at 32³, 32 steps) — while a VPL
+    is a point emitter, which the LPV reads at 2–4 cells as
+    :func:`~arlight.realtime.sh_volume.point_response` (0.88) × ``Φ cos θ/(π r²)``. Both are
+    computed from the propagation operator at the options' size, steps and dampening, no
+    scene. Propagation is linear (dampening depends on ratios only), so scaling the injected
+    flux is scaling what is read."""
+    n, k, d = options.volume_size, options.steps, options.dampening
+    return 1.0 / plane_response(n, k, d), 1.0 / point_response(n, k, d)
+
+
+def virtual_triangles(world: World) -> np.ndarray:
+    """World-space triangles ``(F, 3, 3)`` of the virtual objects."""
+    return np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
+
+
+def geometry_volume(world: World, grid: Grid, real: np.ndarray | None
+                    ) -> tuple[np.ndarray, list]:
+    """``(real blocking, transmittances)``: the real proxy's blocking potential on ``grid``
+    (``real``, or computed when None) and the face transmittances of the mixed scene, the
+    blocking of real and virtual surfaces added (clipped to 1), as :func:`~arlight.realtime.
+    sh_volume.propagate` takes them."""
+    if real is None:
+        shapes = world.real_shapes
+        real = (blocking_potential(np.concatenate([shape_triangles(s) for s in shapes]), grid)
+                if shapes else np.zeros((grid.n + 1,) * 3 + (3,), np.float32))
+    both = np.minimum(real + blocking_potential(virtual_triangles(world), grid), 1.0)
+    return real, transmittance_dr(face_transmittance(both))
 
 
 def prepare(world: World, options: Options) -> DLPVData:
-    """Mitsuba views, reduced lights and the volume placement of ``world``."""
+    """Mitsuba views, reduced lights, the volume placement of ``world`` and its geometry
+    volume."""
     check_memory(options.rsm_size)
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
     grid = None if bounds is None else Grid.around(*bounds, n=options.volume_size,
                                                      scale=options.volume_scale)
-    k_delta, k_rho = (1.0, 1.0) if grid is None else read_scales(options)
-    maps = None if grid is None else real_maps(views, lights, grid, options.rsm_size, bounds)
-    return DLPVData(world, views, lights, grid, k_delta, maps, k_rho)
+    if grid is None:
+        return DLPVData(world, views, lights, None)
+    k_delta, k_rho = read_scales(options)
+    maps = real_maps(views, lights, grid, options.rsm_size, bounds)
+    real, trans = geometry_volume(world, grid, None) if options.geometry_volume else (None,
+                                                                                     None)
+    return DLPVData(world, views, lights, grid, k_delta, maps, k_rho, injection_scales(options),
+                    real, trans)
 
 
 def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -189,27 +234,35 @@ def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], option
     posed, grid, bounds = moved
     if grid is None or data.real_maps is None:
         return replace(data, world=posed)
+    real, trans = None, None
+    if data.real_blocking is not None:
+        keep = data.real_blocking if same_grid(data.grid, grid) else None
+        real, trans = geometry_volume(posed, grid, keep)
     return replace(data, world=posed, grid=grid,
-                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds))
+                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds),
+                   real_blocking=real, transmittance=trans)
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
-                 indirect: bool = True) -> list[mi.Bool]:
+                 indirect: bool = True, scales: tuple[float, float] = (1.0, 1.0)
+                 ) -> list[mi.Bool]:
     """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``. Texels that see
     the same surface in both maps cancel and are skipped (§4.3.1: "VPLs visible in both RSMs
     are eliminated"): only the texels whose mixed-scene hit is virtual are injected. Returns
-    the injected-lane masks of the indirect lobes (see :func:`injected_count`)."""
+    the injected-lane masks of the indirect lobes (see :func:`injected_count`). ``scales``:
+    the flux factors of direct lobes and VPLs (:func:`injection_scales`)."""
     half = 0.5 * vol.grid.cell
+    k_dir, k_ind = float(scales[0]), float(scales[1])
     masks = []
     for pair in pairs:
         if dr.width(pair.changed) == 0:  # this light does not see the virtual objects
             continue
         for r, sign in ((pair.rho_changed(), 1.0), (pair.mu_changed, -1.0)):
             if indirect:
-                masks.append(inject(vol, r.position, r.normal, r.flux_out * sign, r.valid,
-                                    offset=r.normal * half))
+                masks.append(inject(vol, r.position, r.normal, r.flux_out * (sign * k_ind),
+                                    r.valid, offset=r.normal * half))
             if direct:
-                inject(vol, r.position, r.direction, r.flux_in * sign, r.valid,
+                inject(vol, r.position, r.direction, r.flux_in * (sign * k_dir), r.valid,
                        offset=r.direction * (-half))
     return masks
 
@@ -220,15 +273,16 @@ def injected_count(masks: list[mi.Bool]) -> int:
 
 
 def inject_regular(vol: SHVolume, pairs: list[RSMPair], which: int = 0,
-                   direct: bool = False) -> None:
+                   direct: bool = False, scales: tuple[float, float] = (1.0, 1.0)) -> None:
     """A regular LPV: every VPL of ``R_ρ`` (``which=0``) or ``R_µ`` (``which=1``), and with
-    ``direct`` also the direct lobes (the two-volume baseline of the linearity test)."""
+    ``direct`` also the direct lobes; ``scales`` as :func:`inject_delta`."""
     half = 0.5 * vol.grid.cell
     for pair in pairs:
         r = pair.rho if which == 0 else pair.mu()
-        inject(vol, r.position, r.normal, r.flux_out, r.valid, offset=r.normal * half)
+        inject(vol, r.position, r.normal, r.flux_out * float(scales[1]), r.valid,
+               offset=r.normal * half)
         if direct:
-            inject(vol, r.position, r.direction, r.flux_in, r.valid,
+            inject(vol, r.position, r.direction, r.flux_in * float(scales[0]), r.valid,
                    offset=r.direction * (-half))
 
 
@@ -241,19 +295,21 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
         return Volumes(None, None, [])
     with timer.stage("rsm"):
         pairs = rsm_pair(data)
+    k = data.inject_scale
     with timer.stage("inject_rho"):
         v_rho = SHVolume.zeros(grid)
-        inject_regular(v_rho, pairs, 0)
+        inject_regular(v_rho, pairs, 0, scales=k)
     with timer.stage("inject_delta_indirect"):
         v_delta = SHVolume.zeros(grid)
-        injected = inject_delta(v_delta, pairs, direct=False)
+        injected = inject_delta(v_delta, pairs, direct=False, scales=k)
     if options.direct_inject:
         with timer.stage("inject_delta_direct"):
-            inject_delta(v_delta, pairs, direct=True, indirect=False)
+            inject_delta(v_delta, pairs, direct=True, indirect=False, scales=k)
+    trans = data.transmittance
     with timer.stage("propagate_rho"):
-        v_rho = propagate(v_rho, options.steps, options.dampening)
+        v_rho = propagate(v_rho, options.steps, options.dampening, transmittance=trans)
     with timer.stage("propagate_delta"):
-        v_delta = propagate(v_delta, options.steps, options.dampening)
+        v_delta = propagate(v_delta, options.steps, options.dampening, transmittance=trans)
     return Volumes(v_delta, v_rho, injected)
 
 
@@ -341,5 +397,6 @@ class DLPVMethod(BaseMethod):
 
 
 __all__ = ["CALIBRATE", "CALIBRATE_RHO", "DLPVData", "DLPVMethod", "OPTIONS", "RealMaps",
-           "SPEC", "Volumes", "build_volumes", "compose", "inject_delta", "inject_regular",
-           "injected_count", "prepare", "read_scales", "real_maps", "rsm_pair"]
+           "SPEC", "Volumes", "build_volumes", "compose", "geometry_volume", "inject_delta",
+           "inject_regular", "injected_count", "injection_scales", "prepare", "read_scales",
+           "real_maps", "rsm_pair"]

@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.jit import opaque
+from arlight.jit import aligned, opaque
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.shading import on_active
 
@@ -258,10 +258,13 @@ def _toward(c: list, a: int) -> mi.Float:
     return dr.abs(_luminance(sum((c[k] * float(t[k]) for k in range(4)), mi.Color3f(0.0))))
 
 
-def _step(cur: list, idxs: list, oks: list, dampening: bool) -> list:
+def _step(cur: list, idxs: list, oks: list, dampening: bool, trans: list | None = None
+          ) -> list:
     """One [KD10] gather step (see :func:`propagate`): the coefficients every cell receives
     from its 6 neighbours, as Dr.Jit expressions (one kernel: the dampening factors are
-    computed from the gathered neighbour coefficients, not from a separate pass)."""
+    computed from the gathered neighbour coefficients, not from a separate pass); ``trans``
+    (6 per-destination transmittances, :func:`face_transmittance`) attenuates each
+    neighbour's contribution by the geometry volume's blocking of the shared face."""
     mats = _MATS
     n_cells = dr.width(cur[0])
     new = [dr.zeros(mi.Color3f, n_cells) for _ in range(4)]
@@ -275,6 +278,8 @@ def _step(cur: list, idxs: list, oks: list, dampening: bool) -> list:
             den = i_src + i_dst
             g = dr.select(den > 0, (i_dst - i_src) / dr.select(den > 0, den, 1.0), 0.0)
             w = 1.0 - dr.maximum(g, 0.0)
+        if trans is not None:
+            w = trans[a] if w is None else w * trans[a]
         for r in range(4):
             term = src[0] * float(m[r, 0])
             for k in range(1, 4):
@@ -289,7 +294,7 @@ _TOWARD = [basis(d) for d in AXES.astype(np.float64)]
 
 
 def propagate(vol: SHVolume, steps: int, dampening: bool = False,
-              stats: dict | None = None) -> SHVolume:
+              stats: dict | None = None, transmittance: list | None = None) -> SHVolume:
     """``steps`` iterations of [KD10] propagation; returns the accumulated volume
     ``Σ_{k=0..steps} P^k V_0`` (the injected light plus every propagated step, as the LPV's
     "accumulated result of all iterations", Franke §4.2).
@@ -308,6 +313,12 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     one recording per volume size, step count and dampening): replaying the 32 kernels skips
     Python tracing, which otherwise costs as much as the kernels themselves on 2 CPU cores.
     ``stats`` (optional dict) receives ``flux_per_step``, the total flux of each wavefront.
+
+    ``transmittance`` (optional, [KD10] §5.3 "fuzzy occlusion"): 6 ``mi.Float`` of ``n³``
+    (one per propagation direction, indexed by the destination cell), the fraction of the
+    neighbour's light that crosses the face it shares with the destination
+    (:func:`face_transmittance` of a geometry volume). As [KD10], the first step is not
+    blocked (the surface a VPL was injected from would shadow it).
     """
     grid = vol.grid
     tables = _neighbour_tables(grid.n)
@@ -315,12 +326,15 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     oks = [t[1] for t in tables]
     cur = [mi.Color3f(c) for c in vol.coeffs]
     if stats is None:
-        return SHVolume(grid, _propagate_frozen(cur, idxs, oks, int(steps), bool(dampening),
-                                                grid.n))
+        if transmittance is None:
+            return SHVolume(grid, _propagate_frozen(cur, idxs, oks, int(steps),
+                                                    bool(dampening), grid.n))
+        return SHVolume(grid, _propagate_blocked(cur, idxs, oks, list(transmittance),
+                                                 int(steps), bool(dampening), grid.n))
     acc = [mi.Color3f(c) for c in cur]
     fluxes = []
-    for _ in range(int(steps)):
-        cur = _step(cur, idxs, oks, bool(dampening))
+    for i in range(int(steps)):
+        cur = _step(cur, idxs, oks, bool(dampening), None if i == 0 else transmittance)
         acc = [acc[k] + cur[k] for k in range(4)]
         dr.eval(cur, acc)
         fluxes.append(_channel_sums(cur[0]) * math.sqrt(4 * math.pi))
@@ -343,15 +357,70 @@ def _propagate_frozen(cur: list, idxs: list, oks: list, steps: int, dampening: b
     return acc
 
 
-def propagate_numpy(arr: np.ndarray, steps: int, dampening: bool = False) -> np.ndarray:
+@dr.freeze(limit=16, warn_after=64)
+def _propagate_blocked(cur: list, idxs: list, oks: list, trans: list, steps: int,
+                       dampening: bool, n: int) -> list:
+    """:func:`_propagate_frozen` with a geometry volume's face transmittances (not applied
+    in the first step, [KD10])."""
+    del n
+    acc = [mi.Color3f(c) for c in cur]
+    for i in range(steps):
+        cur = _step(cur, idxs, oks, dampening, None if i == 0 else trans)
+        acc = [acc[k] + cur[k] for k in range(4)]
+        dr.eval(cur, acc)
+    return acc
+
+
+def face_transmittance(blocking: np.ndarray) -> np.ndarray:
+    """Per propagation direction ``AXES[a]`` and destination cell, the transmittance
+    ``1 − B_f`` of the face the destination shares with its source neighbour ([KD10] §5.3):
+    ``blocking`` ``(n+1, n+1, n+1, 3)`` indexed ``[z, y, x, axis]`` is a geometry volume on
+    the dual lattice (its cell ``(i, j, k)`` centred on the LPV cell corner ``origin + s·(i,
+    j, k)``, :func:`arlight.realtime.voxels.blocking_potential`) holding the blocking
+    potential of light travelling along each axis, in [0, 1]; ``B_f`` is its mean over the 4
+    corners of the face (bilinear at the face centre). Returns ``(6, n, n, n)`` float32,
+    ``[a, z, y, x]``."""
+    b = np.asarray(blocking, np.float64)
+    n = b.shape[0] - 1
+    out = np.empty((6, n, n, n), np.float32)
+    arr_axis = {0: 2, 1: 1, 2: 0}  # world axis → array axis of [z, y, x]
+    for a, d in enumerate(AXES):
+        ax = int(np.flatnonzero(d)[0])
+        face = b[..., ax]
+        # the face's coordinate along ax: the destination's lower corner (d > 0) or upper
+        lo = 0 if d[ax] > 0 else 1
+        sl = [slice(None)] * 3
+        sl[arr_axis[ax]] = slice(lo, lo + n)
+        f = face[tuple(sl)]
+        # mean over the 4 corners in the two other axes
+        for other in range(3):
+            if other == ax:
+                continue
+            k = arr_axis[other]
+            f = 0.5 * (np.take(f, range(0, n), axis=k) + np.take(f, range(1, n + 1), axis=k))
+        out[a] = 1.0 - np.clip(f, 0.0, 1.0)
+    return out
+
+
+def transmittance_dr(trans: np.ndarray) -> list[mi.Float]:
+    """:func:`face_transmittance`'s array as the 6 flat Dr.Jit buffers (x fastest) that
+    :func:`propagate` takes."""
+    return [mi.Float(aligned(np.ascontiguousarray(t.reshape(-1)), np.float32)) for t in trans]
+
+
+def propagate_numpy(arr: np.ndarray, steps: int, dampening: bool = False,
+                    transmittance: np.ndarray | None = None,
+                    matrices: np.ndarray | None = None) -> np.ndarray:
     """Plain NumPy peer of :func:`propagate`: ``arr`` is ``(n, n, n, 4, 3)`` indexed
-    ``[z, y, x, k, c]``; returns the accumulated volume (same maths, float64), with the same
-    dampening factor when ``dampening``."""
-    mats = propagation_matrices()
+    ``[z, y, x, k, c]``; returns the accumulated volume (float64), with the same dampening
+    factor when ``dampening`` and the face transmittances ``(6, n, n, n)`` when given (from
+    the second step on). ``matrices`` (default :func:`propagation_matrices`) lets a test
+    supply matrices built independently."""
+    mats = propagation_matrices() if matrices is None else np.asarray(matrices, np.float64)
     lum = np.array([0.2126, 0.7152, 0.0722])
     cur = np.asarray(arr, np.float64)
     acc = cur.copy()
-    for _ in range(int(steps)):
+    for step in range(int(steps)):
         new = np.zeros_like(cur)
         for a, d in enumerate(AXES):
             moved = mats[a] @ cur  # (4, 4) @ (n, n, n, 4, C)
@@ -371,6 +440,9 @@ def propagate_numpy(arr: np.ndarray, steps: int, dampening: bool = False) -> np.
                 den = i_src + i_dst
                 g = np.where(den > 0, (i_dst - i_src) / np.where(den > 0, den, 1.0), 0.0)
                 part = part * (1.0 - np.maximum(g, 0.0))[..., None, None]
+            if transmittance is not None and step > 0:
+                part = part * np.asarray(transmittance[a], np.float64)[tuple(sl_dst)][
+                    ..., None, None]
             new[tuple(sl_dst)] += part
         cur = new
         acc += cur
@@ -456,7 +528,52 @@ def plane_response(n: int, steps: int, dampening: bool) -> float:
     return _PLANE_RESPONSE[key]
 
 
+_POINT_RESPONSE: dict[tuple[int, int, bool], float] = {}
+
+POINT_DISTANCES = (2, 3, 4)
+"""Receiver distances (cells) of :func:`point_response`: the range over which an LPV carries
+a VPL's light (beyond about 4 cells the propagated wavefront has spread: 0.41 of
+``Φ/(πr²)`` at 6 cells, 0.19 at 8)."""
+POINT_ANGLES_DEG = (0.0, 30.0, 60.0)
+"""Receiver directions of :func:`point_response`, degrees from the VPL's normal."""
+
+
+def point_response(n: int, steps: int, dampening: bool) -> float:
+    """How an LPV reads one VPL (the shape of every indirect injection): the mean of
+    ``E_LPV / E_true`` over receivers at :data:`POINT_DISTANCES` cells and
+    :data:`POINT_ANGLES_DEG` from the VPL's normal, each facing the VPL, with ``E_true =
+    Φ cos θ / (π r²)`` (a Lambertian emitter of flux ``Φ``: intensity ``Φ/π cos θ``, Franke
+    Eq. 12, seen at distance ``r``). The divisor that makes the volume's indirect light
+    radiometric on average over the distances where it carries light (0.89 at 32³, 32
+    steps; individual receivers 0.67–1.16). Derived from the propagation operator alone, no
+    scene; cached per arguments."""
+    key = (int(n), int(steps), bool(dampening))
+    if key not in _POINT_RESPONSE:
+        m = max(int(n), 2 * max(POINT_DISTANCES) + 2)
+        g = Grid(np.zeros(3), 1.0, m)
+        c = m // 2 - max(POINT_DISTANCES) // 2 - 1
+        a = np.zeros((m, m, m, 4, 3))
+        a[c, c, c] = (cosine_lobe(np.array([1.0, 0.0, 0.0])) / math.pi)[:, None]
+        vol = propagate(SHVolume.from_numpy(g, a), int(steps), bool(dampening))
+        pts, nrm, true = [], [], []
+        for th in POINT_ANGLES_DEG:
+            t = math.radians(th)
+            d = np.array([math.cos(t), math.sin(t), 0.0])
+            for r in POINT_DISTANCES:
+                pts.append(c + 0.5 + r * d)
+                nrm.append(-d)
+                true.append(math.cos(t) / (math.pi * r * r))
+        p, q = np.asarray(pts, np.float32), np.asarray(nrm, np.float32)
+        e = np.array(query_irradiance(vol, mi.Point3f(*(aligned(p[:, i], np.float32)
+                                                        for i in range(3))),
+                                      mi.Vector3f(*(aligned(q[:, i], np.float32)
+                                                    for i in range(3)))))
+        _POINT_RESPONSE[key] = float(np.mean(np.asarray(e).reshape(3, -1)[0] / np.asarray(true)))
+    return _POINT_RESPONSE[key]
+
+
 __all__ = ["AXES", "Grid", "SHVolume", "basis", "cell_index", "cosine_lobe",
            "face_solid_angles", "inject", "propagate", "propagate_numpy",
-           "plane_response", "propagation_matrices", "query_irradiance", "query_irradiance_compact",
+           "face_transmittance", "plane_response", "point_response", "propagation_matrices",
+           "transmittance_dr", "query_irradiance", "query_irradiance_compact",
            "rect_solid_angle"]
