@@ -64,7 +64,13 @@ from arlight.tracing.irradiance_cache import (
     splat_batches,
 )
 from arlight.tracing.irradiance_eval import evaluate_records, record_radius, record_tracer
-from arlight.tracing.irradiance_shading import CameraWalk, SplatLookup, splat_geometry
+from arlight.tracing.irradiance_shading import (
+    CameraWalk,
+    RecordGrid,
+    SplatLookup,
+    splat_geometry,
+    validity_tolerance,
+)
 from arlight.tracing.irradiance_splat import splat_dr
 from arlight.tracing.onepass import lane_keys
 from arlight.tracing.scenes import PathScenes, frame_gather
@@ -85,6 +91,10 @@ OPTIONS: dict[str, Field] = {
                            "px", min=0.0, max=1.0e4, exclusive_min=True),
     "t_max": Field("int", 8, "frames after which a record is re-evaluated with its own random "
                    "sequence (DicSequence)", "frames", min=1, max=1000000),
+    "validate": Field("bool", True, "validate each splat-buffer lookup by depth and normal "
+                      "(the pixel's surface within its smallest record footprint, normals "
+                      "within Eq. 2.15's 10°/κ) and search the records in world space where "
+                      "it fails; false: Kán's plain reprojection"),
     "invalidate_distance": Field("float", 0.3, "records this close to a moved virtual "
                                  "object's old or new bounds are dropped (DicSequence)", "m",
                                  min=0.0, max=1.0e6),
@@ -243,8 +253,13 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
         e_mixed, e_delta = buf.irradiance()
     with timer.stage("setup"):
         # the walk samples lights through the record tracer's selection: one set of rules
-        walk = CameraWalk(views, SplatLookup(camera, e_mixed, e_delta), settings.max_depth,
-                          tracer.light_selection)
+        if options.validate:
+            lookup = SplatLookup(camera, e_mixed, e_delta, geom,
+                                 validity_tolerance(geom, camera, lo_px),
+                                 RecordGrid(records, camera, kappa, lo_px, hi_px), kappa)
+        else:
+            lookup = SplatLookup(camera, e_mixed, e_delta)
+        walk = CameraWalk(views, lookup, settings.max_depth, tracer.light_selection)
         background = frame_gather(frame)
     cam_counts: dict[str, int] = {}
 
@@ -263,6 +278,8 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
                      covered_fraction=float(np.mean(buf.weight[geom.needs] > 0))
                      if geom.needs.any() else 1.0)
         stats.update(_ray_stats("record", rec_counts))
+        for k in ("lookups", "lookups_rejected", "lookups_unresolved"):
+            stats[k] = float(cam_counts.pop(k, 0))
         stats.update(_ray_stats("camera", cam_counts))
         layers = layers_from_passes(frame, res, **stats)
         _add_record_noise(layers, geom, buf)
@@ -304,6 +321,11 @@ class DicMethod(PathScenesMethod):
     one-pass direct light."""
 
     spec = SPEC
+    incremental_pose = True
+    move = PathScenesMethod.move_in_place
+    """Issue #32: the shapes move in place in both Mitsuba views; a frame builds its cache
+    from the posed views, so it renders bitwise what a fresh preparation of the posed world
+    renders (:class:`DicSequence` keeps the records away from the moved object)."""
 
     def render_view(self, data: PathScenes, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
@@ -315,6 +337,13 @@ class DicSequence:
     temporal part): records age, are re-evaluated with their own random sequence after
     ``t_max`` frames (a static scene renders bitwise the same frames) and are dropped near
     a virtual object that moved.
+
+    Moving an object (issue #32) moves its shapes in place (:meth:`DicMethod.move`) and
+    drops exactly the records within ``invalidate_distance`` of the objects' bounds before
+    or after the move; the others keep their values (and ages) bit for bit, and the frame is
+    bitwise what :func:`render_frame` makes from a fresh preparation of the posed world and
+    the same cache. (It is not a fresh frame: kept records hold the light of the old pose
+    until they age out — the definition of the temporal cache.)
 
     >>> seq = DicSequence(scene.world, RenderSettings(options={"rays": 128}))
     >>> layers = [seq.render(v) for v in views]   # doctest: +SKIP
@@ -335,15 +364,16 @@ class DicSequence:
         opts = m.options(settings)
         m.check_supported(st.world, view)
         timer = StageTimer()
-        data = st.data
         transforms = dict(view.object_transforms)
-        if transforms:
-            with timer.stage("pose"):
-                data = m.pose(st, transforms, settings)
         prev = self.cache.transforms if self.cache is not None else {}
         moved = self.cache is not None and not _same_transforms(prev, transforms)
-        res = render_frame(data, replace(view, object_transforms={}), opts, settings, timer,
-                           self.cache, moved)
+        with st.lock:  # the views are moved in place (incremental pose, issue #32)
+            t1 = time.perf_counter()
+            data = m.pose(st, transforms, settings)
+            if transforms or moved:
+                timer.add("pose", time.perf_counter() - t1)
+            res = render_frame(data, replace(view, object_transforms={}), opts, settings,
+                               timer, self.cache, moved)
         res.cache.transforms = transforms
         self.cache, self.last = res.cache, res
         layers = res.layers

@@ -43,11 +43,16 @@ import numpy as np
 from arlight.backend.camera_rays import Projection
 from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.backend.rays import np3
-from arlight.jit import columns
+from arlight.jit import aligned, columns, opaque
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.sampling.stream import LaneSampler
 from arlight.scene.camera import Camera
-from arlight.tracing.irradiance_cache import SplatGeometry
+from arlight.tracing.irradiance_cache import (
+    NORMAL_SCALE,
+    Records,
+    SplatGeometry,
+    effective_radius,
+)
 from arlight.tracing.onepass import (
     HitRules,
     LightSelection,
@@ -63,16 +68,189 @@ from arlight.tracing.onepass import (
 UNLIMITED_SPECULAR = 16
 """Longest delta-specular chain when ``max_depth = -1``."""
 WALK_COUNTERS = ("rays_mixed_radiance", "rays_real_radiance", "rays_mixed_shadow",
-                 "rays_real_shadow", "rays_mixed_radiance_direct", "rays_real_radiance_direct")
+                 "rays_real_shadow", "rays_mixed_radiance_direct", "rays_real_radiance_direct",
+                 "lookups", "lookups_rejected", "lookups_unresolved")
+"""Per-lane counters of the camera walk: rays by type, and the splat-buffer lookups of the
+mixed walk — all, those whose pixel failed the depth/normal check, and those of them no
+record weighed on (the pixel's value kept)."""
+
+
+_HASH = (73856093, 19349663, 83492791)
+"""Multipliers of the grid's spatial hash (Teschner et al. 2003), modulo 2³²."""
+_GRID_PAIRS = 1 << 22
+"""(cell, record) pairs a :class:`RecordGrid` holds at most (its cell size grows until
+they fit)."""
+
+
+def _cell_hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, mask: int) -> np.ndarray:
+    """Bucket of integer cells ``(ix, iy, iz)``: ``(ix·A ⊕ iy·B ⊕ iz·C) mod 2³² & mask``,
+    the same bits as :meth:`RecordGrid.bucket` on the device."""
+    out = np.zeros(np.shape(ix), np.uint64)
+    for c, m in zip((ix, iy, iz), _HASH, strict=True):
+        out ^= ((np.asarray(c, np.int64) & 0xFFFFFFFF).astype(np.uint64) * np.uint64(m)
+                ) & np.uint64(0xFFFFFFFF)
+    return (out & np.uint64(mask)).astype(np.int64)
+
+
+class RecordGrid:
+    """World-space search over the cache records on the device: Tabellion-weighted
+    interpolation (Eq. 2.15, 4.11) at any point, the fallback of a lookup the splat buffer
+    cannot serve (Ward's irradiance cache is searched in world space, Kán §2.4.2/§4.2.4).
+
+    A uniform grid of cell size ``h`` hashed into a table of ``T`` buckets (CSR lists of
+    record indices): each record is listed in every bucket of a cell that its footprint's
+    bounding cube (``‖x − x_i‖ < R_i/(2κ)``, the clamped ``R_i`` of
+    :func:`~arlight.tracing.irradiance_cache.effective_radius`) overlaps, so a point's own
+    cell lists every record whose weight can be positive there (hash collisions only add
+    candidates; each is weighted exactly). ``h`` starts at the median footprint diameter and
+    doubles until at most :data:`_GRID_PAIRS` (cell, record) pairs are listed.
+
+    The cubes are those of the *relaxed* footprint ``RELAX · R_i/(2κ)``: a point no record
+    weighs on at ``κ`` (a silhouette's grazing side, the floor just behind an object) is
+    interpolated at ``κ/RELAX`` (twice the footprint, normals within 20°) rather than left
+    to the wrong pixel.
+    """
+
+    RELAX = 2.0
+    """Footprint factor of the relaxed search (its κ is ``κ / RELAX``)."""
+
+    def __init__(self, records: Records, camera: Camera, kappa: float, min_px: float,
+                 max_px: float):
+        n = len(records)
+        radius, _, _ = effective_radius(records, camera, kappa, min_px, max_px)
+        foot = self.RELAX * radius / (2.0 * kappa)  # relaxed w_i > 0 inside this (m)
+        x = np.asarray(records.position, np.float64)
+        # float32 rounding of the device's cell index: pad the cubes by more than it
+        pad = 1e-5 * (1.0 + np.abs(x).max(initial=0.0)) + 1e-7
+        h = max(2.0 * float(np.median(foot)) if n else 1.0, 1e-6)
+        while True:
+            lo = np.floor((x - (foot + pad)[:, None]) / h).astype(np.int64)
+            hi = np.floor((x + (foot + pad)[:, None]) / h).astype(np.int64)
+            ext = hi - lo + 1
+            counts = ext.prod(axis=1)
+            if counts.sum() <= _GRID_PAIRS:
+                break
+            h *= 2.0
+        size = 1 << max(10, int(np.ceil(np.log2(max(2 * n, 1)))))
+        rec = np.repeat(np.arange(n), counts)
+        local = np.arange(len(rec)) - np.repeat(np.cumsum(counts) - counts, counts)
+        e = ext[rec]
+        cell = lo[rec] + np.stack([local % e[:, 0], (local // e[:, 0]) % e[:, 1],
+                                   local // (e[:, 0] * e[:, 1])], axis=1)
+        bucket = _cell_hash(cell[:, 0], cell[:, 1], cell[:, 2], size - 1)
+        pairs = np.unique(bucket * max(n, 1) + rec)  # one entry per (bucket, record)
+        bucket, rec = pairs // max(n, 1), pairs % max(n, 1)
+        start = np.searchsorted(bucket, np.arange(size + 1))
+        self.cell_size, self.buckets, self.pairs = h, size, len(rec)
+        self.start = mi.UInt32(aligned(start, np.uint32))
+        self.entries = mi.UInt32(aligned(np.append(rec, 0), np.uint32))
+        self.position = mi.Point3f(*columns(x, np.float32))
+        self.normal = mi.Vector3f(*columns(records.normal, np.float32))
+        self.inv_half = mi.Float(aligned(2.0 / np.maximum(radius, 1e-30), np.float32))
+        self.e_mixed = mi.Color3f(*columns(records.e_mixed, np.float32))
+        self.e_delta = mi.Color3f(*columns(records.e_delta, np.float32))
+        self.inv_h = opaque(1.0 / h)
+        self.mask = dr.opaque(mi.UInt32, size - 1)
+        self.kappa = opaque(kappa)
+        self.empty = n == 0
+
+    def bucket(self, p: mi.Point3f) -> mi.UInt32:
+        """The hash bucket of the grid cell holding ``p``."""
+        out = mi.UInt32(0)
+        for c, m in zip((p.x, p.y, p.z), _HASH, strict=True):
+            i = mi.Int32(dr.floor(c * self.inv_h))
+            out ^= dr.reinterpret_array(mi.UInt32, i) * m
+        return out & self.mask
+
+    def interpolate(self, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool
+                    ) -> tuple[mi.Float, mi.Color3f, mi.Color3f]:
+        """``(Σ w_i, Σ w_i E_m,i, Σ w_i E_d,i)`` over the records with ``w_i(p, n) > 0``
+        (Eq. 2.15 at κ; where none has, the same at ``κ/RELAX``; ``n`` unit, facing the side
+        the records were made from)."""
+        zero = dr.zeros(mi.Float, dr.width(p))
+        if self.empty:
+            return zero, mi.Color3f(zero), mi.Color3f(zero)
+        b = self.bucket(p)
+        i0 = dr.gather(mi.UInt32, self.start, b, active)
+        i1 = dr.gather(mi.UInt32, self.start, b + 1, active)
+        scale = NORMAL_SCALE / math.sqrt(2.0)
+
+        relaxed = self.kappa * (1.0 / self.RELAX)
+
+        def cond(i, *_):
+            return active & (i < i1)
+
+        def body(i, ws, wm, wd, vs, vm, vd):
+            act = active & (i < i1)
+            r = dr.gather(mi.UInt32, self.entries, i, act)
+            xi = dr.gather(mi.Point3f, self.position, r, act)
+            ni = dr.gather(mi.Vector3f, self.normal, r, act)
+            dist = dr.norm(p - xi) * dr.gather(mi.Float, self.inv_half, r, act)
+            err = dr.maximum(dist, dr.norm(n - ni) * scale)
+            w = 1.0 - self.kappa * err
+            v = 1.0 - relaxed * err
+            ok = act & (v > 0.0)
+            em = dr.gather(mi.Color3f, self.e_mixed, r, ok)
+            ed = dr.gather(mi.Color3f, self.e_delta, r, ok)
+            w = dr.select(ok & (w > 0.0), w, 0.0)
+            v = dr.select(ok, v, 0.0)
+            return i + 1, ws + w, wm + w * em, wd + w * ed, vs + v, vm + v * em, vd + v * ed
+
+        z3 = mi.Color3f(zero)
+        _, ws, wm, wd, vs, vm, vd = dr.while_loop(
+            state=(mi.UInt32(i0), zero, z3, z3, zero, z3, z3), cond=cond, body=body,
+            label="dic_record_grid")
+        strict = ws > 0.0
+        return (dr.select(strict, ws, vs), dr.select(strict, wm, vm),
+                dr.select(strict, wd, vd))
+
+
+def validity_tolerance(geom: SplatGeometry, camera: Camera, min_px: float) -> np.ndarray:
+    """Per pixel, how far (m) a point may lie from the pixel's G-buffer point and still read
+    the pixel: the smallest record footprint there, ``min_px`` pixels at the pixel's depth
+    (every footprint spans at least that, :func:`~arlight.tracing.irradiance_cache.
+    effective_radius`); −1 at pixels without a surface (never valid)."""
+    _, z = camera.project(geom.position)
+    tol = min_px * np.maximum(np.asarray(z, np.float64), 0.0) / float(camera.fy)
+    return np.where(geom.valid, tol, -1.0)
+
+
+@dataclass
+class Lookup:
+    """What :meth:`SplatLookup.lookup` read: irradiances (W/m²) and per-lane flags."""
+
+    e_mixed: mi.Color3f
+    e_delta: mi.Color3f
+    rejected: mi.Bool
+    """The pixel failed the depth/normal check (the world-space search was asked)."""
+    unresolved: mi.Bool
+    """Rejected and no record weighs on the point: the pixel's value was kept."""
 
 
 class SplatLookup:
-    """The splat buffer on the device, read at the camera projection of world points."""
+    """The splat buffer on the device, read at the camera projection of world points
+    (Kán §4.2.5), optionally *validated*: the pixel a point projects to serves it only when
+    its G-buffer surface is the point's — within the pixel's :func:`validity_tolerance`
+    and with normals closer than Eq. 2.15's limit (``√(1 − n·n_g)/√(1 − cos 10°) < 1/κ``);
+    otherwise (a silhouette, a point hidden behind another surface, a lens sample off the
+    pinhole's surface) the records are searched in world space (:class:`RecordGrid`), and
+    only where no record weighs on the point the pixel's value is kept."""
 
-    def __init__(self, camera: Camera, e_mixed: np.ndarray, e_delta: np.ndarray):
+    def __init__(self, camera: Camera, e_mixed: np.ndarray, e_delta: np.ndarray,
+                 geom: SplatGeometry | None = None, tolerance: np.ndarray | None = None,
+                 grid: RecordGrid | None = None, kappa: float = 1.0):
         self.mixed = mi.Color3f(*columns(e_mixed, np.float32))
         self.delta = mi.Color3f(*columns(e_delta, np.float32))
         self.proj = Projection(camera)
+        self.validate = geom is not None
+        if geom is not None:
+            if tolerance is None:
+                raise ValueError("a validated lookup needs the per-pixel tolerance")
+            self.g_position = mi.Point3f(*columns(geom.position, np.float32))
+            self.g_normal = mi.Vector3f(*columns(geom.normal, np.float32))
+            self.tolerance = mi.Float(aligned(tolerance, np.float32))
+            self.kappa = opaque(kappa)
+        self.grid = grid
 
     def pixel(self, p: mi.Point3f) -> mi.UInt32:
         """Pixel index of the projection of ``p``, wrapped into the image (Kán §4.2.5)."""
@@ -86,11 +264,35 @@ class SplatLookup:
         row = dr.clip(mi.Int32(row), 0, mi.Int32(self.proj.height) - 1)
         return mi.UInt32(row * mi.Int32(self.proj.width) + col)
 
-    def lookup(self, p: mi.Point3f, active: mi.Bool) -> tuple[mi.Color3f, mi.Color3f]:
-        """``(E_m, E_d)`` (W/m²) at the projections of ``p``."""
+    def read(self, p: mi.Point3f, active: mi.Bool, n: mi.Vector3f | None = None) -> Lookup:
+        """``(E_m, E_d)`` (W/m²) at ``p`` with unit normal ``n`` (facing the viewer; needed
+        when validated)."""
         idx = self.pixel(p)
-        return (dr.gather(mi.Color3f, self.mixed, idx, active),
-                dr.gather(mi.Color3f, self.delta, idx, active))
+        e_m = dr.gather(mi.Color3f, self.mixed, idx, active)
+        e_d = dr.gather(mi.Color3f, self.delta, idx, active)
+        no = mi.Bool(False)
+        if not self.validate or n is None:
+            return Lookup(e_m, e_d, no, no)
+        gp = dr.gather(mi.Point3f, self.g_position, idx, active)
+        gn = dr.gather(mi.Vector3f, self.g_normal, idx, active)
+        tol = dr.gather(mi.Float, self.tolerance, idx, active)
+        dev = dr.norm(n - gn) * (NORMAL_SCALE / math.sqrt(2.0))
+        ok = (dr.norm(p - gp) <= tol) & (self.kappa * dev < 1.0)
+        rejected = active & ~ok
+        if self.grid is None:
+            return Lookup(e_m, e_d, rejected, rejected)
+        ws, wm, wd = self.grid.interpolate(p, n, rejected)
+        found = rejected & (ws > 0.0)
+        inv = dr.select(found, dr.rcp(ws), 0.0)
+        return Lookup(dr.select(found, wm * inv, e_m), dr.select(found, wd * inv, e_d),
+                      rejected, rejected & ~found)
+
+    def lookup(self, p: mi.Point3f, active: mi.Bool,
+               n: mi.Vector3f | None = None) -> tuple[mi.Color3f, mi.Color3f]:
+        """``(E_m, E_d)`` (W/m²) at the projections of ``p`` (validated when built with a
+        G-buffer and ``n`` is given)."""
+        r = self.read(p, active, n)
+        return r.e_mixed, r.e_delta
 
 
 @dataclass
@@ -246,7 +448,12 @@ class CameraWalk:
         gather = smooth & self._limit(depth, 2)
         alb = surface_albedo(si, gather)
         gather &= dr.max(alb) > 0
-        e_m, e_d = self.lookup.lookup(si.p, gather)
+        look = self.lookup.read(si.p, gather, facing(mi.Vector3f(si.sh_frame.n), -ray.d))
+        e_m, e_d = look.e_mixed, look.e_delta
+        if "lookups" in c:  # the mixed walk counts its lookups (the retraced real part not)
+            c["lookups"] += dr.select(gather, 1, 0)
+            c["lookups_rejected"] += dr.select(look.rejected, 1, 0)
+            c["lookups_unresolved"] += dr.select(look.unresolved, 1, 0)
         ind_m = beta * alb * e_m * (1.0 / math.pi)
         ind_r = beta * alb * (e_m - e_d) * (1.0 / math.pi)
         if to_mixed:
@@ -305,5 +512,5 @@ def splat_geometry(view: SceneView, camera: Camera) -> SplatGeometry:
                          np.asarray(role, np.int64) == ROLE_VIRTUAL, w, h, albedo)
 
 
-__all__ = ["CameraWalk", "SplatLookup", "UNLIMITED_SPECULAR", "WALK_COUNTERS", "WalkResult",
-           "splat_geometry"]
+__all__ = ["CameraWalk", "Lookup", "RecordGrid", "SplatLookup", "UNLIMITED_SPECULAR",
+           "WALK_COUNTERS", "WalkResult", "splat_geometry", "validity_tolerance"]
