@@ -46,6 +46,22 @@ def live_command(
     light: Annotated[Path | None, typer.Option(
         "--light", help="light estimate JSON (`arlight light estimate`) replacing the "
                         "scene's lights")] = None,
+    light_server: Annotated[str | None, typer.Option(
+        "--light-server", help="the light server's publish endpoint (e.g. "
+                               "tcp://127.0.0.1:5556): its newest state lights each frame "
+                               "(method nearfield)")] = None,
+    light_snapshot: Annotated[str | None, typer.Option(
+        "--light-snapshot", help="the light server's snapshot endpoint (default: "
+                                 "--light-server's port + 1)")] = None,
+    light_wait: Annotated[float, typer.Option(
+        "--light-wait", help="seconds to wait for the light server's first state", min=0.1,
+        max=3600)] = 10.0,
+    server_public_key: Annotated[Path | None, typer.Option(
+        "--server-public-key", help="the light server's public key file (CURVE; needed off "
+                                    "loopback)")] = None,
+    insecure: Annotated[bool, typer.Option(
+        "--insecure", help="subscribe to a light server off loopback without its key (no "
+                           "authentication)")] = False,
     spp: Annotated[int | None, typer.Option("--spp", help="samples per pixel", min=1,
                                             max=MAX_SPP)] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="seed of every frame", min=0,
@@ -118,6 +134,15 @@ def live_command(
     if unpaced and camera is not None:
         raise InputError("a camera cannot be unpaced (it delivers at its own rate)",
                          field="--unpaced")
+    if light is not None and light_server is not None:
+        raise InputError("give --light or --light-server, not both", field="--light-server")
+    if light_server is not None:
+        from arlight.live.server_light import METHOD
+
+        if method not in (None, METHOD):
+            raise InputError(f"the light server's states light the {METHOD} method; got "
+                             f"{method!r}", field="--method")
+        method = METHOD
     given = render_settings_for(scene, method, spp, None, seed,
                                 parse_option_pairs(option or []))
     name = method or (given["method"] if given["method"] != "reference" else "dir")
@@ -148,7 +173,12 @@ def live_command(
     job, calibration, spec = live_job(sc, src.size, name, settings, calib, marker, fps_in,
                                       threads, src.name)
     clock = WallClock()
-    comp = LiveCompositor(job, MarkerTracker(calibration, spec, job.camera), clock)
+    client = server_light = None
+    if light_server is not None:
+        client, server_light = _light_client(job, light_server, light_snapshot,
+                                             server_public_key, light_wait, insecure)
+    comp = LiveCompositor(job, MarkerTracker(calibration, spec, job.camera), clock,
+                          server_light)
     typer.echo(f"live: preparing {name} for {Path(scene).name} at {src.size[0]}×"
                f"{src.size[1]} ...")
     prep = comp.prepare()
@@ -195,6 +225,8 @@ def live_command(
                                  else fps_in, ok)
         if server is not None:
             server.__exit__(None, None, None)
+        if client is not None:
+            client.close()
     assert summary is not None
     d = summary.as_dict()
     typer.echo(f"{name}: {d['frames']} frames composited in {d['seconds']:.1f} s, "
@@ -203,6 +235,9 @@ def live_command(
                f"p95 {d['latency_ms_p95']:.0f} ms (prepare {prep:.1f} s)")
     typer.echo("stages (median ms): " + json.dumps(
         {k: round(v, 1) for k, v in d["stage_ms_median"].items()}))
+    if server_light is not None:
+        typer.echo(f"light server: {server_light.updates} states applied, "
+                   f"{server_light.skipped} skipped (another number of objects)")
     if out is not None:
         typer.echo(f"recorded: {out}")
 
@@ -213,6 +248,27 @@ class _NoFrames:
 
     path = Path("")
     files: list[Path] = []
+
+
+def _light_client(job, endpoint: str, snapshot: str | None, key: Path | None, wait: float,
+                  insecure: bool):
+    """(client, ServerLight): subscribed to ``endpoint``, its first state received."""
+    from arlight.lightserver import security
+    from arlight.lightserver.client import LightClient
+    from arlight.live.server_light import ServerLight
+
+    pub = security.load_public(key, "--server-public-key") if key is not None else None
+    try:
+        client = LightClient(endpoint, snapshot, server_public_key=pub, insecure=insecure)
+    except InputError as exc:
+        raise InputError(exc.message, field="--light-server") from exc
+    client.start()
+    try:
+        client.wait_for(1, timeout=wait)
+        return client, ServerLight(job, client)
+    except BaseException:
+        client.close()
+        raise
 
 
 def _serve(feed, host: str, port: int, token: str | None):

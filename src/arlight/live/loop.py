@@ -2,6 +2,8 @@
 
 Per frame (:meth:`LiveCompositor.__call__`):
 
+0. **light** — with the light server, its newest state installed
+   (:class:`arlight.live.server_light.ServerLight`).
 1. **track** — the camera pose registered on the printed marker
    (:func:`arlight.sequence.build.marker_pose`, the same call ``arlight sequence --poses
    marker`` makes per frame). When the marker is not found the previous pose is kept (the
@@ -102,9 +104,11 @@ class LiveCompositor:
     intrinsics, its ``calibration`` the distortion removed from every frame)."""
 
     def __init__(self, job: SequenceJob, tracker: Callable[[InputFrame],
-                 tuple[np.ndarray | None, bool]], clock: Clock | None = None) -> None:
+                 tuple[np.ndarray | None, bool]], clock: Clock | None = None,
+                 light: Callable[[], bool] | None = None) -> None:
         self.job, self.tracker = job, tracker
         self.clock = clock or WallClock()
+        self.light = light  # called once before each frame: a new light installed?
 
     def prepare(self) -> float:
         """Prepare the method now (seconds), not on the first frame."""
@@ -121,6 +125,8 @@ class LiveCompositor:
 
     def __call__(self, cap: Captured) -> LiveFrame:
         c = self.clock
+        tl = c.now()
+        new_light = self.light() if self.light is not None else False
         t0 = c.now()
         pose, tracked = self.tracker(cap.frame)
         t1 = c.now()
@@ -131,6 +137,9 @@ class LiveCompositor:
             display, stats = res.display, res.stats
         t2 = c.now()
         timings = {"track": t1 - t0, "render": t2 - t1}
+        if self.light is not None:
+            timings["light"] = t0 - tl
+            stats = {**stats, "new_light": float(new_light)}
         timings.update({k[5:]: float(v) for k, v in stats.items() if k.startswith("time_")})
         return LiveFrame(cap.frame.index, display, pose, tracked, stats, timings,
                          cap.captured_at, 0.0, cap.dropped)

@@ -224,6 +224,14 @@ def prepared(job: SequenceJob) -> tuple[Any, Any, float]:
     return method, state, time.perf_counter() - t0
 
 
+def install_prepared(job: SequenceJob, method: Any, state: Any) -> None:
+    """Make ``(method, state)`` this process's preparation of ``job``: a state prepared
+    elsewhere or changed since (``arlight live`` installs the light server's newest light
+    into a ``nearfield`` state this way before a frame); :func:`render_frame` then uses it."""
+    _PREPARED.clear()
+    _PREPARED[job.key] = (method, state)
+
+
 def _test_hook(job: SequenceJob, index: int) -> None:
     """Fault-injection for tests: with ``job.test_hook = DIR`` and a file ``DIR/frame``
     holding a frame index, the first attempt at that frame records its process id in
@@ -311,5 +319,5 @@ def merge_parts(job: SequenceJob, results: list[FrameResult]) -> FrameResult:
     return FrameResult(results[0].index, display, layers, stats)
 
 
-__all__ = ["FrameResult", "SequenceJob", "configure_threads", "merge_parts", "prepared",
-           "render_frame"]
+__all__ = ["FrameResult", "SequenceJob", "configure_threads", "install_prepared",
+           "merge_parts", "prepared", "render_frame"]
