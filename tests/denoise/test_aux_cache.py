@@ -121,3 +121,27 @@ def test_a_still_frame_reuses_the_buffers_and_renders_the_same():
     cold = method.render(state, view, settings)
     assert cold.stats["denoise_aux_cached"] == 0.0
     assert np.array_equal(moved.composite, cold.composite)
+
+
+def test_a_relit_state_traces_the_buffers_again():
+    """``relight`` moves an area lamp in place (the same scene object, a new world): the
+    state's world is part of the key, so the same window of the same view and camera is
+    traced again after it, and served from the cache before it. Rejects a key without the
+    world (a lamp seen by the camera would keep its old place in the albedo and normal)."""
+    scene, method, state = _prepared()
+    view, cam, before = method.aux_view(state.data), scene.camera, state.world
+    cache = AuxCache()
+    cache.get(view, cam, 4, {}, ROWS, COLS, before)
+    assert cache.get(view, cam, 4, {}, ROWS, COLS, before)[1]
+    lights = []
+    for lt in state.world.lights:
+        p = dict(lt.params)
+        if lt.type == "area":
+            m = np.array(p["to_world"], np.float64)
+            m[:3, 3] += [-0.2, -0.1, 0.0]
+            p["to_world"] = m
+        lights.append(replace(lt, params=p))
+    method.relight(state, lights)
+    assert method.aux_view(state.data) is view, "relight must keep the view (in place)"
+    got, hit = cache.get(view, cam, 4, {}, ROWS, COLS, state.world)
+    assert not hit and _same(got, aux_buffers(view, cam, 4, ROWS, COLS))

@@ -148,10 +148,12 @@ def transforms_key(transforms: dict[str, np.ndarray] | None) -> tuple:
 class AuxCache:
     """The auxiliary buffers of recent frames, reused while nothing they depend on changed.
 
-    An entry is keyed by the Mitsuba scene view (by identity, held weakly: a view prepared
-    again is a new object, and a dead one never matches), :func:`camera_key`,
-    :func:`transforms_key` (a view moved in place by an incremental pose is the same object
-    in another pose) and the sample count. A window inside the cached one is a crop of it
+    An entry is keyed by the Mitsuba scene view and the world it was prepared for (by
+    identity, held weakly: a view prepared again is a new object, a relit state —
+    :meth:`arlight.methods.base.BaseMethod.relight` moves area lamps in place — has a new
+    world, and a dead one never matches), :func:`camera_key`, :func:`transforms_key` (a view
+    moved in place by an incremental pose is the same object in another pose) and the
+    sample count. A window inside the cached one is a crop of it
     (bitwise what :func:`aux_buffers` of that window gives: every pixel is traced alone); a
     window reaching outside traces the union of both windows again. At most ``capacity``
     entries, least recently used dropped first.
@@ -159,7 +161,7 @@ class AuxCache:
 
     def __init__(self, capacity: int = 4) -> None:
         self.capacity = capacity
-        self.entries: list[tuple[weakref.ref, tuple, slice, slice, AuxBuffers]] = []
+        self.entries: list[tuple[tuple, tuple, slice, slice, AuxBuffers]] = []
         self.hits = 0
         self.misses = 0
         self.lock = threading.Lock()
@@ -169,17 +171,19 @@ class AuxCache:
             self.entries.clear()
 
     def get(self, view: SceneView, camera: Camera, samples: int,
-            transforms: dict[str, np.ndarray] | None, rows: slice, cols: slice
-            ) -> tuple[AuxBuffers, bool]:
+            transforms: dict[str, np.ndarray] | None, rows: slice, cols: slice,
+            world: object | None = None) -> tuple[AuxBuffers, bool]:
         """The buffers of window ``(rows, cols)`` and whether they came from the cache
-        (arguments as :func:`aux_buffers`; ``transforms``: the pose ``view`` is in)."""
+        (arguments as :func:`aux_buffers`; ``transforms``: the pose ``view`` is in;
+        ``world``: the (rest-pose) world ``view`` was prepared or relit for)."""
         key = (camera_key(camera), transforms_key(transforms), samples)
         q0, q1, _ = rows.indices(camera.height)
         p0, p1, _ = cols.indices(camera.width)
         r0, r1, c0, c1 = q0, q1, p0, p1  # the window to trace on a miss
         with self.lock:
-            self.entries = [e for e in self.entries if e[0]() is not None]
-            found = next((e for e in self.entries if e[0]() is view and e[1] == key), None)
+            self.entries = [e for e in self.entries if _alive(e[0])]
+            found = next((e for e in self.entries if e[1] == key and all(
+                x is y for x, y in zip(_deref(e[0]), (view, world), strict=True))), None)
             if found is not None:
                 self.entries.remove(found)
                 _, _, er, ec, buf = found
@@ -193,9 +197,18 @@ class AuxCache:
             self.misses += 1
         buf = aux_buffers(view, camera, samples, slice(r0, r1), slice(c0, c1))
         with self.lock:
-            self.entries.append((weakref.ref(view), key, slice(r0, r1), slice(c0, c1), buf))
+            refs = (weakref.ref(view), None if world is None else weakref.ref(world))
+            self.entries.append((refs, key, slice(r0, r1), slice(c0, c1), buf))
             del self.entries[:-self.capacity]
         return buf.crop(slice(q0 - r0, q1 - r0), slice(p0 - c0, p1 - c0)), False
+
+
+def _deref(refs: tuple) -> tuple:
+    return tuple(None if r is None else r() for r in refs)
+
+
+def _alive(refs: tuple) -> bool:
+    return all(r is None or r() is not None for r in refs)
 
 
 AUX_CACHE = AuxCache()

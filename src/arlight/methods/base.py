@@ -241,11 +241,13 @@ class BaseMethod(ABC):
 
     def denoise(self, layers: Layers, data: Any, view: FrameView,
                 denoise: DenoiseSettings, timer: StageTimer,
-                transforms: dict[str, np.ndarray] | None = None) -> Layers:
+                transforms: dict[str, np.ndarray] | None = None,
+                world: World | None = None) -> Layers:
         """The frame's layers denoised (``denoise = oidn``, methods with Monte Carlo noise;
         :func:`arlight.denoise.differential.denoise_layers`): stages ``denoise_aux`` (the
         auxiliary buffers of the denoised window; reused from an earlier frame of the same
-        scene view, camera and ``transforms`` through
+        scene view, ``world`` (the state's; a relight replaces it), camera and
+        ``transforms`` through
         :data:`arlight.denoise.aux.AUX_CACHE`, stat ``denoise_aux_cached``) and ``denoise``;
         the raw layers stay in the result's ``noisy``."""
         from arlight.denoise.differential import denoise_layers
@@ -258,7 +260,7 @@ class BaseMethod(ABC):
             def aux(rows, cols):
                 t0 = time.perf_counter()
                 buffers, hit = AUX_CACHE.get(scene_view, view.camera, denoise.aux_spp,
-                                             transforms, rows, cols)
+                                             transforms, rows, cols, world)
                 aux_seconds[0] += time.perf_counter() - t0
                 cached[0] = float(hit)
                 return buffers
@@ -336,7 +338,8 @@ class BaseMethod(ABC):
         layers = self.render_view(data, view, opts, settings, timer)
         denoise = DenoiseSettings.from_options(opts)
         if denoise is not None:
-            layers = self.denoise(layers, data, view, denoise, timer, transforms)
+            layers = self.denoise(layers, data, view, denoise, timer, transforms,
+                                  state.world)
         return layers
 
     def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
