@@ -11,9 +11,16 @@
    against ``onepass`` with a fresh seed per frame at about the same time per frame; errors
    against a 256-spp ``onepass`` render of each frame.
 
+3. ``--heldout BEFORE.pkl AFTER.pkl``: the section "dic: validated lookups and equal time on
+   held-out worlds (issue #33)" from two saved ``bench_heldout.py --methods dic,onepass
+   --save`` runs (before: Kán's plain reprojection; after: the validated lookups), per
+   world: dic's PSNR minus the best onepass ladder frame that took at most dic's frame time
+   (same run), the worlds both runs measured, grouped by world class.
+
 Usage:
 
     python benchmarks/bench_dic.py [--repeats 3] [--write] [--flicker-only]
+    python benchmarks/bench_dic.py --heldout before.pkl after.pkl [--write]
 """
 
 from __future__ import annotations
@@ -150,12 +157,73 @@ def report(dic_rows, one_rows, fl, repeats: int, pressure: str) -> str:
     return "\n".join(lines)
 
 
+HELDOUT_HEADING = "## dic: validated lookups and equal time on held-out worlds (issue #33)"
+
+
+def equal_time_delta(results, world: str) -> tuple[float, float, float]:
+    """``(dic seconds, dic PSNR, Δ PSNR)`` of ``world``: Δ = dic's PSNR minus that of the
+    best ``onepass`` ladder frame that took at most dic's time (NaN when none did)."""
+    cell = next(c for c in results.cells if c.method == "dic" and c.scene == world)
+    fast = [p.metrics["psnr"] for p in results.ladders.get(world, [])
+            if p.seconds <= cell.seconds]
+    best = max(fast) if fast else float("nan")
+    return cell.seconds, cell.metrics["psnr"], cell.metrics["psnr"] - best
+
+
+def heldout_section(before, after, pressure: str, note: str = "") -> str:
+    """The issue-#33 section from two saved held-out runs (see the module docstring)."""
+    classes = after.world_classes()
+    worlds = [w for w in classes if w in before.world_classes()
+              and any(c.method == "dic" and c.scene == w for c in after.cells)]
+    lines = [HELDOUT_HEADING, "",
+             f"`python benchmarks/bench_heldout.py --methods dic,onepass --worlds heldout:8 "
+             f"--width 160 --save X.pkl` run twice — before (Kán's plain reprojection, the "
+             f"code of 2f93175) and after the validated lookups — then `python benchmarks/"
+             f"bench_dic.py --heldout before.pkl after.pkl`. 160×120, 16 spp, defaults, "
+             f"ground truth 256 spp; Δ = dic's PSNR minus the best onepass frame of the same "
+             f"world and run that took at most dic's frame time. CPU pressure (PSI some "
+             f"avg60) at the end: {pressure or 'n/a'} % (2 cores shared with other helpers: "
+             f"absolute times inflated, the runs' loads differ; Δ is same-run). {note}", "",
+             "| world | class | dic before | Δ before | dic after | Δ after |",
+             "|---|---|---|---|---|---|"]
+    deltas: dict[str, list[tuple[float, float]]] = {}
+    for w in worlds:
+        tb, pb, db = equal_time_delta(before, w)
+        ta, pa, da = equal_time_delta(after, w)
+        deltas.setdefault(classes[w], []).append((db, da))
+        lines.append(f"| {w} | {classes[w]} | {pb:.2f} dB, {tb * 1e3:.0f} ms | {db:+.2f} dB "
+                     f"| {pa:.2f} dB, {ta * 1e3:.0f} ms | {da:+.2f} dB |")
+    lines.append("")
+    every = [d for v in deltas.values() for d in v]
+    if every:
+        def med(i, xs):
+            return statistics.median(x[i] for x in xs)
+        lines.append(f"Median Δ over {len(every)} worlds: before {med(0, every):+.2f} dB, after "
+                     f"{med(1, every):+.2f} dB; dic ahead on {sum(d[1] > 0 for d in every)} of "
+                     f"{len(every)} after ({sum(d[0] > 0 for d in every)} before). By class: "
+                     + "; ".join(f"{k} ({len(v)}): {med(0, v):+.2f} → {med(1, v):+.2f} dB"
+                                 for k, v in sorted(deltas.items())) + ".")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     ap.add_argument("--flicker-only", action="store_true", help="print the flicker line only")
+    ap.add_argument("--heldout", nargs=2, metavar=("BEFORE", "AFTER"),
+                    help="the issue-#33 section from two pickled bench_heldout runs")
+    ap.add_argument("--note", default="", help="a sentence appended to the section's header")
     args = ap.parse_args()
+    if args.heldout:
+        import pickle
+
+        runs = []
+        for path in args.heldout:
+            with open(path, "rb") as f:
+                runs.append(pickle.load(f))
+        publish(heldout_section(*runs, cpu_pressure(), args.note), args.write)
+        return
     if args.flicker_only:
         print(flicker())
         return
