@@ -11,7 +11,7 @@ import pytest
 from arlight.backend.rays import visible
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
-from arlight.methods.dir import SPEC, interleave_filter, make_vpls
+from arlight.methods.dir import SPEC, frame_vpls, interleave_filter
 from arlight.realtime.gbuffer import GBuffer, render_gbuffer
 from arlight.realtime.shading import SHADOW_EPS
 from tests.methods.test_dlpv import box_scene, make
@@ -27,10 +27,11 @@ def _np(c) -> np.ndarray:
 
 def test_delta_equals_brute_force_instant_radiosity():
     """With interleave 1 the delta equals a NumPy instant-radiosity gather written from Eq.
-    2.43/2.45 — every VPL at every real pixel, clamped G, visibility by
-    arlight.backend.rays.visible in the mixed scene for R_ρ and the real scene for R_µ — plus
-    the direct-light difference. Rejects visibility traced in the wrong scene, an unclamped
-    or wrongly normalised G, and dropping the R_µ VPLs that the object hides."""
+    2.43/2.45 — every VPL (the frame's aimed, importance-picked VPLs) at every real pixel,
+    clamped G, visibility by arlight.backend.rays.visible in the mixed scene for R_ρ and the
+    real scene for R_µ — plus the direct-light difference. Rejects visibility traced in the
+    wrong scene, an unclamped or wrongly normalised G, and dropping the R_µ VPLs that the
+    object hides."""
     scene = make(box_scene(w=24, h=18))
     opts = {"vpls": 36, "interleave": 1, "clamp_distance": 0.3}
     method = get_method("dir")
@@ -39,7 +40,7 @@ def test_delta_equals_brute_force_instant_radiosity():
     layers = method.render(state, scene.view, settings)
     data = state.data
     gb = render_gbuffer(data.views.mixed, scene.camera, 1, 0)
-    vp = make_vpls(data, 36)
+    vp = frame_vpls(data, gb, SPEC.parse_options(opts), settings.seed)
     x, nx, alb = _np(gb.position), _np(gb.normal), _np(gb.albedo)
     role = np.array(gb.role)
     real = role == 0
@@ -157,16 +158,19 @@ def test_interleave_filter_filters_each_gbuffer_sample_with_its_own_neighbours()
 
 def test_several_gbuffer_samples_per_pixel():
     """``gbuffer_spp`` 4: no virtual object still returns the frame exactly; with the cube
-    the coverage is fractional on its silhouette and the delta stays within 10 % of one
-    sample per pixel. Rejects a filter or assembly that mixes samples of different pixels."""
+    the coverage is fractional on its silhouette and the delta stays within 15 % of one
+    sample per pixel (measured 11 %: the silhouette's fractional coverage adds about −2 to a
+    sum of −17, as it added −1.7 to the unaimed VPLs' −22; ``aim_view`` 0 keeps the same
+    VPLs in both, since the view's aim sphere follows the jittered samples). Rejects a filter
+    or assembly that mixes samples of different pixels."""
     empty = make(box_scene(virtual=False))
     layers = run(empty, vpls=16, gbuffer_spp=4)
     assert np.array_equal(layers.composite, empty.frame) and not layers.delta.any()
     scene = make(box_scene())
-    one = run(scene, vpls=64)
-    four = run(scene, vpls=64, gbuffer_spp=4)
+    one = run(scene, vpls=64, aim_view=0.0)
+    four = run(scene, vpls=64, gbuffer_spp=4, aim_view=0.0)
     assert ((four.mask > 0) & (four.mask < 1)).any()
-    assert four.delta.sum() == pytest.approx(one.delta.sum(), rel=0.1)
+    assert four.delta.sum() == pytest.approx(one.delta.sum(), rel=0.15)
 
 
 def test_shadow_negative_bleeding_red():

@@ -2,9 +2,19 @@
 
 Instant radiosity (Keller 1997) run twice per frame from the same reflective shadow maps:
 
-* per reduced light, VPLs are the texels of an ``s × s`` RSM (the 512² RSM of ``dlpv``
-  sampled at a stride; ``s² ≈ vpls`` shared among the lights by power), cast into the mixed
-  view (``R_ρ``: VPLs on real and virtual surfaces) and the real view (``R_µ``);
+* per reduced light, an **aimed** RSM (:func:`~arlight.realtime.rsm.light_rays` with
+  :class:`~arlight.realtime.rsm.Aim` spheres, issue #33) of ``rsm_size²`` texels over the light's
+  own emission plus ``aim_object`` × as many on the virtual objects' sphere and ``aim_view``
+  × on the sphere of the scene the camera sees, each texel's flux from the mixture density
+  (so the texels still sum to the light's flux), cast into the mixed view (``R_ρ``: VPLs on
+  real and virtual surfaces) and the real view (``R_µ``);
+* ``vpls`` VPLs are **picked by importance** among the texels of all lights:
+  ``q_i = max(Y(Φ_ρ,i), Y(Φ_µ,i)) · (1 + β · prox_i)`` with ``prox = 1/(1 + (d/r)²)``, ``d``
+  the texel's distance outside the virtual objects' sphere of radius ``r`` (``β`` =
+  ``vpl_importance``); texels with ``vpls · q_i/Σq ≥ 1`` are kept with probability 1, the
+  rest by systematic sampling with inclusion probability ``π_i = n q_i/Σq`` and flux
+  ``Φ_i/π_i`` (Horvitz–Thompson: an unbiased estimate of the sum over all texels); the same
+  texels in ``R_ρ`` and ``R_µ``, so the pairs stay paired;
 * every G-buffer pixel gathers ``L = ρ/π Σ_v Φ_v/π · G_b(x, v) · V(x, v)`` (Franke Eq. 2.43)
   with the clamped geometry term ``G_b = min(<n_x,ω>+ <n_v,−ω>+ / d², 1/d_c²)`` (Eq. 2.45)
   and ray-traced visibility ``V``, in the mixed scene for ``R_ρ``'s VPLs and in the real
@@ -35,7 +45,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import SceneViews, build_views
+from arlight.backend.mitsuba_scene import ROLE_VIRTUAL, SceneViews, build_views
+from arlight.jit import aligned
 from arlight.methods.base import (
     BaseMethod,
     Layers,
@@ -46,12 +57,21 @@ from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
-from arlight.realtime.rsm import RSM, concat_rays, light_rays, render_rsm_pair, shared_texels
+from arlight.realtime.rsm import (
+    RSM,
+    Aim,
+    concat_rays,
+    light_rays,
+    render_rsm_pair,
+    rsm_subset,
+    shared_texels,
+)
 from arlight.realtime.shading import (
     SHADOW_EPS,
     ambient_irradiance_dr,
     direct_irradiance,
     scene_bounds,
+    virtual_bounds,
 )
 from arlight.scene.model import FrameView, World
 from arlight.sphere.sh import LUMINANCE
@@ -60,6 +80,15 @@ from arlight.timing import StageTimer
 OPTIONS: dict[str, Field] = {
     "vpls": Field("int", 256, "virtual point lights per frame, all lights together (Knecht "
                   "2010, Franke Fig. 5.19: 256)", "", min=1, max=65536),
+    "rsm_size": Field("int", 48, "texels per side of each light's own RSM, the VPL candidates "
+                      "(aimed maps come on top)", "texels", min=1, max=1024),
+    "aim_object": Field("float", 1.0, "aimed texels on the virtual objects' sphere per texel "
+                        "of a light's own map (0: none)", "", min=0.0, max=64.0),
+    "aim_view": Field("float", 0.25, "aimed texels on the sphere of the scene the camera sees "
+                      "per texel of a light's own map (0: none)", "", min=0.0, max=64.0),
+    "vpl_importance": Field("float", 4.0, "β of the VPL importance flux × (1 + β · proximity "
+                            "to the virtual objects); 0: VPLs picked by flux alone", "",
+                            min=0.0, max=1.0e4),
     "clamp_distance": Field("float", 0.05, "geometry-term clamp: G ≤ 1/d_c² (Eq. 2.45)", "m",
                             min=0.0, max=1.0e6),
     "interleave": Field("int", 4, "interleaved sampling block k (k² VPL subsets; 1: every "
@@ -99,41 +128,111 @@ class DIRData:
     bounds: tuple[np.ndarray, float]
 
 
-def vpl_counts(lights: LightSet, total: int, bounds: tuple[np.ndarray, float]) -> list[int]:
-    """VPL map side ``s`` per light: ``s² ≈ total × power share`` (directional lights: the
-    power through the scene's disk), at least 1."""
-    radius = bounds[1]
-    powers = []
-    for lt in lights.lights:
-        if lt.kind == "directional":
-            y = float(np.asarray(lt.intensity) @ LUMINANCE)
-            powers.append(y * math.pi * radius * radius)
-        else:
-            powers.append(lt.power)
-    tot = sum(powers) or 1.0
-    return [max(1, int(math.floor(math.sqrt(total * p / tot) + 1e-9))) for p in powers]
+OBJECT_PAD = 1.5
+"""The virtual objects' aim sphere: their bounding sphere × this, so that the proxy next to
+them (where their shadow and bounce fall, where ``R_µ`` sees behind them) gets texels too."""
 
 
 @dataclass
 class VPLs:
-    """The VPLs of both solutions, paired by texel (Dr.Jit arrays of length V)."""
+    """The VPLs of both solutions, paired by texel (Dr.Jit arrays of length V).
+
+    Attributes:
+        on_object: VPLs whose ``R_ρ`` texel lies on a virtual object (reported as a stat).
+    """
 
     rho: RSM
     mu: RSM
     shared: mi.Bool
     count: int
+    on_object: int = 0
 
 
-def make_vpls(data: DIRData, total: int) -> VPLs:
-    """``R_ρ``/``R_µ`` VPL maps of every light, concatenated."""
-    sides = vpl_counts(data.lights, total, data.bounds)
-    rays = concat_rays([light_rays(lt, s, data.bounds)
-                        for lt, s in zip(data.lights.lights, sides, strict=True)])
+def pick_by_importance(q: np.ndarray, count: int, xi: float) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` indices drawn without replacement with inclusion probabilities
+    ``π_i ∝ q_i`` (``Σ π_i = count``, at most 1), and those ``π_i``.
+
+    Indices whose share ``count · q_i / Σq`` reaches 1 are kept with ``π_i = 1`` (repeatedly,
+    over what remains); the others by systematic sampling (Madow 1949) at the points
+    ``(j + ξ)``, ``j = 0 … n−1`` of their cumulated ``π``: each index at most once, with
+    probability ``π_i`` over ``ξ ~ U[0, 1)``, so ``Σ_picked f_i / π_i`` is an unbiased
+    (Horvitz–Thompson) estimate of ``Σ_i f_i`` over every ``i`` with ``q_i > 0``.
+    Fewer than ``count`` indices when fewer have ``q_i > 0``."""
+    q = np.where(np.isfinite(q) & (q > 0.0), q, 0.0).astype(np.float64)
+    positive = q > 0.0
+    if int(positive.sum()) <= count:
+        idx = np.flatnonzero(positive)
+        return idx, np.ones(idx.size)
+    sure = np.zeros(q.size, bool)
+    while True:
+        rest = positive & ~sure
+        n = count - int(sure.sum())
+        pi = np.where(rest, q * (n / q[rest].sum()), 0.0)
+        big = pi >= 1.0
+        if not big.any():
+            break
+        sure |= big
+    cum = np.cumsum(pi)
+    u = np.arange(n) + float(xi)
+    picked = np.searchsorted(cum, u, side="right")
+    picked = picked[picked < q.size]
+    idx = np.concatenate([np.flatnonzero(sure), picked])
+    return idx, np.concatenate([np.ones(int(sure.sum())), pi[picked]])
+
+
+def frame_aims(data: DIRData, gb: GBuffer, options: Options) -> list[Aim]:
+    """The frame's aims: the sphere of the G-buffer's visible points (``aim_view``) and the
+    virtual objects' bounding sphere × :data:`OBJECT_PAD` (``aim_object``)."""
+    aims = []
+    p = np.array(gb.position, np.float64).reshape(3, -1)[:, np.array(gb.valid, bool)]
+    if p.size and options.aim_view > 0.0:
+        lo, hi = p.min(axis=1), p.max(axis=1)
+        aims.append(Aim((lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0 + 1e-3,
+                        options.aim_view))
+    box = virtual_bounds(data.world, data.views.mixed)
+    if box is not None and options.aim_object > 0.0:
+        lo, hi = box
+        aims.append(Aim((lo + hi) / 2.0, OBJECT_PAD * float(np.linalg.norm(hi - lo)) / 2.0,
+                        options.aim_object))
+    return aims
+
+
+def make_vpls(data: DIRData, total: int, res: int = 48, aims: list[Aim] | None = None,
+              importance: float = 0.0, xi: float = 0.5) -> VPLs:
+    """``total`` VPLs picked by importance (:func:`pick_by_importance`) among the texels of
+    every light's aimed RSM pair (``res²`` texels plus ``aims``), flux ``Φ_i / π_i`` (W)."""
+    aims = list(aims or [])
+    rays = concat_rays([light_rays(lt, res, data.bounds, aims) for lt in data.lights.lights])
     pair = render_rsm_pair(data.views, rays)
     rho, mu = pair.rho, pair.mu()
-    shared = shared_texels(rho, mu)
-    dr.eval(shared)
-    return VPLs(rho, mu, shared, int(sum(s * s for s in sides)))
+    y = np.asarray(LUMINANCE, np.float64)
+    q = np.maximum(y @ np.array(rho.flux_out, np.float64).reshape(3, -1),
+                   y @ np.array(mu.flux_out, np.float64).reshape(3, -1))
+    box = virtual_bounds(data.world, data.views.mixed)
+    if importance > 0.0 and box is not None:
+        lo, hi = box
+        c, r = (lo + hi) / 2.0, max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-6)
+        pos = np.array(rho.position, np.float64).reshape(3, -1).T
+        out = np.maximum(np.linalg.norm(pos - c, axis=1) - r, 0.0) / r
+        q = q * (1.0 + importance / (1.0 + out * out))
+    idx, pi = pick_by_importance(q, total, xi)
+    sel = mi.UInt32(aligned(idx, np.uint32))
+    w = mi.Float(aligned(1.0 / pi, np.float32))
+    rho_v, mu_v = rsm_subset(rho, sel), rsm_subset(mu, sel)
+    rho_v.flux_out = rho_v.flux_out * w
+    mu_v.flux_out = mu_v.flux_out * w
+    shared = shared_texels(rho_v, mu_v)
+    dr.eval(shared, rho_v.flux_out, mu_v.flux_out)
+    on_object = int(np.count_nonzero(np.array(rho.role)[idx] == ROLE_VIRTUAL))
+    return VPLs(rho_v, mu_v, shared, int(idx.size), on_object)
+
+
+def frame_vpls(data: DIRData, gb: GBuffer, options: Options, seed: int) -> VPLs:
+    """The VPLs of one frame: :func:`make_vpls` with the options' map size, the frame's
+    aims (:func:`frame_aims`) and ``ξ`` from the seed (golden-ratio sequence)."""
+    xi = (0.5 + 0.6180339887498949 * int(seed)) % 1.0
+    return make_vpls(data, options.vpls, options.rsm_size, frame_aims(data, gb, options),
+                     options.vpl_importance, xi)
 
 
 def _vpl(r: RSM, idx: mi.UInt32, active: mi.Bool):
@@ -302,8 +401,8 @@ class DIRMethod(BaseMethod):
             dr.eval(e_dm, e_dr)
         rays = 0
         with timer.stage("rsm"):
-            vpls = make_vpls(data, options.vpls) if data.world.has_virtual and \
-                data.lights.lights else None
+            vpls = frame_vpls(data, gb, options, settings.seed) \
+                if data.world.has_virtual and data.lights.lights else None
         with timer.stage("gather"):
             if vpls is not None:
                 bound = 1.0 / options.clamp_distance ** 2 if options.clamp_distance > 0 \
@@ -321,6 +420,7 @@ class DIRMethod(BaseMethod):
             mixed = dr.select(virt, rho * (e_dm + e_im + e_amb), mi.Color3f(0.0))
             layers = assemble(gb, view.frame, mixed, delta,
                               {"vpls": float(vpls.count if vpls else 0),
+                               "vpls_on_object": float(vpls.on_object if vpls else 0),
                                "shadow_rays": float(rays)})
         if not data.world.has_virtual:
             assert not np.any(layers.delta), "dir: delta must vanish without virtual objects"
@@ -328,4 +428,4 @@ class DIRMethod(BaseMethod):
 
 
 __all__ = ["DIRData", "DIRMethod", "OPTIONS", "SPEC", "gather", "interleave_filter",
-           "make_vpls", "vpl_counts"]
+           "frame_aims", "frame_vpls", "make_vpls", "pick_by_importance"]

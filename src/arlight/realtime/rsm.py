@@ -13,6 +13,16 @@ carries the same share of its emission:
 * ``directional``: an orthographic ``N × N`` grid over the disk that covers ``bounds`` (a
   bounding sphere), ``Φ_r = E · (2r/N)²``.
 
+**Aimed maps** (issue #33): a whole-sphere map of a point light puts few texels on a small
+virtual object (bunny-box: ~2,000 of ~27,000 injected texels of a 512² map). With ``aims``
+(:class:`Aim`: the sphere of the scene the camera sees, the virtual objects' sphere),
+:func:`light_rays` adds per aim a map uniform over the cone (or, for directional lights,
+the square) that the sphere subtends, and gives every texel the flux of the deterministic
+mixture ``Φ_texel = I(ω) / Σ_k n_k p_k(ω)`` (Veach's balance heuristic over all the maps'
+densities): the texels' flux still sums to the light's flux onto the scene, with more,
+smaller texels where the aims are. Contract for every consumer: ``flux_in``/``flux_out`` is
+each texel's flux in W (texels no longer carry equal shares when aimed).
+
 The same rays are cast into the mixed view (``R_ρ``) and the real-only view (``R_µ``)
 (Franke §4.3: "the same process is repeated for a second RSM R^µ"). A ray whose first hit in
 the mixed scene is real (or a miss) sees the same in the real-only scene, so
@@ -107,9 +117,138 @@ def _texel_uv(res: int) -> mi.Point2f:
     return mi.Point2f(u, v)
 
 
-def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float]) -> LightRays:
+@dataclass(frozen=True)
+class Aim:
+    """A sphere an aimed RSM puts extra texels on (the camera's view of the scene, the
+    virtual objects), m.
+
+    Attributes:
+        centre, radius: the sphere (m).
+        share: aimed texels per texel of the light's own map: the aimed map has
+            ``round(res·√share)²`` texels (at least one when ``share > 0``).
+    """
+
+    centre: np.ndarray
+    radius: float
+    share: float = 1.0
+
+    def side(self, res: int) -> int:
+        """Texels per side of this aim's map next to a base map of ``res²`` texels."""
+        return 0 if self.share <= 0.0 else max(1, int(round(res * math.sqrt(self.share))))
+
+
+def _emission(light: ReducedLight, cos_axis: mi.Float) -> mi.Float:
+    """Radiant intensity ``I(ω)/I0`` of a point, cosine or spot light at ``<axis, ω>``."""
+    if light.kind == "point":
+        return dr.zeros(mi.Float, dr.width(cos_axis)) + 1.0
+    if light.kind == "cosine":
+        return dr.maximum(cos_axis, 0.0)
+    return dr.select(cos_axis >= light.cos_cutoff, spot_falloff(light, cos_axis), 0.0)
+
+
+def _base_pdf(light: ReducedLight, cos_axis: mi.Float) -> mi.Float:
+    """Solid-angle density (1/sr) of the light's own texel map at ``<axis, ω>``: uniform
+    sphere (point), cosine hemisphere (cosine), uniform cone (spot)."""
+    if light.kind == "point":
+        return dr.zeros(mi.Float, dr.width(cos_axis)) + 1.0 / (4.0 * math.pi)
+    if light.kind == "cosine":
+        return dr.maximum(cos_axis, 0.0) * (1.0 / math.pi)
+    return dr.select(cos_axis >= light.cos_cutoff,
+                     1.0 / (2.0 * math.pi * (1.0 - light.cos_cutoff)), 0.0)
+
+
+def _cat(parts: list):
+    if len(parts) == 1:
+        return parts[0]
+    return type(parts[0])(*(dr.concat([a[i] for a in parts]) for i in range(3)))
+
+
+def _aimed_cones(light: ReducedLight, res: int, aims: list[Aim], dirs: mi.Vector3f,
+                 n_base: int) -> tuple[mi.Vector3f, mi.Color3f]:
+    """Directions of a point/cosine/spot map with ``aims`` added, and each texel's flux.
+
+    Each aim whose sphere does not hold the light adds a ``side²`` map uniform over the cone
+    that the sphere subtends (``cos α = √(1 − r²/d²)``, density ``1/(2π(1 − cos α))``). The
+    texels of all maps together estimate ``Φ = ∫ I(ω) dω`` with the deterministic mixture
+    (multi-sample balance heuristic, Veach 1997 Eq. 9.12 with ``n_k`` samples of ``p_k``):
+    ``Φ_texel = I(ω) / (n_0 p_0(ω) + Σ_k n_k p_k(ω))`` (W), unbiased for any aim."""
+    pos = np.asarray(light.position, np.float64)
+    cones = []
+    for a in aims:
+        to = np.asarray(a.centre, np.float64) - pos
+        d = float(np.linalg.norm(to))
+        m = a.side(res)
+        if m == 0 or d <= a.radius * (1.0 + 1e-6):
+            continue  # the light is inside the sphere: its own map already covers it
+        cones.append((to / d, math.sqrt(max(1.0 - (a.radius / d) ** 2, 0.0)), m))
+    all_dirs = [dirs]
+    for axis, cos_a, m in cones:
+        frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
+        all_dirs.append(frame.to_world(mi.warp.square_to_uniform_cone(_texel_uv(m), cos_a)))
+    d = _cat(all_dirs)
+    lax = mi.Vector3f(*[float(x) for x in light.axis])
+    cos_axis = dr.dot(d, lax)
+    den = _base_pdf(light, cos_axis) * float(n_base)
+    for axis, cos_a, m in cones:
+        inside = dr.dot(d, mi.Vector3f(*[float(x) for x in axis])) >= cos_a
+        den += dr.select(inside, float(m * m) / (2.0 * math.pi * (1.0 - cos_a)), 0.0)
+    i0 = mi.Color3f(*[float(x) for x in light.intensity])
+    flux = i0 * dr.select(den > 0.0, _emission(light, cos_axis) / dr.maximum(den, 1e-30), 0.0)
+    return d, flux
+
+
+def _aimed_parallel(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float],
+                    aims: list[Aim]) -> tuple[mi.Point3f, mi.Vector3f, mi.Color3f]:
+    """Origins, directions and flux of a directional light's map with ``aims``: the base
+    ``res²`` grid over the square ``[−r, r]²`` around ``bounds`` (perpendicular to the light,
+    area density ``1/(4r²)``) plus, per aim, a ``side²`` grid over the square around the aim
+    sphere's projection (density ``1/(4r_k²)``). Flux per texel: the mixture estimate of
+    ``Φ = ∫ E dA``: ``E / (n_0 p_0(x) + Σ_k n_k p_k(x))`` (W)."""
+    centre, radius = bounds
+    axis = np.asarray(light.axis, np.float64)
+    frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
+    r = float(radius)
+    squares = [(0.0, 0.0, r, res)]
+    for a in aims:
+        m = a.side(res)
+        if m > 0:
+            off = frame.to_local(mi.Vector3f(*[float(x) for x in
+                                               np.asarray(a.centre, np.float64) - centre]))
+            squares.append((float(off.x[0]), float(off.y[0]), float(a.radius), m))
+    lx, ly = [], []
+    for cx, cy, h, m in squares:
+        uv = _texel_uv(m)
+        lx.append((2.0 * uv.x - 1.0) * h + cx)
+        ly.append((2.0 * uv.y - 1.0) * h + cy)
+    x, y = dr.concat(lx), dr.concat(ly)
+    den = dr.zeros(mi.Float, dr.width(x))
+    for cx, cy, h, m in squares:
+        inside = (dr.abs(x - cx) <= h) & (dr.abs(y - cy) <= h)
+        den += dr.select(inside, float(m * m) / (4.0 * h * h), 0.0)
+    start = np.asarray(centre, np.float64) - axis * (4.0 * r + 1.0)
+    origin = mi.Point3f(mi.Point3f(*[float(v) for v in start])
+                        + frame.to_world(mi.Vector3f(x, y, 0.0)))
+    d = dr.zeros(mi.Vector3f, dr.width(x)) + mi.Vector3f(*[float(v) for v in axis])
+    i0 = mi.Color3f(*[float(v) for v in light.intensity])
+    return origin, d, i0 * (1.0 / dr.maximum(den, 1e-30))
+
+
+def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float],
+               aims: list[Aim] | tuple[Aim, ...] = ()) -> LightRays:
     """The rays of ``light``'s RSM. ``bounds``: (centre, radius) of the region a
-    directional light's map must cover (m)."""
+    directional light's map must cover (m).
+
+    ``aims`` (an aimed RSM, issue #33): extra texels on each :class:`Aim`'s sphere — the part
+    of the scene the camera sees, the virtual objects — after the light's own ``res²`` map,
+    with every texel's flux from the mixture density of all the maps (see
+    :func:`_aimed_cones`, :func:`_aimed_parallel`), so the texels' flux still sums to an
+    unbiased estimate of the light's flux onto the scene. Without aims: the equal-measure
+    maps of the module docstring (``res`` set: a square map)."""
+    aims = list(aims)
+    if aims and light.kind == "directional":
+        origin, d, flux = _aimed_parallel(light, res, bounds, aims)
+        dr.eval(origin, d, flux)
+        return LightRays(origin, d, flux, 0)
     uv = _texel_uv(res)
     i0 = mi.Color3f(*[float(x) for x in light.intensity])
     pos = mi.Point3f(*[float(x) for x in light.position])
@@ -138,6 +277,11 @@ def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float]) 
         origin = mi.Point3f(mi.Point3f(*[float(x) for x in start]) + frame.to_world(local))
         d = dr.zeros(mi.Vector3f, res * res) + mi.Vector3f(*[float(x) for x in axis])
         flux = i0 * ((2.0 * r / res) ** 2)
+    if aims:
+        d, flux = _aimed_cones(light, res, aims, mi.Vector3f(d), res * res)
+        origin = dr.zeros(mi.Point3f, dr.width(d)) + pos
+        dr.eval(origin, d, flux)
+        return LightRays(origin, d, flux, 0)
     flux = dr.zeros(mi.Color3f, res * res) + flux
     dr.eval(origin, d, flux)
     return LightRays(origin, d, flux, res)
@@ -346,7 +490,7 @@ def rsm_pair(data: RSMState) -> list[RSMPair]:
             for r, mu in zip(maps.rays, maps.mu, strict=True)]
 
 
-__all__ = ["LightRays", "RSM", "RSMPair", "RSMState", "RealMaps", "check_memory", "concat_rays",
-           "light_rays", "moved_maps", "real_maps", "render_rsm", "render_rsm_pair",
+__all__ = ["Aim", "LightRays", "RSM", "RSMPair", "RSMState", "RealMaps", "check_memory",
+           "concat_rays", "light_rays", "moved_maps", "real_maps", "render_rsm", "render_rsm_pair",
            "render_rsm_pair_reusing", "replace_texels", "rsm_pair", "rsm_subset", "same_grid",
            "shared_texels", "subset_rays"]
