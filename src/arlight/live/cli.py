@@ -74,9 +74,9 @@ def live_command(
     unpaced: Annotated[bool, typer.Option(
         "--unpaced", help="take every video frame as fast as it renders (no wall clock, no "
                           "drops; deterministic)")] = False,
-    loops: Annotated[int, typer.Option(
-        "--loop", help="play the video this many times (0: until Ctrl-C)", min=0,
-        max=1_000_000)] = 1,
+    loops: Annotated[int | None, typer.Option(
+        "--loop", help="play the video this many times (0: until Ctrl-C; default: 0 with "
+                       "the studio page, else 1)", min=0, max=1_000_000)] = None,
     max_frames: Annotated[int | None, typer.Option(
         "--max-frames", help="stop after this many composited frames", min=1,
         max=100_000_000)] = None,
@@ -164,6 +164,8 @@ def live_command(
         from arlight.output_guard import check_outputs
 
         check_outputs({"--log": log}, inputs, overwrite=False)
+    if loops is None:
+        loops = 0 if studio else 1
     if video is not None:
         src = VideoSource(video, loops=loops, fps=fps)
     else:
@@ -182,6 +184,11 @@ def live_command(
     typer.echo(f"live: preparing {name} for {Path(scene).name} at {src.size[0]}×"
                f"{src.size[1]} ...")
     prep = comp.prepare()
+    if video is not None:  # one frame rendered before the clock starts: kernels compiled
+        from arlight.live.sources import Captured
+
+        assert isinstance(src, VideoSource)
+        comp(Captured(next(iter(src.source)), clock.now()))
     sinks = []
     feed = server = recorder = None
     if studio:
