@@ -139,3 +139,68 @@ def test_upsample_keeps_constants_and_puts_block_centres_back():
     assert np.allclose(ramp[2:-2, 2:-2], want[2:-2, 2:-2], atol=1e-5)
     assert big.min() >= small.min() - 1e-6 and big.max() <= small.max() + 1e-6
     assert np.array_equal(upsample(small, 6, 8), small)
+
+
+class _Counting:
+    """A method whose spec scales ``size`` (a preparation option) and ``taps`` (a frame
+    option) on drag frames; counts its preparations."""
+
+    def __init__(self, floor: int) -> None:
+        from arlight.methods.spec import Field, MethodSpec
+
+        self.prepared: list[dict] = []
+        self.spec = MethodSpec(
+            "counting", "test", {"size": Field("int", 64, "", min=1, max=1024),
+                                 "taps": Field("int", 8, "", min=1, max=64)},
+            frame_options=frozenset({"taps"}),
+            drag_options=lambda o, k: {"size": max(floor, o.size // k), "taps": o.taps // k})
+
+    def prepare(self, world, settings):
+        self.prepared.append(self.spec.parse_options(settings.options))
+        return ("state", dict(settings.options))
+
+
+def test_drag_states_prepare_once_per_distinct_preparation_options():
+    """With a floor reached at factor 4, factors 4 and 8 share one drag state, factor 2 has
+    its own, and each factor renders with its own frame options; factor 1 is the full
+    state. Rejects a studio that prepares a state per factor, shares one across different
+    preparation options, or drops the frame options of a drag frame."""
+    from arlight.methods import RenderSettings
+    from arlight.studio.engine import DragStates
+
+    fn = _Counting(floor=16)
+    base = RenderSettings()
+    full = fn.prepare(None, base)
+    drag = DragStates.prepare(fn, None, full, base, (1, 2, 4, 8))
+    assert [p["size"] for p in fn.prepared] == [64, 32, 16]
+    assert drag.state(1) is full and drag.settings(1) is base
+    assert drag.state(4) is drag.state(8) is not drag.state(2)
+    assert [drag.settings(k).options["taps"] for k in (2, 4, 8)] == [4, 2, 1]
+
+
+def test_drag_options_out_of_range_are_refused():
+    """A spec whose drag ladder leaves an option's range fails loudly (InputError naming
+    the option) instead of rendering drag frames with an invalid option. Rejects a
+    ``MethodSpec.drag`` that does not validate."""
+    from arlight.errors import InputError
+
+    spec = _Counting(floor=0).spec
+    with pytest.raises(InputError, match="size"):
+        spec.drag(spec.parse_options({"size": 64}), 128)  # 64 // 128 = 0 < min 1
+
+
+@pytest.mark.parametrize("method", ["dir", "dlpv", "dvct"])
+def test_methods_drag_ladders_are_valid_and_coarser(method):
+    """The drag options dir, dlpv and dvct declare are valid options at every factor of a
+    640×480 studio and never finer than the full-size ones (dvct's volume stays a power of
+    two). Rejects a ladder that refines while dragging or breaks a cross-option check."""
+    from arlight.methods import get_method
+
+    spec = get_method(method).spec
+    opts = spec.parse_options({})
+    for k in drag_factors(640, 480)[1:]:
+        extra = spec.drag(opts, k)
+        assert extra and all(extra[name] <= opts[name] for name in extra)
+        if method == "dvct":
+            n = extra["volume_size"]
+            assert n & (n - 1) == 0

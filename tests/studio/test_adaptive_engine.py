@@ -59,7 +59,9 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     def expected():
         fn = get_method("dir")
         view = replace(eng.views[2], object_transforms=_transforms(poses))
-        layers = fn.render(eng.prepared("dir"), view, eng.settings)
+        drag = eng._drag["dir"]  # dir's drag options: its own state and settings at 1/2
+        assert drag.settings(2).options["vpls"] < 256
+        layers = fn.render(drag.state(2), view, drag.settings(2))
         h, w = SIZE[1], SIZE[0]
         m, d, k = (upsample(x, h, w) for x in (layers.mixed, layers.delta, layers.mask))
         from arlight.layers import composite as comp

@@ -107,6 +107,14 @@ def _check(opts: Options) -> None:
                          file="method 'dir'", field="options.interleave")
 
 
+def drag_options(options: Options, factor: int) -> dict[str, int]:
+    """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32):
+    ``vpls`` and ``rsm_size`` divided by ``factor`` (at least 64 VPLs, 16 texels), so the
+    VPLs' RSMs and their selection shrink with the image as the gathering does."""
+    return {"vpls": max(64, options.vpls // factor),
+            "rsm_size": max(16, options.rsm_size // factor)}
+
+
 SPEC = MethodSpec(
     name="dir",
     description="Differential instant radiosity (Knecht et al. 2010): RSM VPLs with "
@@ -115,6 +123,7 @@ SPEC = MethodSpec(
     capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"}),
                               lights=REDUCIBLE_LIGHTS),
     check=_check,
+    drag_options=drag_options,
 )
 
 

@@ -115,6 +115,16 @@ OPTIONS: dict[str, Field] = {
 }
 
 
+def drag_options(options: Options, factor: int) -> dict[str, int]:
+    """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32): the
+    RSM side, the volume's cells per edge and the propagation steps divided by ``factor``
+    (at least 64 texels, 16 cells, 8 steps): RSMs, injection and propagation do not shrink
+    with the image otherwise."""
+    return {"rsm_size": max(64, options.rsm_size // factor),
+            "volume_size": max(16, options.volume_size // factor),
+            "steps": max(8, options.steps // factor)}
+
+
 SPEC = MethodSpec(
     name="dlpv",
     description="Delta Light Propagation Volumes (Franke 2013): one SH volume of the change "
@@ -122,6 +132,7 @@ SPEC = MethodSpec(
     options=OPTIONS,
     capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"}),
                               lights=REDUCIBLE_LIGHTS),
+    drag_options=drag_options,
 )
 
 

@@ -151,6 +151,15 @@ def _check(opts: Options) -> None:
                          field="options.volume_size")
 
 
+def drag_options(options: Options, factor: int) -> dict[str, int]:
+    """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32): the
+    RSM side and the volume's cells per edge divided by ``factor`` (at least 64 texels, 32
+    cells; the volume stays a power of two): RSMs, voxelisation, injection and the mip
+    filter do not shrink with the image otherwise."""
+    return {"rsm_size": max(64, options.rsm_size // factor),
+            "volume_size": max(32, options.volume_size // factor)}
+
+
 SPEC = MethodSpec(
     name="dvct",
     description="Delta Voxel Cone Tracing (Franke 2014): voxelised scene, delta volume, "
@@ -159,6 +168,7 @@ SPEC = MethodSpec(
     capabilities=Capabilities(interactive=True, materials=frozenset(
         {"diffuse", "phong", "mirror", "roughconductor"}), lights=REDUCIBLE_LIGHTS),
     check=_check,
+    drag_options=drag_options,
 )
 
 LUM = np.array([0.2126, 0.7152, 0.0722])

@@ -177,6 +177,12 @@ class MethodSpec:
         frame_options: options that only choose what a frame draws (e.g. ``sample_offset``)
             and never enter preparation: a render may set them differently from the options
             the world was prepared with.
+        drag_options: ``(options, factor) -> {option: value}``: the options of a frame the
+            studio renders at 1/``factor`` of its size while the pointer drags (issue #32),
+            for per-frame work that does not shrink with the image (RSM size, volume
+            resolution, propagation steps, VPL count); None: the same options at every
+            size. Where they change preparation options the studio prepares a second state
+            for drag frames (off the render path).
     """
 
     name: str
@@ -185,6 +191,16 @@ class MethodSpec:
     capabilities: Capabilities = field(default_factory=Capabilities)
     check: Callable[[Options], None] | None = None
     frame_options: frozenset[str] = frozenset()
+    drag_options: Callable[[Options, int], dict[str, Any]] | None = None
+
+    def drag(self, opts: Options, factor: int) -> dict[str, Any]:
+        """The option overrides of a drag frame at downscale ``factor`` (:attr:`drag_options`;
+        none at factor 1 or without them), validated like any options."""
+        if factor <= 1 or self.drag_options is None:
+            return {}
+        out = self.drag_options(opts, factor)
+        self.parse_options({**opts, **out})  # a spec's own ladder must stay in range
+        return out
 
     def __post_init__(self) -> None:
         if not self.name or any(c.isspace() or c in ".=,+" for c in self.name):

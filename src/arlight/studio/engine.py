@@ -32,6 +32,10 @@
   message came for :attr:`StudioConfig.rest_ms` the frame is rendered at full size once
   (progressive methods then refine as before). Each frame's header gives its rendered
   ``width``/``height``, ``factor`` and ``latency_ms`` (newest change → frame posted).
+  Per-frame work that does not shrink with the image (RSMs, volumes, propagation, VPLs)
+  is scaled through the options the method's spec declares for drag frames
+  (:attr:`~arlight.methods.spec.MethodSpec.drag_options`); where those are preparation
+  options, drag frames render a second state prepared with them (:class:`DragStates`).
 * Errors stay in their session: a failing render or a bad message is reported to that
   client only.
 """
@@ -237,6 +241,57 @@ def _transforms(poses: dict[str, ObjectPose]) -> dict[str, np.ndarray]:
     return {k: p.matrix() for k, p in poses.items() if not p.is_rest}
 
 
+@dataclass
+class DragStates:
+    """The states and settings drag frames render with, per downscale factor: the options
+    of the method's :attr:`~arlight.methods.spec.MethodSpec.drag_options` at that factor;
+    factors whose preparation options equal the full-size frame's share its state, the
+    others one state per distinct set of preparation options (prepared once, with the
+    full-size state, off the render path; each poses itself when a frame moves objects).
+
+    Attributes:
+        full: the full-size frame's state.
+        base: the studio's settings.
+        by_factor: factor -> (state, settings) of the factors that differ from ``full``.
+    """
+
+    full: Prepared
+    base: RenderSettings
+    by_factor: dict[int, tuple[Prepared, RenderSettings]] = field(default_factory=dict)
+
+    @classmethod
+    def prepare(cls, fn: Method, world, full: Prepared, base: RenderSettings,
+                factors: tuple[int, ...]) -> DragStates:
+        """The drag states of ``fn`` (prepared here where the options require it)."""
+        out = cls(full, base)
+        spec = fn.spec
+        opts = spec.parse_options(base.options)
+        shared: dict[str, Prepared] = {}
+        for k in factors[1:]:
+            extra = spec.drag(opts, k)
+            if not extra:
+                continue
+            settings = replace(base, options={**base.options, **extra})
+            prep = spec.preparation_options(spec.parse_options(settings.options))
+            if prep == spec.preparation_options(opts):
+                state = full
+            else:
+                key = repr(sorted(prep.items()))
+                if key not in shared:
+                    shared[key] = fn.prepare(world, settings)
+                state = shared[key]
+            out.by_factor[k] = (state, settings)
+        return out
+
+    def state(self, factor: int) -> Prepared:
+        """The state a frame at ``factor`` renders."""
+        return self.by_factor[factor][0] if factor in self.by_factor else self.full
+
+    def settings(self, factor: int) -> RenderSettings:
+        """The settings a frame at ``factor`` renders with."""
+        return self.by_factor[factor][1] if factor in self.by_factor else self.base
+
+
 class Engine:
     """Loads the scene, owns the render worker and the sessions (see the module doc)."""
 
@@ -285,6 +340,7 @@ class Engine:
         self.default_method = self._default_method()
         self.settings = RenderSettings(spp=1, seed=config.seed)
         self._states: dict[str, Prepared] = {}
+        self._drag: dict[str, DragStates] = {}  # per method, set with _states
         self._preparing: dict[str, concurrent.futures.Future] = {}
         self._handoff = False  # a state came from a preparation thread since the last scope
         self.max_sessions = int(config.max_sessions)
@@ -555,7 +611,7 @@ class Engine:
         def run() -> None:
             try:
                 new_jit_scope()  # after whatever the worker made from the world
-                state = self._prepare_state(name)
+                state, drag = self._prepare_state(name)
                 new_jit_scope()
             except BaseException as exc:  # noqa: BLE001 — reported to the waiting sessions
                 with self._cond:
@@ -565,6 +621,7 @@ class Engine:
                 return
             with self._cond:
                 self._states[name] = state
+                self._drag[name] = drag
                 self._handoff = True  # the worker opens a new scope before using it
                 self._preparing.pop(name, None)
                 self._cond.notify_all()
@@ -574,15 +631,17 @@ class Engine:
                          daemon=True).start()
         return fut
 
-    def _prepare_state(self, name: str) -> Prepared:
-        """``method.prepare`` for the studio's world, then one frame at each downscaled
-        size (on a preparation thread, before the worker gets the state: Dr.Jit compiles
-        kernels per image size, seconds each, which must not stall the first drag)."""
+    def _prepare_state(self, name: str) -> tuple[Prepared, DragStates]:
+        """``method.prepare`` for the studio's world and the drag states
+        (:class:`DragStates`), then one frame at each downscaled size (on a preparation
+        thread, before the worker gets the state: Dr.Jit compiles kernels per image size,
+        seconds each, which must not stall the first drag)."""
         fn = get_method(name)
         state = fn.prepare(self.scene.world, self.settings)
+        drag = DragStates.prepare(fn, self.scene.world, state, self.settings, self.factors)
         for k in self.factors[1:]:
-            fn.render(state, self.views[k], self.settings)
-        return state
+            fn.render(drag.state(k), self.views[k], drag.settings(k))
+        return state, drag
 
     @property
     def preparing(self) -> list[str]:
@@ -780,9 +839,12 @@ class Engine:
         factor = self._factor(method, motion and not (refine or settle))
         view = replace(self.views[factor], object_transforms=_transforms(poses))
         progressive = self.catalogue[method].progressive
-        settings = self.settings
+        drag = self._drag.get(method)
+        settings = drag.settings(factor) if drag is not None else self.settings
+        if drag is not None:
+            state = drag.state(factor)
         if progressive:  # frame n of the refinement (onepass: samples continue one sequence)
-            settings = frame_settings(fn, self.settings, n)
+            settings = frame_settings(fn, settings, n)
         denoise = denoise and self.catalogue[method].noisy
         if denoise:
             settings = replace(settings, options={**settings.options, "denoise": "oidn"})
