@@ -50,3 +50,32 @@ def clip(tmp_path_factory) -> Clip:
     scene = root / "scene.toml"
     scene.write_text(to_toml(d))
     return Clip(root, frames, scene, calib, poses)
+
+
+def plane_depth(pose: np.ndarray, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Depth (m along +z) of the table plane Y = 0 seen from ``pose`` (OpenCV axes): per pixel
+    the ray ``K⁻¹ (u, v, 1)`` meets the plane at ``t`` with ``(o + t·R d)_y = 0``."""
+    w, h = size
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    d = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T
+    ry = d @ pose[1, :3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -pose[1, 3] / ry
+    return np.where(t > 0, t, 0.0).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def clip_depth(clip) -> Path:
+    """A folder of the clip's depth images (single-channel EXR), one per frame: the plane's
+    depth, 0.3 m too far on the left half (a sensor disagreeing with the proxy there, so the
+    light estimate that uses only agreeing samples depends on the depth given)."""
+    from arlight.io.images import write_exr
+
+    folder = clip.folder / "depth"
+    folder.mkdir(exist_ok=True)
+    K = mv.intrinsics(SIZE)
+    for i, p in enumerate(clip.poses):
+        d = plane_depth(p, K, SIZE)
+        d[:, : SIZE[0] // 2] += 0.3
+        write_exr(folder / f"d{i}.exr", d)
+    return folder

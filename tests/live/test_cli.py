@@ -8,6 +8,7 @@ video, and a half-written recording or log after a refused run.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from arlight.live import marker_video as mv
@@ -45,11 +46,19 @@ def test_help_explains_units_and_defaults():
      "DICT_NOPE"),
     (["--video", "{frames}", "-m", "no-such-method"], "method", "no-such-method"),
     (["--video", "{frames}", "--record", "{frames}/f0.png"], "--record", ""),
+    (["--video", "{frames}", "--depth", "{missing}"], "--depth", "folder of depth images"),
+    (["--video", "{frames}", "--depth", "{one_depth}"], "--depth", "1 depth images for 4"),
 ])
 def test_bad_input_is_one_line_naming_the_field(base, clip, tmp_path, args, field, words):
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"this is not a video" * 50)
-    subst = {"bad": bad, "missing": tmp_path / "nope.mp4", "frames": clip.frames}
+    one = tmp_path / "one_depth"
+    one.mkdir()
+    from arlight.io.images import write_exr
+
+    write_exr(one / "d0.exr", np.ones((240, 320), np.float32))
+    subst = {"bad": bad, "missing": tmp_path / "nope.mp4", "frames": clip.frames,
+             "one_depth": one}
     args = [a.format(**{k: str(v) for k, v in subst.items()}) for a in args]
     log = tmp_path / "log.jsonl"
     before = {p.name: p.read_bytes() for p in clip.frames.iterdir()}

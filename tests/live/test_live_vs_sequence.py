@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from arlight.io.images import read_ldr
 from arlight.live import marker_video as mv
@@ -29,19 +30,24 @@ from tests.cli_invoke import MainRunner
 METHOD = "dir"
 
 
-def test_live_equals_sequence_on_the_same_frames(clip, tmp_path):
+@pytest.mark.parametrize("method, with_depth", [(METHOD, False), ("probeless", True)])
+def test_live_equals_sequence_on_the_same_frames(clip, clip_depth, tmp_path, method,
+                                                 with_depth):
+    """dir from RGB; probeless with the frames' depth images (RGB-D: the depth must reach
+    the method in both, as the same per-frame image)."""
     from arlight import cli
 
     run = MainRunner()
     seq_out = tmp_path / "seq"
+    depth = ["--depth", clip_depth] if with_depth else []
     r = run.invoke(cli.app, ["sequence", clip.scene, "--frames", clip.frames, "--poses",
                              "marker", "--calib", clip.calib, "--marker", mv.MARKER,
-                             "-m", METHOD, "-o", seq_out, "--video", "none"])
+                             "-m", method, "-o", seq_out, "--video", "none", *depth])
     assert r.exit_code == 0, r.output
     rec, log = tmp_path / "rec", tmp_path / "live.jsonl"
     r = run.invoke(cli.app, ["live", clip.scene, "--video", clip.frames, "--calib",
-                             clip.calib, "--marker", mv.MARKER, "-m", METHOD, "--unpaced",
-                             "--no-studio", "--record", rec, "--log", log])
+                             clip.calib, "--marker", mv.MARKER, "-m", method, "--unpaced",
+                             "--no-studio", "--record", rec, "--log", log, *depth])
     assert r.exit_code == 0, r.output
     assert "4 frames composited" in r.output and "0 dropped" in r.output
     lines = [json.loads(x) for x in log.read_text().splitlines()]

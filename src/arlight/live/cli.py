@@ -37,6 +37,13 @@ def live_command(
         "--marker", help="printed target tracked per frame: "
                          "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT or "
                          "aruco:SIDE_M:DICT[:ID] (sizes in metres)")] = None,
+    depth: Annotated[Path | None, typer.Option(
+        "--depth", help="folder of depth images, one per video frame (metres along the "
+                        "camera's +z; EXR/NPY, or 16-bit PNG with --depth-units): RGB-D "
+                        "input for methods that use the sensor's depth (probeless)")] = None,
+    depth_units: Annotated[float | None, typer.Option(
+        "--depth-units", help="raw depth units per metre of 16-bit PNGs (1000: mm)",
+        min=1e-6, max=1e9)] = None,
     example: Annotated[bool, typer.Option(
         "--example", help="the bundled example: its scene, video, calibration and marker "
                           "(each replaceable by its own option)")] = False,
@@ -131,6 +138,9 @@ def live_command(
         raise InputError("the marker's pose needs the camera's calibration", field="--calib")
     if marker is None:
         raise InputError("give the printed target to track", field="--marker")
+    if depth is not None and camera is not None:
+        raise InputError("depth frames go with a video (--video), not a camera",
+                         field="--depth")
     if unpaced and camera is not None:
         raise InputError("a camera cannot be unpaced (it delivers at its own rate)",
                          field="--unpaced")
@@ -152,6 +162,7 @@ def live_command(
     if light is not None:
         sc = with_light_estimate(sc, light)
     inputs = [Path(scene), Path(calib), *([Path(video)] if video is not None else []),
+              *([Path(depth)] if depth is not None else []),
               *([Path(light)] if light is not None else [])]
     if record is not None:
         from arlight.live.record import check_record
@@ -172,15 +183,20 @@ def live_command(
         assert camera is not None
         src = CameraSource(camera, size=(sc.camera.width, sc.camera.height))
     fps_in = src.fps if fps is None else float(fps)
+    depths = None
+    if depth is not None:
+        assert isinstance(src, VideoSource)
+        depths = sources.DepthFrames(depth, src.source.count, src.size, depth_units)
+        depths.validate()
     job, calibration, spec = live_job(sc, src.size, name, settings, calib, marker, fps_in,
-                                      threads, src.name)
+                                      threads, src.name, has_depth=depths is not None)
     clock = WallClock()
     client = server_light = None
     if light_server is not None:
         client, server_light = _light_client(job, light_server, light_snapshot,
                                              server_public_key, light_wait, insecure)
     comp = LiveCompositor(job, MarkerTracker(calibration, spec, job.camera), clock,
-                          server_light)
+                          server_light, depths)
     typer.echo(f"live: preparing {name} for {Path(scene).name} at {src.size[0]}×"
                f"{src.size[1]} ...")
     prep = comp.prepare()

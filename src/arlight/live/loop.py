@@ -105,9 +105,11 @@ class LiveCompositor:
 
     def __init__(self, job: SequenceJob, tracker: Callable[[InputFrame],
                  tuple[np.ndarray | None, bool]], clock: Clock | None = None,
-                 light: Callable[[], bool] | None = None) -> None:
+                 light: Callable[[], bool] | None = None,
+                 depth: Callable[[InputFrame], np.ndarray] | None = None) -> None:
         self.job, self.tracker = job, tracker
         self.clock = clock or WallClock()
+        self.depth = depth  # the frame's depth image (metres along +z), or None
         self.light = light  # called once before each frame: a new light installed?
 
     def prepare(self) -> float:
@@ -133,7 +135,8 @@ class LiveCompositor:
         if pose is None:
             display, stats = self.passthrough(cap.frame), {}
         else:
-            res = render_frame(self.job, cap.frame, pose=pose, objects={})
+            d = None if self.depth is None else self.depth(cap.frame)
+            res = render_frame(self.job, cap.frame, d, pose=pose, objects={})
             display, stats = res.display, res.stats
         t2 = c.now()
         timings = {"track": t1 - t0, "render": t2 - t1}

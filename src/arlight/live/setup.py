@@ -40,10 +40,12 @@ def with_light_estimate(scene: ARScene, light: str | Path) -> ARScene:
 
 def live_job(scene: ARScene, size: tuple[int, int], method: str, settings: RenderSettings,
              calib: str | Path, marker: str, fps: float, threads: int | None = None,
-             source_name: str = "<frames>") -> tuple[SequenceJob, object, object]:
+             source_name: str = "<frames>", has_depth: bool = False
+             ) -> tuple[SequenceJob, object, object]:
     """(job, calibration, marker spec) for frames of ``size`` (w, h) px; InputError for an
-    unknown method or option, a method that cannot render the world, a calibration of
-    another size or an unknown marker dictionary."""
+    unknown method or option, a method that cannot render the world, one that needs depth
+    when ``has_depth`` is False, a calibration of another size or an unknown marker
+    dictionary."""
     from arlight.insert.registration import load_calibration, parse_marker
     from arlight.sequence.build import calibrated_camera, fit_camera
 
@@ -56,9 +58,8 @@ def live_job(scene: ARScene, size: tuple[int, int], method: str, settings: Rende
     reason = fn.spec.unsupported_reason(scene.world, None)
     if reason:
         raise InputError(reason, file=where, field="--method")
-    if fn.spec.capabilities.needs_depth:
-        raise InputError(f"{method} needs a depth image per frame; live RGB-D input is not "
-                         "supported yet", field="--method")
+    if fn.spec.capabilities.needs_depth and not has_depth:
+        raise InputError(f"{method} needs a depth image per frame", field="--depth")
     camera = calibrated_camera(fit_camera(scene.camera, size, where), calibration, size)
     job = SequenceJob(world=scene.world, camera=camera, poses=[], objects=[], method=method,
                       settings=settings, fps=fps, calibration=calibration, threads=threads,

@@ -122,6 +122,44 @@ class VideoSource:
             n += 1
 
 
+class DepthFrames:
+    """Per-frame depth images of a video (a folder, one per video frame in natural name
+    order; RGB-D sensors' 16-bit PNGs with ``units_per_metre``): frame ``k`` of the stream
+    gets image ``k mod count`` (a looped video gets its depth again)."""
+
+    def __init__(self, folder: str | Path, count: int, size: tuple[int, int],
+                 units_per_metre: float | None = None) -> None:
+        self.files = FrameSource(folder).files if Path(folder).is_dir() else []
+        if not self.files:
+            raise InputError("expected a folder of depth images", file=str(folder),
+                             field="--depth")
+        if len(self.files) != count:
+            raise InputError(f"{len(self.files)} depth images for {count} video frames",
+                             file=str(folder), field="--depth")
+        self.units = units_per_metre
+        self.size = size
+
+    def validate(self) -> None:
+        """Read every image once: InputError naming the file (unreadable, another size)."""
+        for f in self.files:
+            self.read(f)
+
+    def read(self, f: Path) -> np.ndarray:
+        from arlight.io.images import read_depth
+
+        try:
+            d = read_depth(f, self.units)
+        except InputError as exc:
+            raise InputError(exc.message, file=str(f), field="--depth") from exc
+        if (d.shape[1], d.shape[0]) != tuple(self.size):
+            raise InputError(f"depth image is {d.shape[1]}×{d.shape[0]} but the frames are "
+                             f"{self.size[0]}×{self.size[1]}", file=str(f), field="--depth")
+        return d
+
+    def __call__(self, frame: InputFrame) -> np.ndarray:
+        return self.read(self.files[frame.index % len(self.files)])
+
+
 class CameraSource:
     """An OpenCV camera (``VideoCapture(index)``): a reader thread keeps the newest frame
     (RGB uint8) in a one-slot mailbox; a frame overwritten before the loop took it counts
@@ -199,5 +237,5 @@ class CameraSource:
         self.cap.release()
 
 
-__all__ = ["CameraSource", "Captured", "Clock", "VideoSource", "WallClock", "paced",
+__all__ = ["CameraSource", "Captured", "DepthFrames", "Clock", "VideoSource", "WallClock", "paced",
            "unpaced"]
