@@ -46,6 +46,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_VIRTUAL, SceneView, SceneViews
 from arlight.errors import InputError
+from arlight.jit import opaque, opaques
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.realtime.light_reduction import LightSet, ReducedLight
 from arlight.realtime.sh_volume import Grid
@@ -181,17 +182,19 @@ def _aimed_cones(light: ReducedLight, res: int, aims: list[Aim], dirs: mi.Vector
         if m == 0 or d <= a.radius * (1.0 + 1e-6):
             continue  # the light is inside the sphere: its own map already covers it
         cones.append((to / d, math.sqrt(max(1.0 - (a.radius / d) ** 2, 0.0)), m))
+    # the aims move every frame: their numbers are opaque (one kernel for every pose)
+    cones = [(mi.Vector3f(*opaques(axis)), opaque(cos_a),
+              opaque(m * m / (2.0 * math.pi * (1.0 - cos_a))), m) for axis, cos_a, m in cones]
     all_dirs = [dirs]
-    for axis, cos_a, m in cones:
-        frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
+    for axis, cos_a, _, m in cones:
+        frame = mi.Frame3f(axis)
         all_dirs.append(frame.to_world(mi.warp.square_to_uniform_cone(_texel_uv(m), cos_a)))
     d = _cat(all_dirs)
     lax = mi.Vector3f(*[float(x) for x in light.axis])
     cos_axis = dr.dot(d, lax)
     den = _base_pdf(light, cos_axis) * float(n_base)
-    for axis, cos_a, m in cones:
-        inside = dr.dot(d, mi.Vector3f(*[float(x) for x in axis])) >= cos_a
-        den += dr.select(inside, float(m * m) / (2.0 * math.pi * (1.0 - cos_a)), 0.0)
+    for axis, cos_a, density, _ in cones:
+        den += dr.select(dr.dot(d, axis) >= cos_a, density, 0.0)
     i0 = mi.Color3f(*[float(x) for x in light.intensity])
     flux = i0 * dr.select(den > 0.0, _emission(light, cos_axis) / dr.maximum(den, 1e-30), 0.0)
     return d, flux
@@ -209,25 +212,28 @@ def _aimed_parallel(light: ReducedLight, res: int, bounds: tuple[np.ndarray, flo
     frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
     r = float(radius)
     squares = [(0.0, 0.0, r, res)]
+    tangents = np.array([np.array(frame.s, np.float64).ravel(),
+                         np.array(frame.t, np.float64).ravel()])  # the light's frame, fixed
     for a in aims:
         m = a.side(res)
         if m > 0:
-            off = frame.to_local(mi.Vector3f(*[float(x) for x in
-                                               np.asarray(a.centre, np.float64) - centre]))
-            squares.append((float(off.x[0]), float(off.y[0]), float(a.radius), m))
+            cx, cy = tangents @ (np.asarray(a.centre, np.float64) - centre)
+            squares.append((float(cx), float(cy), float(a.radius), m))
+    # the bounds and aims move every frame: opaque numbers (one kernel for every pose)
+    squares = [(opaque(cx), opaque(cy), opaque(h), opaque(m * m / (4.0 * h * h)), m)
+               for cx, cy, h, m in squares]
     lx, ly = [], []
-    for cx, cy, h, m in squares:
+    for cx, cy, h, _, m in squares:
         uv = _texel_uv(m)
         lx.append((2.0 * uv.x - 1.0) * h + cx)
         ly.append((2.0 * uv.y - 1.0) * h + cy)
     x, y = dr.concat(lx), dr.concat(ly)
     den = dr.zeros(mi.Float, dr.width(x))
-    for cx, cy, h, m in squares:
+    for cx, cy, h, density, _ in squares:
         inside = (dr.abs(x - cx) <= h) & (dr.abs(y - cy) <= h)
-        den += dr.select(inside, float(m * m) / (4.0 * h * h), 0.0)
+        den += dr.select(inside, density, 0.0)
     start = np.asarray(centre, np.float64) - axis * (4.0 * r + 1.0)
-    origin = mi.Point3f(mi.Point3f(*[float(v) for v in start])
-                        + frame.to_world(mi.Vector3f(x, y, 0.0)))
+    origin = mi.Point3f(mi.Point3f(*opaques(start)) + frame.to_world(mi.Vector3f(x, y, 0.0)))
     d = dr.zeros(mi.Vector3f, dr.width(x)) + mi.Vector3f(*[float(v) for v in axis])
     i0 = mi.Color3f(*[float(v) for v in light.intensity])
     return origin, d, i0 * (1.0 / dr.maximum(den, 1e-30))
