@@ -1,4 +1,4 @@
-"""``ibl``: Franke's dynamic pipeline (SH irradiance, GGX filtered importance sampling, AO)
+"""``ibl``: Franke's dynamic pipeline (SH irradiance, split-sum GGX specular, AO)
 with AR-OOF shadows on the real surfaces."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
-from arlight.realtime.ibl_shading import MipEnvironment, hammersley, specular_fis
+from arlight.realtime.ibl_shading import hammersley
 from tests.conftest import LOOK, diffuse, env_mirror_scene
 from tests.conftest import parsed_with_constant_frame as make
 
@@ -96,27 +96,133 @@ def test_white_furnace_diffuse_sphere_reflects_the_environment():
     np.testing.assert_allclose(layers.mixed[m], 0.7, rtol=0.01)
 
 
-def test_fis_converges_to_the_mirror_lookup_and_keeps_energy():
-    """GGX FIS on a mip-mapped map: at α → 0 the estimate equals the level-0 lookup in the
-    mirror direction (to 1 %), and under a uniform map a white conductor never reflects more
-    than the map (energy ≤ input for all α); rejects a wrong reflection (h vs l), a missing
-    G·<v,h>/(<n,h><n,v>) weight (which exceeds 1 at grazing angles) and a level from the
-    wrong sign of log p."""
-    rng = np.random.default_rng(0)
-    img = (rng.random((32, 64, 3)) + 0.2).astype(np.float32)
-    env = MipEnvironment.build(img)
-    n = mi.Vector3f(0.0, 1.0, 0.0)
-    v = dr.normalize(mi.Vector3f(0.3, 1.0, 0.2))
-    spec = specular_fis(env, n, v, mi.Float(1e-4), mi.Color3f(1.0), 8)
-    r = dr.normalize(n * (2.0 * dr.dot(n, v)) - v)
-    ref = env.lookup(r, mi.Float(0.0))
-    np.testing.assert_allclose(np.array(spec).ravel(), np.array(ref).ravel(), rtol=0.01)
-    flat = MipEnvironment.build(np.full((32, 64, 3), 2.0, np.float32))
-    for a in (0.05, 0.3, 0.8):
-        for cos_v in (1.0, 0.5, 0.1):
-            vv = mi.Vector3f(math.sqrt(1 - cos_v**2), cos_v, 0.0)
-            out = np.array(specular_fis(flat, n, vv, mi.Float(a), mi.Color3f(1.0), 40))
-            assert np.all(out <= 2.0 * 1.001) and np.all(out > 0.5), (a, cos_v, out)
+def test_ggx_d_and_smith_g1_match_mitsuba_microfacet_distribution():
+    """``ggx_d`` and ``smith_g1`` against Mitsuba's own ``MicrofacetDistribution`` (GGX,
+    independent code) at α 0.05–0.9 and cosines 0.05–1, to 1e-4 relative; rejects a
+    Beckmann D, α and α² swapped, a missing 1/π and Smith's G1 of the wrong form (e.g.
+    Schlick–GGX's ``k = α/2`` or the height-correlated Λ used as G1)."""
+    from arlight.realtime.ibl_shading import ggx_d, smith_g1
+
+    cos = np.array([0.05, 0.2, 0.5, 0.8, 0.99, 1.0])
+    for a in (0.05, 0.2, 0.5, 0.9):
+        md = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, a, False)
+        sin = np.sqrt(1.0 - cos * cos)
+        m = mi.Vector3f(sin.astype(np.float32), np.zeros_like(sin, np.float32),
+                        cos.astype(np.float32))
+        ref_d = np.array(md.eval(m), np.float64)
+        ours_d = np.array(ggx_d(mi.Float(a), mi.Float(cos.astype(np.float32))), np.float64)
+        np.testing.assert_allclose(ours_d, ref_d, rtol=1e-4)
+        up = mi.Vector3f(0.0, 0.0, 1.0)  # G1 of a direction v for the macro normal
+        ref_g = np.array(md.smith_g1(m, up), np.float64)
+        ours_g = np.array(smith_g1(mi.Float(a), mi.Float(cos.astype(np.float32))),
+                          np.float64)
+        np.testing.assert_allclose(ours_g, ref_g, rtol=1e-4)
+
+
+def _mitsuba_albedo(alpha: float, cos_v: float, f0: float, n: int = 1 << 16) -> float:
+    """Directional albedo ``∫ F D G / (4 <n,v>) dω`` of a GGX microfacet BRDF with Schlick's
+    Fresnel (``F0``, ``F90 = 1``) by Mitsuba's visible-normal sampling (Heitz 2018: the
+    estimator is ``F(<v,m>) G1(l)``), independent of our GGX code."""
+    md = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
+    rng = np.random.default_rng(1)
+    u = rng.random((2, n)).astype(np.float32)
+    v = mi.Vector3f(math.sqrt(1 - cos_v * cos_v), 0.0, cos_v)
+    m, _ = md.sample(v, mi.Point2f(u[0], u[1]))
+    vm = dr.dot(v, m)
+    light = m * (2.0 * vm) - v
+    fres = f0 + (1.0 - f0) * dr.power(1.0 - dr.clip(vm, 0.0, 1.0), 5.0)
+    w = dr.select(light.z > 0.0, fres * md.smith_g1(light, m), 0.0)
+    return float(np.mean(np.array(w, np.float64)))
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.3, 0.7])
+def test_dfg_table_matches_mitsuba_directional_albedo(alpha):
+    """The split-sum DFG table: ``A + B`` (a constant reflectance) and ``0.04 A + B``
+    (Schlick from a dielectric ``F0 = 0.04`` to 1) against Mitsuba's visible-normal estimate
+    of the same GGX albedo (:func:`_mitsuba_albedo`), to 3 % (2 % + 0.005 absolute) at
+    ``<n,v>`` 0.2–0.9; rejects a table without the ``<v,h>/(<n,h><n,v>)`` weight, without
+    G, and a constant Fresnel (``B`` dropped: a dielectric's grazing rise lost, e.g. 0.04
+    instead of ~0.15 at ``<n,v> = 0.2``)."""
+    from arlight.realtime.ibl_shading import DFG_SIZE, dfg_lookup, dfg_table
+
+    table = mi.Float(dfg_table().reshape(-1))
+    for cos_v in (0.2, 0.5, 0.9):
+        a, b = dfg_lookup(table, mi.Float(cos_v), mi.Float(math.sqrt(alpha)), DFG_SIZE)
+        a, b = float(a[0]), float(b[0])
+        for f0 in (1.0, 0.04):
+            ref = _mitsuba_albedo(alpha, cos_v, f0)
+            ours = f0 * a + b
+            assert abs(ours - ref) <= 0.02 * ref + 0.005, (alpha, cos_v, f0, ours, ref)
+
+
+def _sphere_vs_mitsuba(material: dict, lights: list[dict] | None = None, spp: int = 4096,
+                       **opts) -> tuple[float, float]:
+    """(mean abs relative error, ratio of sums) of ibl's virtual pixels against Mitsuba's
+    path tracer with direct light only (``max_depth = 2``) on a sphere (48×36)."""
+    from scipy.ndimage import binary_erosion
+
+    d = env_sphere_scene(material, w=48, h=36)
+    if lights is not None:
+        d["lights"] = lights
+    scene = make(d)
+    ours = run(scene, ao_rays=8, **{"samples": 64, **opts})
+    ref = get_method("reference")(scene, RenderSettings(spp=spp, max_depth=2, seed=3))
+    m = binary_erosion((ours.mask > 0.999) & (ref.mask > 0.999))
+    assert m.sum() > 250
+    a, b = ours.mixed[m], ref.mixed[m]
+    return (float(np.mean(np.abs(a - b) / np.maximum(b, 1e-6))),
+            float(a.sum() / max(b.sum(), 1e-12)))
+
+
+@pytest.mark.parametrize("alpha,tol", [(0.1, 0.10), (0.3, 0.10), (0.6, 0.11)])
+def test_glossy_sphere_under_the_map_matches_mitsuba(alpha, tol):
+    """Rough-conductor sphere (Mitsuba ``roughconductor``, GGX, α 0.1/0.3/0.6) under the
+    demo HDR map: ibl's split-sum specular (GGX-prefiltered map, DFG table, dominant
+    direction) against Mitsuba's path tracer, direct light only, 4096 spp: mean absolute
+    relative error of the interior pixels ≤ 10–11 % (measured 7.6/8.1/8.3 %) and total
+    within 6 %; rejects looking the lobe up in a 2×2 box-filtered mip chain instead of the
+    GGX prefilter, the mirror direction without the dominant-direction lerp (23 % at α 0.6),
+    a level from α instead of √α, and a missing DFG factor."""
+    err, ratio = _sphere_vs_mitsuba({"type": "roughconductor", "alpha": alpha,
+                                     "reflectance": [0.9, 0.8, 0.7]})
+    print(f"alpha {alpha}: mean abs rel error {err:.4f}, ratio {ratio:.3f}")
+    assert err <= tol and abs(ratio - 1.0) <= 0.06
+
+
+def test_dielectric_pbr_sphere_has_the_fresnel_rise_of_mitsuba_principled():
+    """A dark dielectric ``pbr`` sphere (Mitsuba ``principled``, base colour 0.05, ior 1.5,
+    roughness 0.2 and 0.5: the specular lobe dominates) under the HDR map against Mitsuba's
+    path tracer: mean absolute relative error of the interior pixels ≤ 6 % averaged over
+    both roughnesses (measured 5.3/4.3 %, 4.8 % on average); rejects a constant Fresnel
+    ``F0`` (``F90 = F0``: 7.5/6.9 %, the rim too dark)."""
+    errs = [_sphere_vs_mitsuba({"type": "pbr", "base_color": [0.05, 0.05, 0.05],
+                                "metallic": 0.0, "roughness": r})[0] for r in (0.2, 0.5)]
+    print(f"pbr dielectric: mean abs rel errors {errs}")
+    assert sum(errs) / 2 <= 0.06
+
+
+def test_point_light_highlight_on_a_glossy_sphere_matches_mitsuba():
+    """A rough-conductor sphere (α 0.3) lit only by a point light beside the camera: the
+    GGX reflection of the local light, per pixel with a shadow ray, against Mitsuba's path
+    tracer (direct light, 1024 spp): total within 5 % and mean absolute relative error of the
+    pixels above 5 % of the peak ≤ 15 % (measured 12.6 %: the highlight's steep gradient
+    against a pixel-centre G-buffer); rejects local lights that give diffuse light only
+    (a black metal: the previous ibl), a missing Smith G or 1/(4<n,v>)."""
+    from scipy.ndimage import binary_erosion
+
+    d = env_sphere_scene({"type": "roughconductor", "alpha": 0.3,
+                          "reflectance": [0.9, 0.8, 0.7]}, w=48, h=36)
+    d["lights"] = [{"type": "point", "position": [0.6, 0.9, 1.2], "intensity": 3.0}]
+    scene = make(d)
+    ours = run(scene)
+    ref = get_method("reference")(scene, RenderSettings(spp=1024, max_depth=2, seed=3))
+    m = binary_erosion((ours.mask > 0.999) & (ref.mask > 0.999))
+    a, b = ours.mixed[m], ref.mixed[m]
+    ratio = float(a.sum() / b.sum())
+    bright = b.sum(-1) > 0.05 * b.sum(-1).max()
+    err = float(np.mean(np.abs(a[bright] - b[bright]) / b[bright]))
+    print(f"point light highlight: ratio {ratio:.3f}, rel error (bright) {err:.4f}")
+    assert abs(ratio - 1.0) <= 0.05 and err <= 0.15
 
 
 def test_hammersley_is_stratified():

@@ -54,11 +54,16 @@ from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
     MipEnvironment,
+    SpecularTables,
     ambient_occlusion,
+    dfg_table,
     diffuse_weights,
     environment_map,
-    specular_fis,
+    prefilter_ggx,
+    specular_occlusion,
+    specular_split_sum,
     specular_tables,
+    virtual_glossy,
 )
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.oof import (
@@ -70,7 +75,12 @@ from arlight.realtime.oof import (
     pose_field,
     render_layers,
 )
-from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, virtual_bounds
+from arlight.realtime.shading import (
+    ambient_irradiance_dr,
+    direct_light,
+    split_lights,
+    virtual_bounds,
+)
 from arlight.scene.model import FrameView, World
 from arlight.sphere.sh import directional_light_coeffs, irradiance, n_coeffs, project_equirect
 from arlight.timing import StageTimer
@@ -78,8 +88,10 @@ from arlight.timing import StageTimer
 OPTIONS: dict[str, Field] = {
     "sh_order": Field("int", 2, "SH order of the ambient irradiance (2: the 9 coefficients of "
                       "Ramamoorthi & Hanrahan)", "", min=0, max=8),
-    "samples": Field("int", 40, "GGX filtered importance samples per pixel (Franke: 40)", "",
-                     min=1, max=1024),
+    "samples": Field("int", 64, "GGX importance samples per texel of the prefiltered "
+                     "environment (split sum, computed once per map)", "", min=1, max=1024),
+    "specular_occlusion": Field("bool", True, "darken the environment's specular by the "
+                                "AO-derived specular occlusion (Lagarde & de Rousiers 2014)"),
     "ao_rays": Field("int", 16, "ambient-occlusion rays per virtual pixel (0: no AO)", "",
                      min=0, max=1024),
     "ao_distance": Field("float", 0.0, "longest AO ray; 0: the virtual objects' bounding "
@@ -133,29 +145,31 @@ class IBLData:
     views: SceneViews
     lights: LightSet
     ambient: np.ndarray
-    env: MipEnvironment | None
+    env: MipEnvironment | None  # GGX-prefiltered per roughness level (prefilter_ggx)
     occluder: Occluder | None
     field: OcclusionField | None
-    alpha: mi.Float
-    ks: mi.Color3f
-    glossy: bool
+    spec: SpecularTables
     ao_distance: float
     kd_weight: mi.Float | None = None  # per shape, on the G-buffer albedo (pbr metals)
+    dfg: mi.Float | None = None  # the split-sum DFG table (dfg_table), flattened
 
 
 def prepare(world: World, options: Options) -> IBLData:
-    """Mitsuba views, reduced lights, ambient SH, the mip-mapped environment, the virtual
-    occluder and its occlusion field."""
+    """Mitsuba views, reduced lights, ambient SH, the GGX-prefiltered environment and the
+    DFG table (split sum; only with a glossy virtual shape), the virtual occluder and its
+    occlusion field."""
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     env_img = environment_map(world)
-    env = MipEnvironment.build(env_img) if env_img is not None else None
+    spec = specular_tables(world)
+    env = (prefilter_ggx(env_img, options.samples)
+           if env_img is not None and spec.glossy else None)
     occluder = make_occluder(world)
     field = field_from_options(world, options) if occluder is not None else None
-    alpha, ks, glossy = specular_tables(world)
+    dfg = mi.Float(dfg_table().reshape(-1)) if spec.glossy else None
     return IBLData(world, views, lights, ambient_sh(world, lights, options.sh_order, env_img),
-                   env, occluder, field, alpha, ks, glossy, _ao_distance(world, views, options),
-                   diffuse_weights(world))
+                   env, occluder, field, spec, _ao_distance(world, views, options),
+                   diffuse_weights(world), dfg)
 
 
 def _ao_distance(world: World, views: SceneViews, options: Options) -> float:
@@ -205,18 +219,26 @@ def shade_virtual(data: IBLData, gb: GBuffer, view: FrameView, options: Options,
         return dr.zeros(mi.Color3f, 0), idx
     p = dr.gather(mi.Point3f, gb.position, idx)
     n = dr.gather(mi.Vector3f, gb.normal, idx)
-    e_dir = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
+    shape = dr.gather(mi.Int32, gb.shape, idx)
+    glossy = virtual_glossy(data.spec, gb, idx, shape) if data.spec.glossy else None
+    far, near = split_lights(data.world, data.lights)
+    e_far, _ = direct_light(data.views.mixed, far, p, n, mi.Bool(True))
+    e_near, s_near = direct_light(data.views.mixed, near, p, n, mi.Bool(True),
+                                  specular=None if glossy is None else glossy.reflectance(n))
     ao = ambient_occlusion(data.occluder, p, n, options.ao_rays, data.ao_distance, seed)
     albedo = dr.gather(mi.Color3f, gb.albedo, idx)
-    shape = dr.gather(mi.Int32, gb.shape, idx)
     if data.kd_weight is not None:
         albedo *= dr.gather(mi.Float, data.kd_weight, shape)
-    out = albedo * (1.0 / math.pi) * (e_dir + ao * ambient_irradiance(data, n,
-                                                                        options.sh_order))
-    if data.env is not None and data.glossy:
-        out += specular_fis(data.env, n, dr.gather(mi.Vector3f, gb.to_camera, idx),
-                            dr.gather(mi.Float, data.alpha, shape),
-                            dr.gather(mi.Color3f, data.ks, shape), options.samples)
+    out = albedo * (1.0 / math.pi) * (e_far + e_near + ao * ambient_irradiance(
+        data, n, options.sh_order))
+    if s_near is not None:
+        out += s_near
+    if glossy is not None and data.env is not None and data.dfg is not None:
+        env = specular_split_sum(data.env, data.dfg, n, glossy.v, glossy.alpha, glossy.f0,
+                                 glossy.f90)
+        if options.specular_occlusion:
+            env *= specular_occlusion(dr.dot(n, glossy.v), ao, glossy.alpha)
+        out += env
     dr.eval(out)
     return out, idx
 

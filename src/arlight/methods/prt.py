@@ -51,11 +51,14 @@ from arlight.methods.base import (
 )
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, place_occluded
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
     MipEnvironment,
+    SpecularTables,
     environment_map,
     rot_y,
     specular_tables,
+    virtual_glossy,
 )
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.oof import (
@@ -73,10 +76,10 @@ from arlight.realtime.prt_shading import (
     shade_virtual,
 )
 from arlight.realtime.prt_transfer import rotation_part, vertex_values
-from arlight.realtime.shading import emitted_intensity, virtual_bounds
+from arlight.realtime.shading import direct_light, split_lights
 from arlight.realtime.sog import SoGTables
 from arlight.scene.model import FrameView, World
-from arlight.sphere.sh import directional_light_coeffs, n_coeffs, project_equirect, rotate
+from arlight.sphere.sh import n_coeffs, project_equirect, rotate
 from arlight.timing import StageTimer
 
 OPTIONS: dict[str, Field] = {
@@ -127,29 +130,6 @@ def distant_sh(world: World, order: int) -> np.ndarray:
     return out
 
 
-def light_sh(world: World, order: int, centre: np.ndarray, area_grid: int = 1,
-             distant: np.ndarray | None = None) -> np.ndarray:
-    """Radiance SH ``((order+1)², 3)`` of all the world's light as seen from ``centre``
-    (module docstring): :func:`distant_sh` (given as ``distant`` when already computed)
-    plus the local lights as SH delta lights from ``centre``."""
-    out = (distant_sh(world, order) if distant is None else distant).copy()
-    local = World([], [lt for lt in world.lights if lt.type not in ("envmap", "sh",
-                                                                     "constant")])
-    if local.lights:
-        for lt in reduce_lights(local, env_lights=0, area_grid=area_grid).lights:
-            if lt.kind == "directional":
-                to_light, e = -np.asarray(lt.axis, np.float64), np.asarray(lt.intensity)
-            else:
-                d = np.asarray(lt.position, np.float64) - centre
-                r = max(float(np.linalg.norm(d)), 1e-9)
-                to_light = d / r
-                # opaque: one kernel for every centre (a moving object moves it each frame)
-                w = mi.Vector3f(*[dr.opaque(mi.Float, float(x)) for x in -to_light])
-                e = np.array(emitted_intensity(lt, w), np.float64).reshape(3) / (r * r)
-            out += directional_light_coeffs(to_light, e, order)
-    return out
-
-
 @dataclass
 class PRTData:
     """What ``prepare_world`` keeps (see the module docstring)."""
@@ -167,6 +147,7 @@ class PRTData:
     sog: SoGTables | None = None
     ks: mi.Color3f | None = None
     distant: np.ndarray | None = None  # distant_sh: the light SH no pose changes
+    spec: SpecularTables | None = None  # GGX tables of the local lights' specular
 
     def vertex_values(self, order: int | None = None) -> list[np.ndarray]:
         """Per object ``Σ_k t_k l_k`` per vertex ``(V, 3)`` this frame."""
@@ -187,16 +168,9 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
     field = field_from_options(world, options) if occluder is not None else None
     env, sog, ks = glossy_tables(world) if options.glossy else (None, None, None)
     distant = distant_sh(world, options.order)
-    return PRTData(world, views, lights, light_sh(world, options.order, _centre(world, views),
-                                                  options.area_grid, distant),
-                   meshes.objects, occluder, field, meshes.face_offset, meshes.faces, env, sog,
-                   ks, distant)
-
-
-def _centre(world: World, views: SceneViews) -> np.ndarray:
-    """Centre of the virtual objects' world bounding box (m; the origin without any)."""
-    b = virtual_bounds(world, views.mixed) if world.has_virtual else None
-    return np.zeros(3) if b is None else (b[0] + b[1]) / 2.0
+    return PRTData(world, views, lights, distant, meshes.objects, occluder, field,
+                   meshes.face_offset, meshes.faces, env, sog, ks, distant,
+                   specular_tables(world))
 
 
 def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -217,9 +191,7 @@ def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options
     posed, occluder = moved
     objects = [replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
                for o in data.objects]
-    light = light_sh(posed, options.order, _centre(posed, data.views), options.area_grid,
-                     data.distant)
-    return replace(data, world=posed, objects=objects, light=light, occluder=occluder,
+    return replace(data, world=posed, objects=objects, occluder=occluder,
                    field=pose_field(data.field, posed, options))
 
 
@@ -231,13 +203,39 @@ def glossy_tables(world: World) -> tuple[MipEnvironment | None, SoGTables | None
     ``ks``; roughconductor ``alpha``, ``reflectance``); all None without a distant light or
     a glossy virtual shape."""
     env_img = environment_map(world)
-    alpha, ks, glossy = specular_tables(world)
-    if env_img is None or not glossy:
+    spec = specular_tables(world)
+    if env_img is None or not spec.glossy:
         return None, None, None
-    a, k = np.asarray(alpha, np.float64), np.asarray(ks, np.float64).reshape(-1, 3)
+    a, k = np.asarray(spec.alpha, np.float64), np.asarray(spec.f0, np.float64).reshape(-1, 3)
     alphas = [float(a[i]) if s.is_virtual and np.any(k[i]) else None
               for i, s in enumerate(world.shapes)]
-    return MipEnvironment.build(env_img), SoGTables.build(alphas), ks
+    return MipEnvironment.build(env_img), SoGTables.build(alphas), spec.f0
+
+
+def shade_prt(data: PRTData, gb: GBuffer, view: FrameView, options: Options, seed: int = 0
+              ) -> tuple[mi.Color3f, mi.UInt32]:
+    """Radiance (W/(sr·m²)) of the virtual lanes: the PRT shading of the distant light
+    (:func:`arlight.realtime.prt_shading.shade_virtual`) plus the local lights (point, spot,
+    area patches, sun) per pixel with one shadow ray each in the mixed scene
+    (:func:`arlight.realtime.shading.direct_light`): ``ρ/π Σ_i V_i E_i <n,ω_i>+`` and, for
+    glossy shapes, their GGX reflection (:func:`~arlight.realtime.ibl_shading.
+    ggx_reflectance`) — the fall-off across the object and sharp self-shadows that an SH
+    light seen from the object's centre cannot give."""
+    rad, idx = shade_virtual(data, gb, view, options, seed)
+    _, near = split_lights(data.world, data.lights)
+    if dr.width(idx) == 0 or not near.lights:
+        return rad, idx
+    p = dr.gather(mi.Point3f, gb.position, idx)
+    n = dr.gather(mi.Vector3f, gb.normal, idx)
+    shape = dr.gather(mi.Int32, gb.shape, idx)
+    glossy = virtual_glossy(data.spec, gb, idx, shape) if data.spec.glossy else None
+    e, s = direct_light(data.views.mixed, near, p, n, mi.Bool(True),
+                        specular=None if glossy is None else glossy.reflectance(n))
+    rad = rad + dr.gather(mi.Color3f, gb.albedo, idx) * (1.0 / math.pi) * e
+    if s is not None:
+        rad += s
+    dr.eval(rad)
+    return rad, idx
 
 
 class PRTMethod(BaseMethod):
@@ -254,22 +252,20 @@ class PRTMethod(BaseMethod):
 
     def relit(self, data: PRTData, world: World, options: Options) -> PRTData | None:
         """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
-        place, the lights reduced again and the light SH measured again (distant part
-        kept); the transfer, the occluder, its occlusion field and the glossy tables are
-        kept. None (prepare again) when a distant light changed."""
+        place and the lights reduced again; the transfer, the light SH (distant lights
+        only), the occluder, its occlusion field and the glossy tables are kept. None
+        (prepare again) when a distant light changed."""
         from arlight.methods.base import distant_changed, relight_views
 
         if distant_changed(data.world.lights, world.lights) or not relight_views(
                 data.views, data.world.lights, world.lights):
             return None
         return replace(data, world=world, lights=reduce_lights(
-            world, env_lights=options.env_lights, area_grid=options.area_grid),
-                       light=light_sh(world, options.order, _centre(world, data.views),
-                                      options.area_grid, data.distant))
+            world, env_lights=options.env_lights, area_grid=options.area_grid))
 
     def render_view(self, data: PRTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
-        layers = render_layers(data, view, options, settings.seed, timer, shade_virtual)
+        layers = render_layers(data, view, options, settings.seed, timer, shade_prt)
         n_v = sum(o.transfer.vertices for o in data.objects)
         secs = sum(o.transfer.seconds for o in data.objects)
         layers.stats["prt_vertices"] = float(n_v)
@@ -277,5 +273,5 @@ class PRTMethod(BaseMethod):
         return layers
 
 
-__all__ = ["OPTIONS", "PRTData", "PRTMethod", "SPEC", "distant_sh", "glossy_tables", "light_sh",
-           "pose", "prepare"]
+__all__ = ["OPTIONS", "PRTData", "PRTMethod", "SPEC", "distant_sh", "glossy_tables", "pose",
+           "prepare", "shade_prt"]

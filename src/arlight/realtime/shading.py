@@ -4,6 +4,7 @@ shadow rays, SH ambient irradiance, and the virtual objects' bounding box."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import drjit as dr
 import mitsuba as mi
@@ -46,7 +47,19 @@ def direct_irradiance(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Ve
     """Irradiance (W/m²) at points ``p`` (normals ``n``) from the reduced lights, with one
     shadow ray per light in ``view`` (Franke Eq. 5.14: ``Σ_i L_i <n, ω_i>+``; the thesis
     leaves the direct visibility to shadow maps, we trace it)."""
+    return direct_light(view, lights, p, n, active, shadows)[0]
+
+
+def direct_light(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
+                 active: mi.Bool, shadows: bool = True,
+                 specular: Callable[[mi.Vector3f], mi.Color3f] | None = None
+                 ) -> tuple[mi.Color3f, mi.Color3f | None]:
+    """:func:`direct_irradiance` and, with ``specular`` (``ω ↦ f_s(ω, v) <n, ω>+``, sr⁻¹,
+    e.g. :func:`arlight.realtime.ibl_shading.ggx_reflectance`), the specular radiance
+    ``Σ_i V_i f_s(ω_i, v) <n, ω_i>+ E⊥_i`` (W/(sr·m²)) of the same lights through the same
+    shadow rays (None without ``specular``)."""
     out = mi.Color3f(0.0)
+    spec = mi.Color3f(0.0) if specular is not None else None
     origin = p + n * SHADOW_EPS
     for lt in lights.lights:
         if lt.kind == "directional":
@@ -65,7 +78,20 @@ def direct_irradiance(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Ve
             ray.maxt = dr.select(dr.isinf(dist), dr.largest(mi.Float), dist * (1.0 - 1e-4))
             lit &= ~view.scene.ray_test(ray, lit)
         out += dr.select(lit, e * cos, mi.Color3f(0.0))
-    return out
+        if spec is not None:
+            spec += dr.select(lit, e * specular(w), mi.Color3f(0.0))
+    return out, spec
+
+
+def split_lights(world: World, lights: LightSet) -> tuple[LightSet, LightSet]:
+    """``lights`` as (the part that stands for the distant light — directional lights
+    extracted from environment maps, plus the SH remainder — and the local part: point, spot,
+    area and ``directional`` world lights, no remainder), by each light's ``source``."""
+    env = {lt.name or f"light{i}" for i, lt in enumerate(world.lights)
+           if lt.type in ("envmap", "sh", "constant")}
+    far = [lt for lt in lights.lights if lt.source in env]
+    near = [lt for lt in lights.lights if lt.source not in env]
+    return LightSet(far, lights.ambient_sh), LightSet(near)
 
 
 def direct_irradiance_compact(view: SceneView, lights: LightSet, p: mi.Point3f,
@@ -145,5 +171,5 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
 
 
 __all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_irradiance",
-           "direct_irradiance_compact", "emitted_intensity", "on_active", "scene_bounds",
-           "spot_falloff", "virtual_bounds"]
+           "direct_irradiance_compact", "direct_light", "emitted_intensity", "on_active",
+           "scene_bounds", "split_lights", "spot_falloff", "virtual_bounds"]
