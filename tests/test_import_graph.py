@@ -13,7 +13,7 @@ Two kinds of checks:
       contract  methods (package), methods.spec, methods.base, methods.fragments
       plug-ins  methods.<name>
       apps      cli, entry, demo, evaluate, layer_files, progressive, insert, sequence, studio,
-                lightserver, importers, and the CLIs of the engine packages
+                lightserver, live, importers, and the CLIs of the engine packages
 
   No module imports a higher tier; no plug-in imports another plug-in; only the ground
   truth itself, the synthetic data makers (:data:`GROUND_TRUTH_USERS`), ``evaluate`` and the CLI
@@ -60,6 +60,7 @@ TIERS: dict[str, int] = {
     "arlight.demo": APPS, "arlight.evaluate": APPS,
     "arlight.layer_files": APPS, "arlight.progressive": APPS, "arlight.insert": APPS,
     "arlight.sequence": APPS, "arlight.studio": APPS, "arlight.lightserver": APPS,
+    "arlight.live": APPS,
     "arlight.importers": APPS, "arlight.light.cli": APPS, "arlight.probeless.cli": APPS,
     "arlight.nearfield.cli": APPS, "arlight.probeless.experiment": APPS,
 }
