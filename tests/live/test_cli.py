@@ -82,3 +82,18 @@ def test_recording_onto_the_input_video_is_refused(clip, tmp_path):
               "--record", video)
     assert r.exit_code == 2 and "--record" in r.stderr and "input" in r.stderr, r.output
     assert video.read_bytes() == data
+
+
+def test_a_video_recording_is_whole_and_may_be_replaced_by_a_rerun(base, clip, tmp_path):
+    """The mp4 holds every composited frame, no staging folder is left next to it, and a
+    second run may replace the recording it wrote (rejects a recorder that drops frames on
+    its writer queue or leaves its PNG staging behind)."""
+    from arlight.sequence.video import decode
+
+    out = tmp_path / "rec.mp4"
+    for _ in range(2):
+        r = _live(*base, "--video", clip.frames, "--unpaced", "--record", out)
+        assert r.exit_code == 0, r.output
+        assert sum(1 for _ in decode(out)) == 4
+        assert sorted(p.name for p in tmp_path.iterdir()) == [".arlight-written.json",
+                                                               "rec.mp4"]

@@ -1,19 +1,24 @@
 """Recording a live run (``--record OUT.mp4`` or ``--record FOLDER``), never over an input.
 
 Every composited frame is written as it is shown, as a PNG (``frame_000000.png``, fast
-zlib level 1) into a staging folder: for a folder target :class:`arlight.staged_output.
-StagedOutput` swaps it in at the end; for a video target (``.mp4``, ``.webm``) the frames
-are encoded at the end (:func:`arlight.sequence.video.encode`, written atomically) at the
-rate the run composited them, then the staging folder is removed and the video recorded as
-arlight's (:func:`arlight.output_guard.record_written`). Either way the output appears
-whole or not at all. :func:`check_record` refuses, before the run starts, a target that is
-an input, lies in one, or is a user's file (:mod:`arlight.output_guard`).
+zlib level 1) into a staging folder, by a writer thread (a queue of at most
+:data:`QUEUE_FRAMES` frames: the loop hands a frame over and goes on; it waits only when
+the disk falls that far behind — every shown frame is kept). For a folder target
+:class:`arlight.staged_output.StagedOutput` swaps it in at the end; for a video target
+(``.mp4``, ``.webm``) the frames are encoded at the end (:func:`arlight.sequence.video.
+encode`, written atomically) at the rate the run composited them, then the staging folder is
+removed and the video recorded as arlight's (:func:`arlight.output_guard.record_written`).
+Either way the output appears whole or not at all. :func:`check_record` refuses, before the
+run starts, a target that is an input, lies in one, or is a user's file
+(:mod:`arlight.output_guard`).
 """
 
 from __future__ import annotations
 
+import queue
 import shutil
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -23,6 +28,8 @@ from arlight.live.loop import LiveFrame
 from arlight.sequence.video import VIDEO_SUFFIXES
 
 RECORD_FILES = ("frame_*.png",)
+QUEUE_FRAMES = 8
+"""Frames waiting for the writer thread at most (then the loop waits: none is lost)."""
 
 
 def is_video_target(path: str | Path) -> bool:
@@ -60,6 +67,9 @@ class Recorder:
         self.target = Path(target)
         self.count = 0
         self._staged = None
+        self._queue: queue.Queue = queue.Queue(QUEUE_FRAMES)
+        self._error: BaseException | None = None
+        self._thread: threading.Thread | None = None
         if is_video_target(self.target):
             self.target.parent.mkdir(parents=True, exist_ok=True)
             self.folder = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.frames-",
@@ -70,13 +80,40 @@ class Recorder:
             self._staged = StagedOutput(self.target, "live", RECORD_FILES)
             self.folder = self._staged.__enter__()
 
-    def show(self, frame: LiveFrame) -> None:
+    def _write(self) -> None:
         import cv2
 
-        img = np.ascontiguousarray(frame.display[..., ::-1])
-        cv2.imwrite(str(self.folder / f"frame_{self.count:06d}.png"), img,
-                    [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            i, img = item
+            try:
+                if not cv2.imwrite(str(self.folder / f"frame_{i:06d}.png"), img,
+                                   [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+                    raise OSError(f"cannot write frame {i} into {self.folder}")
+            except BaseException as exc:  # noqa: BLE001 — re-raised by show/close
+                self._error = exc
+
+    def show(self, frame: LiveFrame) -> None:
+        """Hand the composite to the writer thread (BGR, 8 bits)."""
+        if self._error is not None:
+            raise self._error
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._write, name="arlight-live-record",
+                                            daemon=True)
+            self._thread.start()
+        img = frame.display
+        if img.dtype != np.uint8:  # 16-bit input: the video is 8-bit
+            img = (img >> 8).astype(np.uint8)
+        self._queue.put((self.count, np.ascontiguousarray(img[..., ::-1])))
         self.count += 1
+
+    def _drain(self) -> None:
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
 
     def _frames(self) -> Iterator[np.ndarray]:
         import cv2
@@ -88,6 +125,8 @@ class Recorder:
     def close(self, fps: float, ok: bool = True) -> Path | None:
         """Finish: the output written (``fps``: its frame rate) when ``ok`` and frames were
         recorded, else everything staged removed. Returns the output, or None."""
+        self._drain()
+        ok = ok and self._error is None
         if self._staged is not None:
             if ok and self.count:
                 self._staged.__exit__(None, None, None)
