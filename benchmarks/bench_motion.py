@@ -1,16 +1,21 @@
 """Benchmark: frame time of the interactive methods while the virtual object moves rigidly
-every frame vs while it stands still (issue #32, incremental pose).
+every frame, or the lamp moves every frame, vs while nothing moves (issue #32, incremental
+pose and light updates).
 
-On the demo scene at 640×480 each method (dlpv, dir, dvct, ibl, prt, and onepass at 1 spp),
+On the demo scene at 640×480 each method (dlpv, dir, dvct, ibl, prt, probeless, nearfield
+and onepass at 1 spp),
 in a process of its own started by this run (no other method's scenes or kernels alive),
 prepares the world once, renders warm-up frames of both kinds (kernels compiled), then
 ``--rounds`` interleaved pairs: a moving frame (the bunny a further 1 cm along a circle on
 the table and turned 5° about +y, a transform no frame used before) and a still frame (that
-pose again: nothing moved). Reported per method: the median wall time of each kind
+pose again: nothing moved). Then ``--rounds`` frames with the lamp moving: the area lamp
+1 cm further along +x and its radiance 1 % warmer each frame (``BaseMethod.relight`` then a
+render; the time is both). Reported per method: the median wall time of each kind
 (``Layers.stats["seconds"]``, pose included), their ratio (target ≤ 1.3), the moving
-frames' mean wall time and median ``time_pose``; with the machine's ``uptime`` load and CPU
-pressure at the end of the run. The bitwise equality of the moved frames to a fresh
-preparation is tested in tests/methods/test_pose_incremental.py, not here.
+frames' mean wall time and median ``time_pose``, the lamp frames' median and their ratio to
+still; with the machine's ``uptime`` load and CPU pressure at the end of the run. The
+bitwise equality of moved and relit frames to a fresh preparation is tested in
+tests/methods/test_pose_incremental.py and tests/methods/test_relight.py, not here.
 
     .venv/bin/python benchmarks/bench_motion.py [--rounds 9] [--methods dlpv,dir] [--write]
 """
@@ -36,7 +41,10 @@ from arlight.scene.load import load_scene
 
 HEADING = "## Interactive methods while the virtual object moves (issue #32)"
 HERE = Path(__file__).resolve().parent
-METHODS = ["dlpv", "dir", "dvct", "ibl", "prt", "onepass"]
+METHODS = ["dlpv", "dir", "dvct", "ibl", "prt", "probeless", "nearfield", "onepass"]
+NO_LIGHT_ROW = {"nearfield": "its VALs come from its own light server's capture of the world: "
+                "a new lamp prepares again (a server update goes through with_light)"}
+"""Methods without the lamp row, and why."""
 STEP_M = 0.01
 """Distance the bunny moves along its circle per moving frame, metres."""
 TURN_DEG = 5.0
@@ -57,6 +65,19 @@ def motion(i: int) -> np.ndarray:
     m[[0, 0, 2, 2], [0, 2, 0, 2]] = [math.cos(a), math.sin(a), -math.sin(a), math.cos(a)]
     m[:3, 3] = [RADIUS_M * math.sin(phi), 0.0, RADIUS_M * (1.0 - math.cos(phi))]
     return m
+
+
+def lamp(lights, i: int):
+    """The demo's lights with the area lamp ``i`` cm further along +x and ``i`` % warmer."""
+    out = []
+    for lt in lights:
+        if lt.type == "area":
+            m = np.array(lt.params["to_world"], np.float64)
+            m[0, 3] += i * STEP_M
+            rad = [c * (1.0 + 0.01 * i) for c in lt.params["radiance"]]
+            lt = replace(lt, params={**lt.params, "to_world": m, "radiance": rad})
+        out.append(lt)
+    return out
 
 
 def settings_for(method: str) -> RenderSettings:
@@ -80,9 +101,19 @@ def measure(method: str, rounds: int, warmup: int) -> dict[str, float]:
             still.append(lay_s.stats["seconds"])
             moving.append(lay_m.stats["seconds"])
             pose.append(lay_m.stats.get("time_pose", 0.0))
+    lit = []
+    if method not in NO_LIGHT_ROW:
+        for i in range(warmup + rounds):
+            t0 = time.perf_counter()
+            m.relight(state, lamp(scene.world.lights, i + 1), s)
+            relight = time.perf_counter() - t0
+            lay = m.render(state, view, s)
+            if i >= warmup:
+                lit.append(relight + lay.stats["seconds"])
     return {"still": statistics.median(still), "moving": statistics.median(moving),
             "moving_mean": statistics.fmean(moving), "pose": statistics.median(pose),
-            "incremental": float(getattr(m, "incremental_pose", False))}
+            "incremental": float(getattr(m, "incremental_pose", False)),
+            "lamp": statistics.median(lit) if lit else math.nan}
 
 
 def table(results: dict[str, dict[str, float]], rounds: int, load: str, psi: str) -> str:
@@ -93,16 +124,24 @@ def table(results: dict[str, dict[str, float]], rounds: int, load: str, psi: str
              f"and {TURN_DEG:.0f}° further turned every moving frame; still: that pose again. "
              f"Target: moving ≤ 1.3× still.",
              "", "| method | incremental pose | still (ms) | moving (ms) | ratio | moving mean "
-             "(ms) | pose (ms, median) |", "|---|---|---|---|---|---|---|"]
+             "(ms) | pose (ms, median) | lamp moving (ms) | lamp ratio |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
+        lamp_ms = "n/a" if math.isnan(r["lamp"]) else f"{r['lamp'] * 1e3:.0f}"
+        lamp_ratio = "n/a" if math.isnan(r["lamp"]) else f"{r['lamp'] / r['still']:.2f}"
         lines.append(f"| {name}{' (1 spp)' if name == 'onepass' else ''} | "
                      f"{'yes' if r['incremental'] else 'no'} | {r['still'] * 1e3:.0f} | "
                      f"{r['moving'] * 1e3:.0f} | {r['moving'] / r['still']:.2f} | "
-                     f"{r['moving_mean'] * 1e3:.0f} | {r['pose'] * 1e3:.1f} |")
+                     f"{r['moving_mean'] * 1e3:.0f} | {r['pose'] * 1e3:.1f} | {lamp_ms} | "
+                     f"{lamp_ratio} |")
     met = [n for n, r in results.items() if r["moving"] <= 1.3 * r["still"]]
     lines += ["", f"Target met by {len(met)} of {len(results)}: {', '.join(met) or 'none'}. "
               f"Before incremental pose (issue #32's table: the frame after a 1 cm move vs a "
               f"still frame, pose re-prepared): {BEFORE}."]
+    lines += ["", "Lamp moving: every frame the area lamp 1 cm further along +x and 1 % warmer "
+              "(`BaseMethod.relight`, then the frame; both timed), the bunny still. "
+              + " ".join(f"{n}: n/a — {why}." for n, why in NO_LIGHT_ROW.items()
+                         if n in results)]
     lines += ["", f"Load at the end of the run (`uptime`): {load}"
               + (f"; CPU pressure (PSI some avg60): {psi} %" if psi else "") + "."]
     return "\n".join(lines)

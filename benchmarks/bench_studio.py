@@ -171,39 +171,66 @@ def run_latency(rounds: int, resolution: tuple[int, int],
     lat: dict[str, list[float]] = {n: [] for n in names}
     render: dict[str, list[float]] = {n: [] for n in names}
     rng = random.Random(0)
-    w, h = engine.width, engine.height
     with BackgroundServer(engine) as srv, sync_playwright() as p:
         browser, page, box = _open_page(p, srv.url, 1100, 640)
-
-        def client(x, y):
-            return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
-
-        for r in range(rounds + 1):  # round 0 warms up (prepare, kernel compilation)
-            for name in names:
-                page.select_option("#method", name)
-                page.wait_for_function(f"window.studio.header.method === '{name}' && "
-                                       "window.studio.sendTimes.size === 0",
-                                       timeout=600_000)
-                pos = page.evaluate("window.studio.header.objects.bunny.position")
-                start = engine.proxy.project(np.array(pos) + [0.0, 0.03, 0.0])
-                target = (rng.uniform(0.25 * w, 0.75 * w), rng.uniform(0.65 * h, 0.9 * h))
-                page.mouse.move(*client(*start))
-                page.mouse.down()
-                page.wait_for_function("window.studio.messages.some(m => m.type === "
-                                       "'picked' && m.object)", timeout=60_000)
-                page.evaluate("window.studio.messages = []")
-                n0 = page.evaluate("window.studio.latencies.length")
-                page.mouse.move(*client(*target))  # one pointer event: one drag
-                page.wait_for_function(f"window.studio.latencies.length > {n0}",
-                                       timeout=600_000)
-                page.mouse.up()
-                if r == 0:
-                    continue
-                rec = page.evaluate("window.studio.latencies.at(-1)")
-                lat[name].append(rec["ms"] / 1e3)
-                render[name].append(rec["render_s"])
+        for d in _browser_drags(page, box, engine, names, rounds, rng):
+            rec = d["records"][-1]
+            lat[d["method"]].append(rec["ms"] / 1e3)
+            render[d["method"]].append(rec["render_s"])
         browser.close()
     return {"rounds": rounds, "resolution": resolution, "latency": lat, "render": render}
+
+
+def _browser_drags(page, box: dict, engine, names: list[str], rounds: int,
+                   rng: random.Random, moves: int = 1, move_ms: float = 0.0,
+                   to_rest: bool = False):
+    """Drag the bunny on the studio ``page`` (the frame image at ``box``): ``rounds`` + 1
+    rounds over ``names`` (round 0 warms up: preparation, kernel compilation), each drag
+    from the bunny to a random point on the table in ``moves`` pointer events ``move_ms``
+    apart. The drag ends when the page has drawn a frame of its last event — with
+    ``to_rest``, the full-size frame after the pointer rests. Yields per measured drag
+    ``{"method", "records"}`` (the page's latency records of the drag), ``"last"`` (the
+    last event sent: seq, time) and ``"log"`` (the page's log of frames shown)."""
+    w, h = engine.width, engine.height
+
+    def client(x, y):
+        return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
+
+    full = " && window.studio.header.factor === 1" if to_rest else ""
+    for r in range(rounds + 1):
+        for name in names:
+            page.select_option("#method", name)
+            page.wait_for_function(f"window.studio.header.method === '{name}' && "
+                                   f"window.studio.sendTimes.size === 0{full}",
+                                   timeout=900_000)
+            pos = page.evaluate("window.studio.header.objects.bunny.position")
+            start = engine.proxy.project(np.array(pos) + [0.0, 0.03, 0.0])
+            target = (rng.uniform(0.25 * w, 0.75 * w), rng.uniform(0.65 * h, 0.9 * h))
+            page.mouse.move(*client(*start))
+            page.mouse.down()
+            page.wait_for_function("window.studio.messages.some(m => m.type === "
+                                   "'picked' && m.object)", timeout=60_000)
+            page.evaluate("window.studio.messages = []")
+            n0 = page.evaluate("window.studio.latencies.length")
+            for t in np.linspace(0.0, 1.0, moves + 1)[1:]:
+                page.mouse.move(*client(start[0] + t * (target[0] - start[0]),
+                                        start[1] + t * (target[1] - start[1])))
+                if move_ms:
+                    page.wait_for_timeout(move_ms)
+            last = page.evaluate("window.studio.lastSent")
+            if to_rest:
+                page.wait_for_function(
+                    f"window.studio.shownLog.some(f => f.seq >= {last['seq']} && "
+                    "f.factor === 1)", timeout=900_000)
+            else:
+                page.wait_for_function(f"window.studio.latencies.length > {n0}",
+                                       timeout=900_000)
+            page.mouse.up()
+            if r == 0:
+                continue
+            yield {"method": name, "records": page.evaluate(
+                f"window.studio.latencies.slice({n0})"), "last": last,
+                "log": page.evaluate("window.studio.shownLog") if to_rest else []}
 
 
 def _percentile(xs: list[float], q: float) -> float:
@@ -229,7 +256,9 @@ def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
     from arlight.studio.engine import _transforms
 
     def measure(name: str) -> dict:
-        fn, state = get_method(name), engine.prepared(name)
+        fn = get_method(name)
+        engine.prepared(name)
+        drag = engine._drag[name]  # each size's state and settings (drag options)
         rest = engine.rest_poses["bunny"]
         out: dict = {"pose": []}
         step = 0
@@ -242,7 +271,7 @@ def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
                 view = replace(engine.views[k], object_transforms=_transforms(
                     {"bunny": pose}))
                 t0 = time.perf_counter()
-                layers = fn.render(state, view, engine.settings)
+                layers = fn.render(drag.state(k), view, drag.settings(k))
                 ts.append(time.perf_counter() - t0)
                 if i:
                     out["pose"].append(layers.stats.get("time_pose", float("nan")))
@@ -273,53 +302,22 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     renders = {n: [] for n in names}  # (factor, render_s, pose_s) of the frames shown
     log_drags: list[dict] = []  # per drag: its last seq, (seq, factor, ms) of its frames
     rng = random.Random(1)
-    w, h = engine.width, engine.height
     with BackgroundServer(engine) as srv, sync_playwright() as p:
         browser, page, box = _open_page(p, srv.url, 1100, 640)
-
-        def client(x, y):
-            return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
-
-        for r in range(drags + 1):  # round 0 warms up (prepare, kernel compilation)
-            for name in names:
-                page.select_option("#method", name)
-                page.wait_for_function(
-                    f"window.studio.header.method === '{name}' && "
-                    "window.studio.sendTimes.size === 0 && window.studio.header.factor === 1",
-                    timeout=900_000)
-                pos = page.evaluate("window.studio.header.objects.bunny.position")
-                start = engine.proxy.project(np.array(pos) + [0.0, 0.03, 0.0])
-                target = (rng.uniform(0.25 * w, 0.75 * w), rng.uniform(0.65 * h, 0.9 * h))
-                page.mouse.move(*client(*start))
-                page.mouse.down()
-                page.wait_for_function("window.studio.messages.some(m => m.type === "
-                                       "'picked' && m.object)", timeout=60_000)
-                page.evaluate("window.studio.messages = []")
-                n0 = page.evaluate("window.studio.latencies.length")
-                for t in np.linspace(0.0, 1.0, moves + 1)[1:]:
-                    page.mouse.move(*client(start[0] + t * (target[0] - start[0]),
-                                            start[1] + t * (target[1] - start[1])))
-                    page.wait_for_timeout(move_ms)
-                last = page.evaluate("window.studio.lastSent")
-                page.wait_for_function(
-                    f"window.studio.shownLog.some(f => f.seq >= {last['seq']} && "
-                    "f.factor === 1)", timeout=900_000)
-                page.mouse.up()
-                if r == 0:
-                    continue
-                recs = page.evaluate(f"window.studio.latencies.slice({n0})")
-                log = page.evaluate("window.studio.shownLog")
-                done = min(f["at"] for f in log
-                           if f["seq"] is not None and f["seq"] >= last["seq"]
-                           and f["factor"] == 1)
-                settle[name].append(done - last["t"])
-                drag = [x for x in recs if x["type"] == "drag"]
-                log_drags.append({"method": name, "last": last["seq"], "frames": [
-                    (x["seq"], x["factor"], round(x["ms"])) for x in drag]})
-                lat[name] += [(x["ms"], x["factor"]) for x in drag]
-                renders[name] += [(x["factor"], x["render_s"], x.get("pose_s")) for x in drag]
-                if drag:
-                    first[name].append(drag[0]["ms"])
+        for d in _browser_drags(page, box, engine, names, drags, rng, moves, move_ms,
+                                to_rest=True):
+            name, last, log = d["method"], d["last"], d["log"]
+            done = min(f["at"] for f in log
+                       if f["seq"] is not None and f["seq"] >= last["seq"]
+                       and f["factor"] == 1)
+            settle[name].append(done - last["t"])
+            drag = [x for x in d["records"] if x["type"] == "drag"]
+            log_drags.append({"method": name, "last": last["seq"], "frames": [
+                (x["seq"], x["factor"], round(x["ms"])) for x in drag]})
+            lat[name] += [(x["ms"], x["factor"]) for x in drag]
+            renders[name] += [(x["factor"], x["render_s"], x.get("pose_s")) for x in drag]
+            if drag:
+                first[name].append(drag[0]["ms"])
         browser.close()
         load1 = _load()
         per_scale = _scale_times(engine, names, reps)
@@ -328,6 +326,14 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
             "factors": engine.factors, "latency": lat, "first": first, "settle": settle,
             "renders": renders, "per_scale": per_scale, "load": [load0, load1],
             "drag_log": log_drags}
+
+
+def _drag_extra(name: str, factor: int) -> dict:
+    """The options ``name``'s spec overrides on a drag frame at ``factor``."""
+    from arlight.methods import get_method
+
+    spec = get_method(name).spec
+    return spec.drag(spec.parse_options({}), factor)
 
 
 def video_report(v: dict) -> str:
@@ -360,6 +366,13 @@ def video_report(v: dict) -> str:
                      f"{share} | {_percentile(st, 50):.0f} / "
                      f"{max(st) if st else float('nan'):.0f} |")
     facs = v["factors"]
+    lines += ["", "Options of the drag frames (each method's `drag_options`, issue #32: "
+              "per-frame work that does not shrink with the image scaled too; full size at "
+              "rest uses the defaults): " + "; ".join(
+                  f"{name} " + ", ".join(f"1/{k}: " + " ".join(
+                      f"{o}={x}" for o, x in _drag_extra(name, k).items()) for k in facs[1:])
+                  for name in v["latency"] if any(_drag_extra(name, k) for k in facs[1:]))
+              + "."]
     lines += ["", "Render time of the drag frames drawn (server `method.render`, pose "
               "included), median per size, ms (frames), and the median `pose` stage:", "",
               "| method | " + " | ".join(f"{w // k}×{h // k}" for k in facs)
