@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Annotated
 
@@ -188,8 +189,14 @@ def live_command(
         assert isinstance(src, VideoSource)
         depths = sources.DepthFrames(depth, src.source.count, src.size, depth_units)
         depths.validate()
-    job, calibration, spec = live_job(sc, src.size, name, settings, calib, marker, fps_in,
-                                      threads, src.name, has_depth=depths is not None)
+    try:
+        job, calibration, spec = live_job(sc, src.size, name, settings, calib, marker,
+                                          fps_in, threads, src.name,
+                                          has_depth=depths is not None)
+    except BaseException:
+        if isinstance(src, CameraSource):
+            src.close()  # the device is free again
+        raise
     clock = WallClock()
     client = server_light = None
     if light_server is not None:
@@ -228,7 +235,9 @@ def live_command(
     else:
         assert isinstance(src, CameraSource)
         caps = src.captures(clock)
-    fh = open(log, "w", encoding="utf-8") if log is not None else None  # noqa: SIM115
+    # the log is written next to its place and renamed there at the end (never half-written)
+    log_tmp = None if log is None else log.with_name(f".{log.name}.partial-{os.getpid()}")
+    fh = open(log_tmp, "w", encoding="utf-8") if log_tmp else None  # noqa: SIM115
     ok = False
     summary = None
     try:
@@ -236,12 +245,15 @@ def live_command(
         summary.prepare_seconds = prep
         ok = True
     finally:
-        if fh is not None:
+        if fh is not None and log is not None and log_tmp is not None:
             fh.close()
             if ok:
                 from arlight.output_guard import record_written
 
+                os.replace(log_tmp, log)
                 record_written([log])
+            else:
+                log_tmp.unlink(missing_ok=True)
         out = None
         if recorder is not None:
             out = recorder.close(summary.fps if summary is not None and not unpaced
