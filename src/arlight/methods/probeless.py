@@ -41,6 +41,7 @@ from arlight.methods.base import (
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.probeless.estimate import DEFAULT_RIDGE
 from arlight.probeless.pipeline import VARIANTS, Pipeline, Settings
+from arlight.probeless.transfer import MAX_DISTANCE
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
@@ -50,7 +51,7 @@ OPTIONS: dict[str, Field] = {
                      choices=tuple(VARIANTS)),
     "ratio": Field("bool", False, "real pixels by the ratio form I_c·T_mix·l/T_real·l of E7 "
                    "instead of the additive a/π (T_mix − T_real)·l"),
-    "max_distance": Field("float", 0.10, "visibility ray length (Gruber: 10 cm)", "m",
+    "max_distance": Field("float", MAX_DISTANCE, "visibility ray length (Gruber: 10 cm)", "m",
                           min=1e-3, max=10.0),
     "ridge": Field("float", DEFAULT_RIDGE, "Tikhonov weight of the light fit relative to σ_max² "
                    "(damps light directions the scene does not see)", "", min=0.0, max=1.0),

@@ -41,7 +41,12 @@ from arlight.backend.camera_rays import opaque, rays_from_samples
 from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_REAL, ROLE_VIRTUAL, SceneViews
 from arlight.probeless.directions import N_COEFFS, DirectionSet, unoccluded_transfer
 from arlight.probeless.estimate import DEFAULT_RIDGE, SHLightFit, estimate_light
-from arlight.probeless.transfer import Transfer, compute_transfer, real_hits_from
+from arlight.probeless.transfer import (
+    MAX_DISTANCE,
+    Transfer,
+    compute_transfer,
+    real_hits_from,
+)
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.scene.camera import Camera, look_at
 from arlight.scene.model import Shape
@@ -85,7 +90,7 @@ class Settings:
     """Parameters the paper does not fix (digest §6: "inferred: choose and expose").
 
     Attributes:
-        max_distance: visibility ray length (m), 0.10 in the paper.
+        max_distance: visibility ray length (m), :data:`~arlight.probeless.transfer.MAX_DISTANCE`.
         ray_offset: ray origins moved off the surface along the normal (m).
         depth_reject: relative camera-depth difference above which a reprojected cache entry
             is rejected and rebuilt (and a sensor depth disagrees with the proxy).
@@ -102,7 +107,7 @@ class Settings:
             from the pixel's tangent plane is on another surface and is not used.
     """
 
-    max_distance: float = 0.10
+    max_distance: float = MAX_DISTANCE
     ray_offset: float = 2e-3
     depth_reject: float = 0.03
     normal_reject: float = 0.9
