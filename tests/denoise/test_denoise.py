@@ -163,6 +163,33 @@ def test_option_is_refused_on_the_command_line_with_one_line_and_exit_2(tmp_path
     assert len(err.splitlines()) == 1 and "deterministic" in err and "Traceback" not in err
 
 
+def test_cuda_device_is_refused_cleanly_where_there_is_none(tmp_path, capsys):
+    """``--option denoise_device=cuda`` on a machine without a CUDA device: exit 2, one line
+    naming the option, no output, no traceback. Rejects falling back to the CPU silently
+    and a raw OIDN/ctypes error. (The CUDA path itself cannot run here.)"""
+    import json
+
+    import imageio.v3 as iio
+    import pyoidn
+
+    from arlight.cli import main
+
+    if pyoidn.Device.is_cuda_available():
+        pytest.skip("this machine has a CUDA device")
+    d = area_light_scene(16, 12)
+    iio.imwrite(tmp_path / "frame.png", np.full((12, 16, 3), 128, np.uint8))
+    d["frame"] = {"image": "frame.png"}
+    (tmp_path / "s.json").write_text(json.dumps(d))
+    out = tmp_path / "out"
+    code = main(["render", str(tmp_path / "s.json"), "-m", "onepass", "--spp", "1",
+                 "--option", "denoise=oidn", "--option", "denoise_device=cuda",
+                 "-o", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and not out.exists()
+    assert len(err.splitlines()) == 1 and "denoise_device" in err and "CUDA" in err
+    assert "Traceback" not in err
+
+
 def test_monte_carlo_methods_list_the_options():
     """Rejects: a Monte Carlo method without the denoiser's options, or a denoise option
     that forces a new preparation (it only changes the frame)."""

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from arlight.denoise.oidn import auto_scale, denoise_rgb
+from arlight.denoise.oidn import auto_scale, check_device, denoise_rgb
 from arlight.denoise.options import DenoiseSettings
 from arlight.layers import Layers
 
@@ -91,7 +91,7 @@ def _runner(settings: DenoiseSettings, aux) -> tuple[Callable[..., np.ndarray], 
         if not np.any(img > 0):
             return np.zeros_like(img)  # D(0) = 0: nothing to denoise
         runs[0] += 1
-        return denoise_rgb(img, albedo, normal, settings.quality, scale)
+        return denoise_rgb(img, albedo, normal, settings.quality, scale, settings.device)
 
     return run, runs
 
@@ -109,6 +109,7 @@ def denoise_layers(layers: Layers, settings: DenoiseSettings,
     Returns:
         :class:`DenoisedLayers` (``noisy`` = ``layers``).
     """
+    check_device(settings.device)
     h, w = layers.mixed.shape[:2]
     fp = footprint(layers.delta, layers.mask, footprint_radius(w))
     stats = {**layers.stats, "footprint_pixels": float(fp.sum()), "denoise_pixels": 0.0,

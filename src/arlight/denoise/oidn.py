@@ -6,8 +6,12 @@ The wheel ships the OIDN libraries with the trained weights compiled into
 ``libOpenImageDenoise_core.so``: nothing is downloaded at run time. OIDN is Apache-2.0
 (Intel), the ``pyoidn`` binding MIT (its wheel metadata and LICENSE).
 
-One CPU device per process and one ``RT`` filter per (quality, auxiliary images) are kept
-and re-bound per call (creating a filter loads its network, ~10× a small image's denoise).
+One device per process and kind (``cpu``; ``cuda``: OIDN's CUDA device, shipped in the
+same wheel — an NVIDIA GPU, the same filter, weights and ``inputScale``; images copied
+through device buffers) and one ``RT`` filter per (device, quality, auxiliary images) are
+kept and re-bound per call (creating a filter loads its network, ~10× a small image's
+denoise). The ``cuda`` path could not be run on this project's machines (no CUDA device):
+:func:`check_device` refuses it there with one line.
 Calls are serialised by a lock. OIDN on the CPU is deterministic: equal inputs give equal
 outputs bit for bit, which :mod:`arlight.denoise.differential` relies on (where ``I_m`` and
 ``I_r`` agree over the filter's receptive field, their denoised difference is exactly 0).
@@ -22,31 +26,51 @@ import numpy as np
 
 QUALITIES = ("fast", "balanced", "high")
 """OIDN quality levels (``OIDN_QUALITY_*``), fastest first."""
+DEVICES = ("cpu", "cuda")
+"""OIDN device kinds."""
 
 _LOCK = threading.Lock()
 _STATE: dict[str, Any] = {}
 
 
-def _device():
-    """The process's committed OIDN CPU device (created on first use)."""
+def check_device(kind: str) -> None:
+    """Raise :class:`~arlight.errors.InputError` (field ``options.denoise_device``) when
+    OIDN has no device of ``kind`` here (``cuda`` without an NVIDIA GPU and driver)."""
     import pyoidn
 
-    if "device" not in _STATE:
-        dev = pyoidn.Device(pyoidn.OIDN_DEVICE_TYPE_CPU)
+    from arlight.errors import InputError
+
+    if kind not in DEVICES:
+        raise InputError(f"must be one of {', '.join(DEVICES)}, got {kind!r}",
+                         field="options.denoise_device")
+    if kind == "cuda" and not pyoidn.Device.is_cuda_available():
+        raise InputError("OIDN finds no CUDA device on this machine (an NVIDIA GPU and "
+                         "driver are needed); use denoise_device=cpu",
+                         field="options.denoise_device")
+
+
+def _device(kind: str = "cpu"):
+    """The process's committed OIDN device of ``kind`` (created on first use)."""
+    import pyoidn
+
+    if kind not in _STATE:
+        check_device(kind)
+        dev = pyoidn.Device({"cpu": pyoidn.OIDN_DEVICE_TYPE_CPU,
+                             "cuda": pyoidn.OIDN_DEVICE_TYPE_CUDA}[kind])
         dev.commit()
         err = dev.get_error()
         if err:
-            raise RuntimeError(f"OIDN CPU device: {err}")
-        _STATE["device"] = dev
-        _STATE["filters"] = {}
-    return _STATE["device"]
+            raise RuntimeError(f"OIDN {kind} device: {err}")
+        _STATE[kind] = dev
+        _STATE.setdefault("filters", {})
+    return _STATE[kind]
 
 
-def _filter(quality: str, aux: tuple[bool, bool]):
+def _filter(quality: str, aux: tuple[bool, bool], kind: str = "cpu"):
     import pyoidn
 
-    dev = _device()
-    key = (quality, aux)
+    dev = _device(kind)
+    key = (kind, quality, aux)
     flt = _STATE["filters"].get(key)
     if flt is None:
         flt = pyoidn.Filter(dev, pyoidn.OIDN_FILTER_TYPE_RT)
@@ -59,7 +83,7 @@ def _filter(quality: str, aux: tuple[bool, bool]):
 
 def denoise_rgb(color: np.ndarray, albedo: np.ndarray | None = None,
                 normal: np.ndarray | None = None, quality: str = "high",
-                input_scale: float | None = None) -> np.ndarray:
+                input_scale: float | None = None, device: str = "cpu") -> np.ndarray:
     """OIDN's ``RT`` filter on an HDR image.
 
     Args:
@@ -71,6 +95,7 @@ def denoise_rgb(color: np.ndarray, albedo: np.ndarray | None = None,
         input_scale: OIDN's ``inputScale`` (multiplies the colour so that 1 is a mid
             value); None: OIDN's automatic exposure of this image. Two images denoised to
             be subtracted should share it.
+        device: ``cpu`` | ``cuda`` (:func:`check_device`).
 
     Returns:
         ``(H, W, 3)`` float32 denoised radiance.
@@ -92,20 +117,31 @@ def denoise_rgb(color: np.ndarray, albedo: np.ndarray | None = None,
                 raise ValueError(f"{name} has shape {a.shape}; color has {c.shape}")
             images[name] = a
     out = np.empty_like(c)
+    h, w = c.shape[:2]
     with _LOCK:
-        flt = _filter(quality, (albedo is not None, normal is not None))
-        for name, img in images.items():
-            flt.set_image(name, img, pyoidn.OIDN_FORMAT_FLOAT3)
-        flt.set_image("output", out, pyoidn.OIDN_FORMAT_FLOAT3)
+        flt = _filter(quality, (albedo is not None, normal is not None), device)
+        buffers = []
+        for name, img in (*images.items(), ("output", out)):
+            if device == "cpu":  # host memory shared with OIDN
+                flt.set_image(name, img, pyoidn.OIDN_FORMAT_FLOAT3)
+                continue
+            buf = pyoidn.Buffer(_STATE[device], img.nbytes)  # device memory
+            if name != "output":
+                buf.write(0, img.nbytes, img)
+            buffers.append(buf)
+            flt.set_image(name, buf, pyoidn.OIDN_FORMAT_FLOAT3, w, h)
         flt.set_bool("hdr", True)
         flt.set_bool("cleanAux", albedo is not None)
         flt.set_float("inputScale", float("nan") if input_scale is None else input_scale)
         flt.commit()
         flt.execute()
-        err = _STATE["device"].get_error()
-        for name in images:
+        if buffers:
+            buffers[-1].read(0, out.nbytes, out)
+        err = _STATE[device].get_error()
+        for name in (*images, "output"):
             flt.unset_image(name)
-        flt.unset_image("output")
+        for buf in buffers:
+            buf.release()
     if err:
         raise RuntimeError(f"OIDN: {err}")
     return out
@@ -123,4 +159,4 @@ def auto_scale(*images: np.ndarray) -> float:
     return float(0.18 / np.exp(np.mean(np.log(lum))))
 
 
-__all__ = ["QUALITIES", "auto_scale", "denoise_rgb"]
+__all__ = ["DEVICES", "QUALITIES", "auto_scale", "check_device", "denoise_rgb"]

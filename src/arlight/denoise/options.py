@@ -28,11 +28,15 @@ OPTIONS: dict[str, Field] = {
                             "same auxiliary buffers and exposure, delta = D(I_m) − D(I_r); "
                             "`delta`: the signed delta denoised directly (its positive and "
                             "negative parts)", choices=("separate", "delta")),
+    "denoise_device": Field("choice", "cpu", "where OIDN runs: `cpu`, or `cuda` (OIDN's "
+                            "CUDA device on an NVIDIA GPU; refused with one line where there "
+                            "is none; not run on this project's machines)",
+                            choices=("cpu", "cuda")),
     "denoise_aux_spp": Field("int", 4, "sub-pixel samples of the auxiliary buffers (box "
                              "filter; at least 16 on a thin-lens camera)", min=1, max=256),
 }
 """``denoise``, ``denoise_quality``, ``denoise_aux``, ``denoise_target``,
-``denoise_aux_spp``."""
+``denoise_device``, ``denoise_aux_spp``."""
 
 NAMES = frozenset(OPTIONS)
 
@@ -50,12 +54,14 @@ class DenoiseSettings:
         aux: use clean albedo and normal buffers.
         target: ``separate`` (D(I_m) − D(I_r)) or ``delta`` (the delta itself).
         aux_spp: sub-pixel samples of the auxiliary buffers.
+        device: OIDN's device, ``cpu`` | ``cuda``.
     """
 
     quality: str = "high"
     aux: bool = True
     target: str = "separate"
     aux_spp: int = 4
+    device: str = "cpu"
 
     @staticmethod
     def from_options(opts: Any) -> DenoiseSettings | None:
@@ -64,7 +70,8 @@ class DenoiseSettings:
         if opts.get("denoise", "none") == "none":
             return None
         return DenoiseSettings(quality=opts["denoise_quality"], aux=opts["denoise_aux"],
-                               target=opts["denoise_target"], aux_spp=opts["denoise_aux_spp"])
+                               target=opts["denoise_target"], aux_spp=opts["denoise_aux_spp"],
+                               device=opts.get("denoise_device", "cpu"))
 
 
 __all__ = ["DenoiseSettings", "NAMES", "NOT_NOISY", "OPTIONS"]
