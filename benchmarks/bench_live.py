@@ -85,11 +85,14 @@ def table(results: dict[str, dict], loops: int, load: str, psi: str) -> str:
                      f"{r['arrived']} | {r['latency_ms_p50']:.0f} | {r['latency_ms_p95']:.0f} "
                      f"| {st.get('track', 0):.1f} | {st.get('render', 0):.0f} | "
                      f"{st.get('show', 0):.1f} |")
-    lines += ["", "Median stage times inside render (ms):", ""]
+    lines += ["", "Median stage times inside render (ms; the rest of render is the view — "
+              "undistort, codes to radiance — the display conversion and Python):", ""]
     for name, r in results.items():
         inner = {k: round(v, 1) for k, v in r["stage_ms_median"].items()
                  if k not in ("track", "render", "show")}
-        lines.append(f"- {name}: " + ", ".join(f"{k} {v}" for k, v in inner.items()))
+        lines.append(f"- {name}: " + ", ".join(f"{k} {v}" for k, v in inner.items())
+                     + f" (sum {sum(inner.values()):.0f} of render "
+                     f"{r['stage_ms_median'].get('render', 0):.0f})")
     met = [n for n, r in results.items() if r["frames_per_second"] >= TARGET_FPS]
     lines += ["", f"Target ≥ {TARGET_FPS:.0f} composited frames/s met by {len(met)} of "
               f"{len(results)}: {', '.join(met) or 'none'}.",
