@@ -15,9 +15,11 @@ import json
 import time
 
 import numpy as np
+import pytest
 
 from arlight.live.loop import LiveFrame
 from arlight.live.studio import LiveFeed
+from arlight.studio.browser import why_no_browser
 from arlight.studio.server import BackgroundServer
 from tests.studio.test_security import _request
 
@@ -62,3 +64,37 @@ def test_the_live_page_needs_the_token_and_shows_the_composite():
     shown = np.asarray(Image.open(io.BytesIO(data)).convert("RGB"), np.int32)
     assert np.abs(shown - fr.display).mean() < 3
     assert feed.frames_posted == 1
+
+
+@pytest.mark.skipif(why_no_browser() is not None, reason=f"browser: {why_no_browser()}")
+def test_the_studio_page_draws_live_frames_in_chromium():
+    """The studio's own page, unchanged, shows a live feed: every posted frame reaches the
+    canvas (rejects a feed whose info or headers the page cannot use: a script error or no
+    frame drawn)."""
+    from playwright.sync_api import sync_playwright
+
+    from arlight.studio.browser import launch
+
+    feed = LiveFeed("live: test", "dir", "direct light", (64, 48))
+    with BackgroundServer(feed) as srv, sync_playwright() as p:
+        browser = launch(p)
+        try:
+            pg = browser.new_page()
+            errors: list[str] = []
+            pg.on("pageerror", lambda exc: errors.append(str(exc)))
+            pg.goto(srv.url)
+            pg.wait_for_function("window.studio && window.studio.ready", timeout=60_000)
+            fr = _frame()
+            for i in range(3):
+                fr.index = i
+                feed.show(fr)
+                pg.wait_for_function(f"window.studio.frames >= {i + 1}", timeout=60_000)
+            data = pg.evaluate("""() => {
+                const c = document.getElementById('frame');
+                return Array.from(c.getContext('2d').getImageData(0, 0, c.width, c.height)
+                                  .data);}""")
+        finally:
+            browser.close()
+    canvas = np.array(data, np.float64).reshape(48, 64, 4)[..., :3]
+    assert np.abs(canvas - fr.display).mean() < 4
+    assert errors == []
