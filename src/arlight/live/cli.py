@@ -154,9 +154,11 @@ def live_command(
             raise InputError(f"the light server's states light the {METHOD} method; got "
                              f"{method!r}", field="--method")
         method = METHOD
-    given = render_settings_for(scene, method, spp, None, seed,
-                                parse_option_pairs(option or []))
-    name = method or (given["method"] if given["method"] != "reference" else "dir")
+    pairs = parse_option_pairs(option or [])
+    given = render_settings_for(scene, method, spp, None, seed, pairs)
+    if method is None and given["method"] == "reference":  # live needs an interactive one
+        given = render_settings_for(scene, "dir", spp, None, seed, pairs)
+    name = given["method"]
     settings = RenderSettings(spp=given["spp"], seed=given["seed"],
                               max_depth=given["max_depth"], options=given["options"])
     sc = load_scene(scene)
