@@ -9,7 +9,10 @@ through ``sequence``'s per-frame function and handed to a studio feed with one o
 (the JPEG encode is part of "shown") — the CLI's code path without the web socket.
 ``--warmup`` frames are rendered first, unpaced (kernels compiled, not counted).
 
-Reported per method: composited frames per second of wall time (target ≥ 10), frames
+Then, as a same-run peer that the machine's load affects alike, the first frames once
+more, unpaced, through the live loop and through ``sequence``'s per-frame function alone
+(the loop's overhead: tracking and the encode). Reported per method: composited frames per
+second of wall time (target ≥ 10), frames
 dropped, the latency from a frame's arrival to its composite shown (p50, p95, ms), and the
 median time of every stage (track, render and the method's own stages, show); with the
 ``uptime`` load and the CPU pressure of the shared machine at the end of the run.
@@ -34,7 +37,7 @@ METHODS = ["dlpv", "dir"]
 TARGET_FPS = 10.0
 
 
-def measure(method: str, loops: int, warmup: int) -> dict:
+def measure(method: str, loops: int, warmup: int, peer: int = 12) -> dict:
     """One method: warm-up frames unpaced, then the video paced ``loops`` times."""
     from arlight.live import sources
     from arlight.live.cli import EXAMPLE
@@ -65,6 +68,23 @@ def measure(method: str, loops: int, warmup: int) -> dict:
     d = s.as_dict()
     d.update(prepare_s=prep, warmup_s=warm_s, arrived=src.source.count * loops,
              video_fps=src.fps)
+    # the same-run peer: every one of the first `peer` frames, unpaced, through the live loop
+    # and through sequence's path alone (render_frame with the poses the loop tracked)
+    from arlight.sequence.job import render_frame
+
+    shown: list = []
+    one = sources.VideoSource(EXAMPLE["video"], loops=1)
+    t0 = time.perf_counter()
+    run_live(sources.unpaced(one.frames(), clock), comp, [feed], clock, max_frames=peer,
+             on_frame=shown.append)
+    t_live = time.perf_counter() - t0
+    frames = [fr for fr, _ in zip(one.frames(), range(peer), strict=False)]
+    t0 = time.perf_counter()
+    for fr, lf in zip(frames, shown, strict=True):
+        render_frame(job, fr, pose=lf.pose, objects={})
+    t_seq = time.perf_counter() - t0
+    d.update(peer_frames=len(shown), unpaced_fps=len(shown) / t_live,
+             sequence_fps=len(shown) / t_seq)
     return d
 
 
@@ -93,6 +113,13 @@ def table(results: dict[str, dict], loops: int, load: str, psi: str) -> str:
         lines.append(f"- {name}: " + ", ".join(f"{k} {v}" for k, v in inner.items())
                      + f" (sum {sum(inner.values()):.0f} of render "
                      f"{r['stage_ms_median'].get('render', 0):.0f})")
+    lines += ["", f"Same-run peer, the first {any_r['peer_frames']} frames unpaced (every "
+              "frame): frames/s through the live loop (track, render, encode) vs "
+              "`sequence`'s per-frame path alone (render_frame with the same poses):", ""]
+    for name, r in results.items():
+        lines.append(f"- {name}: live {r['unpaced_fps']:.2f}, sequence path "
+                     f"{r['sequence_fps']:.2f} frames/s (ratio "
+                     f"{r['unpaced_fps'] / r['sequence_fps']:.2f})")
     met = [n for n, r in results.items() if r["frames_per_second"] >= TARGET_FPS]
     lines += ["", f"Target ≥ {TARGET_FPS:.0f} composited frames/s met by {len(met)} of "
               f"{len(results)}: {', '.join(met) or 'none'}.",
