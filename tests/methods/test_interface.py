@@ -83,7 +83,7 @@ def test_option_types_defaults_and_command_line_strings():
                                      "ppm_alpha": 0.7, "sampler": "sobol",
                                      "replicas": 16, "replica_mode": "blocks",
                                      "light_sampling": "importance", "sample_offset": 0,
-                                     "denoise": "none", "denoise_quality": "high",
+                                     "denoise": "none", "denoise_quality": "fast",
                                      "denoise_aux": True, "denoise_aux_spp": 4,
                                      "denoise_target": "separate", "denoise_device": "cpu"}
     opts = spec.parse_options({"reproject": "false", "mode": "twopass"})
