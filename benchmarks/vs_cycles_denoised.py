@@ -61,7 +61,8 @@ def measure_denoised(name: str, proxy, photo, args, tmp: Path) -> dict:
     method = get_method("onepass")
 
     def arlight(spp: int, seed: int, denoise: bool) -> tuple[np.ndarray, float]:
-        opts = {"reproject": False, **({"denoise": "oidn"} if denoise else {})}
+        opts = {"reproject": False,  # OIDN `high`: the quality Cycles denoises at
+                **({"denoise": "oidn", "denoise_quality": "high"} if denoise else {})}
         lay = method(scene, RenderSettings(spp=spp, seed=seed, max_depth=args.max_depth,
                                            options=opts))
         return lay.composite.astype(np.float64), lay.stats["seconds"]
