@@ -53,6 +53,7 @@ from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, place_
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
+    PROBE_OPTIONS,
     MipEnvironment,
     SpecularTables,
     ambient_occlusion,
@@ -60,6 +61,7 @@ from arlight.realtime.ibl_shading import (
     diffuse_weights,
     environment_map,
     prefilter_ggx,
+    probe_for_world,
     specular_occlusion,
     specular_split_sum,
     specular_tables,
@@ -96,6 +98,7 @@ OPTIONS: dict[str, Field] = {
                      min=0, max=1024),
     "ao_distance": Field("float", 0.0, "longest AO ray; 0: the virtual objects' bounding "
                          "diameter", "m", min=0.0),
+    **PROBE_OPTIONS,
     **OOF_OPTIONS,
     **REDUCTION_OPTIONS,
     "area_grid": Field("int", 3, "cosine point lights per side of an area light (3 × 3: a "
@@ -152,6 +155,8 @@ class IBLData:
     ao_distance: float
     kd_weight: mi.Float | None = None  # per shape, on the G-buffer albedo (pbr metals)
     dfg: mi.Float | None = None  # the split-sum DFG table (dfg_table), flattened
+    env_map: np.ndarray | None = None  # environment_map(world)
+    ambient_env: np.ndarray | None = None  # ambient SH without the probe
 
 
 def prepare(world: World, options: Options) -> IBLData:
@@ -167,9 +172,20 @@ def prepare(world: World, options: Options) -> IBLData:
     occluder = make_occluder(world)
     field = field_from_options(world, options) if occluder is not None else None
     dfg = mi.Float(dfg_table().reshape(-1)) if spec.glossy else None
-    return IBLData(world, views, lights, ambient_sh(world, lights, options.sh_order, env_img),
+    ambient = ambient_sh(world, lights, options.sh_order, env_img)
+    return IBLData(world, views, lights, ambient + _probe_sh(world, views, env_img, options),
                    env, occluder, field, spec, _ao_distance(world, views, options),
-                   diffuse_weights(world), dfg)
+                   diffuse_weights(world), dfg, env_img, ambient)
+
+
+def _probe_sh(world: World, views: SceneViews, env_img: np.ndarray | None, options: Options
+              ) -> np.ndarray | float:
+    """Radiance SH, order ``sh_order``, of the bounce probe's diffuse change at the virtual
+    objects (:func:`~arlight.realtime.ibl_shading.probe_for_world`; 0 without one)."""
+    probe = probe_for_world(world, views, env_img, options, options.env_lights)
+    if probe is None:
+        return 0.0
+    return project_equirect(probe.diffuse.astype(np.float64), options.sh_order)
 
 
 def _ao_distance(world: World, views: SceneViews, options: Options) -> float:
@@ -194,7 +210,8 @@ def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options
     if moved is None:
         return None
     posed, occluder = moved
-    return replace(data, world=posed, occluder=occluder,
+    ambient = data.ambient_env + _probe_sh(posed, data.views, data.env_map, options)
+    return replace(data, world=posed, occluder=occluder, ambient=ambient,
                    field=pose_field(data.field, posed, options),
                    ao_distance=_ao_distance(posed, data.views, options))
 

@@ -53,9 +53,11 @@ from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, place_
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
+    PROBE_OPTIONS,
     MipEnvironment,
     SpecularTables,
     environment_map,
+    probe_for_world,
     rot_y,
     specular_tables,
     virtual_glossy,
@@ -94,6 +96,7 @@ OPTIONS: dict[str, Field] = {
     "glossy": Field("bool", True, "Sum-of-Gaussians glossy reflection of the environment "
                     "for phong / roughconductor (Eqs. 4.25–4.26; false: diffuse part only)"),
     "cache": Field("bool", True, "cache precomputed transfer on disk (<cache>/prt/<hash>.npz)"),
+    **PROBE_OPTIONS,
     **OOF_OPTIONS,
     **REDUCTION_OPTIONS,
     "area_grid": Field("int", 3, "cosine point lights per side of an area light (3 × 3: a "
@@ -168,9 +171,20 @@ def prepare(world: World, options: Options, cache_dir: Path | None = None) -> PR
     field = field_from_options(world, options) if occluder is not None else None
     env, sog, ks = glossy_tables(world) if options.glossy else (None, None, None)
     distant = distant_sh(world, options.order)
-    return PRTData(world, views, lights, distant, meshes.objects, occluder, field,
+    return PRTData(world, views, lights, distant + _probe_sh(world, views, options),
+                   meshes.objects, occluder, field,
                    meshes.face_offset, meshes.faces, env, sog, ks, distant,
                    specular_tables(world))
+
+
+def _probe_sh(world: World, views: SceneViews, options: Options) -> np.ndarray | float:
+    """Radiance SH, order ``order``, of the bounce probe's change of the distant light at the
+    virtual objects (:func:`~arlight.realtime.ibl_shading.probe_for_world`; 0 without
+    one)."""
+    probe = probe_for_world(world, views, environment_map(world), options)
+    if probe is None:
+        return 0.0
+    return project_equirect(probe.full.astype(np.float64), options.order)
 
 
 def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -191,7 +205,8 @@ def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options
     posed, occluder = moved
     objects = [replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
                for o in data.objects]
-    return replace(data, world=posed, objects=objects, occluder=occluder,
+    light = data.distant + _probe_sh(posed, data.views, options)
+    return replace(data, world=posed, objects=objects, light=light, occluder=occluder,
                    field=pose_field(data.field, posed, options))
 
 

@@ -43,6 +43,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.jit import aligned
+from arlight.methods.spec import Field
 from arlight.realtime.gbuffer import GBuffer
 from arlight.scene.model import World
 from arlight.sphere.envmap import resize_equirect, rotate_equirect
@@ -162,6 +163,110 @@ class MipEnvironment:
         i0 = mi.UInt32(l0)
         i1 = dr.minimum(i0 + 1, self.levels - 1)
         return self._bilinear(u, v, i0) * (1.0 - t) + self._bilinear(u, v, i1) * t
+
+
+PROBE_HEIGHT = 16
+"""Rows of the bounce probe (:func:`bounce_probe`; width twice that)."""
+
+
+PROBE_OPTIONS: dict[str, Field] = {
+    "probe": Field("bool", True, "light probe at the virtual objects from the reconstructed "
+                   "real scene (bounce light, hidden sky; bounce_probe)"),
+    "probe_spp": Field("int", 16, "path-traced rays per texel of the 16×32 probe", "",
+                       min=1, max=1024),
+}
+"""The options of :func:`probe_for_world`, shared by ``ibl`` and ``prt``."""
+
+
+def probe_for_world(world: World, views, env: np.ndarray | None, options,
+                    env_lights: int = 0) -> BounceProbe | None:
+    """:func:`bounce_probe` at the centre of the virtual objects' bounding box in the real
+    view, with the threshold of the light extraction when ``env_lights`` > 0 (None when
+    ``options.probe`` is off or nothing is virtual)."""
+    from arlight.light.extract import auto_threshold
+    from arlight.realtime.shading import virtual_bounds
+
+    if not options.probe or not world.has_virtual:
+        return None
+    b = virtual_bounds(world, views.mixed)
+    if b is None:
+        return None
+    thr = auto_threshold(env, 4.0) if env is not None and env_lights > 0 else math.inf
+    return bounce_probe(views.real.scene, (b[0] + b[1]) / 2.0, env, thr,
+                        spp=options.probe_spp)
+
+
+@dataclass
+class BounceProbe:
+    """What the real scene changes of the distant light seen from the virtual objects
+    (:func:`bounce_probe`), two equirect maps ``(h, 2h, 3)`` W/(sr·m²), ≥ −env:
+
+    Attributes:
+        full: ``blocked · (L_real − L_env)`` — added to ``prt``'s SH light (no light is
+            extracted there).
+        diffuse: the same with ``L_env`` counted only below the highlight threshold of the
+            light extraction (a blocked extracted light is already removed by its shadow
+            ray), added to ``ibl``'s SH remainder.
+    """
+
+    full: np.ndarray
+    diffuse: np.ndarray
+
+
+def bounce_probe(scene: mi.Scene, centre: np.ndarray, env: np.ndarray | None,
+                 threshold: float = math.inf, height: int = PROBE_HEIGHT, spp: int = 16,
+                 max_depth: int = 6, seed: int = 0) -> BounceProbe:
+    """A light probe at ``centre`` (m) in the real-only ``scene``, as a change to the distant
+    light: per direction ``ω`` whose ray from ``centre`` hits a real surface, the radiance
+    ``L_real(ω)`` that surface sends (path traced by Mitsuba's ``path`` integrator,
+    ``max_depth`` bounces, its own emission removed: the local lights are shaded per pixel
+    with shadow rays) minus the environment's ``L_env(ω)`` that the surface hides; 0 for
+    rays that escape. ``spp`` jittered rays per texel of a ``height × 2·height`` map (the
+    direction convention of :meth:`MipEnvironment.lookup`). This is the environment capture
+    at the object's position of Franke's dynamic pipeline (§4.2, the camera-captured map),
+    taken from the reconstructed real scene: indoors, the walls' and floor's bounce light
+    that a world without an environment map would lack; outdoors, the lit ground instead of
+    the map's own horizon. Computed at prepare and again for each pose of the object (the
+    diffuse SH only: the specular prefilter is of the environment map alone)."""
+    w = 2 * height
+    n = height * w * spp
+    lane = dr.arange(mi.UInt32, n)
+    tex = lane // spp
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, n)
+    jitter = sampler.next_2d()
+    phi = (mi.Float(tex % w) + jitter.x) * (2.0 * math.pi / w)
+    theta = (mi.Float(tex // w) + jitter.y) * (math.pi / height)
+    st = dr.sin(theta)
+    d = mi.Vector3f(st * dr.sin(phi), dr.cos(theta), -st * dr.cos(phi))
+    # the centre opaque: one kernel for every pose of the object (the probe follows it)
+    ray = mi.Ray3f(mi.Point3f(*[dr.opaque(mi.Float, float(x)) for x in centre]), d)
+    si = scene.ray_intersect(ray)
+    hit = si.is_valid()
+    integrator = _path_integrator(int(max_depth))
+    radiance, _, _ = integrator.sample(scene, sampler, mi.RayDifferential3f(ray), None, hit)
+    emitter = si.emitter(scene, hit)
+    radiance -= dr.select(hit & (dr.reinterpret_array(mi.UInt32, emitter) != 0),
+                          emitter.eval(si, hit), mi.Color3f(0.0))
+    if env is not None:
+        l_env = MipEnvironment.build(env).lookup(d, mi.Float(0.0))
+        lum = 0.2126 * l_env.x + 0.7152 * l_env.y + 0.0722 * l_env.z
+        l_dim = dr.select(lum < threshold, l_env, mi.Color3f(0.0))
+    else:
+        l_env = l_dim = mi.Color3f(0.0)
+    maps = []
+    for sub in (l_env, l_dim):
+        c = dr.select(hit, radiance - sub, mi.Color3f(0.0))
+        rgb = np.stack([np.asarray(dr.block_sum(x, spp), np.float64) for x in (c.x, c.y, c.z)],
+                       -1) / spp
+        maps.append(rgb.reshape(height, w, 3).astype(np.float32))
+    return BounceProbe(maps[0], maps[1])
+
+
+@lru_cache(maxsize=4)
+def _path_integrator(max_depth: int) -> mi.SamplingIntegrator:
+    """Mitsuba's ``path`` integrator (one per depth, loaded once)."""
+    return mi.load_dict({"type": "path", "max_depth": max_depth})
 
 
 def hammersley(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -519,7 +624,8 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
     return dr.block_sum(open_, rays) * (1.0 / rays)
 
 
-__all__ = ["DFG_SIZE", "ENV_HEIGHT", "MIRROR_ALPHA", "PREFILTER_LEVELS", "GlossyLanes",
+__all__ = ["DFG_SIZE", "ENV_HEIGHT", "MIRROR_ALPHA", "PREFILTER_LEVELS", "PROBE_HEIGHT",
+           "PROBE_OPTIONS", "BounceProbe", "GlossyLanes", "bounce_probe", "probe_for_world",
            "MipEnvironment", "SpecularTables", "ambient_occlusion", "dfg_lookup", "dfg_table",
            "diffuse_weights", "environment_map", "ggx_d", "ggx_reflectance", "hammersley",
            "local_frame", "pbr_lobes", "prefilter_ggx", "rot_y", "schlick", "smith_g1",
