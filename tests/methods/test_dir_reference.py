@@ -87,14 +87,14 @@ def test_reference_standard_errors_are_small(reference):
 def test_one_bounce_matches_path_traced_reference(reference):
     """dir at its defaults (aimed RSMs, VPLs by importance; 256 VPLs, every VPL at every
     pixel, no G clamp — the clamp is a documented bias), for each of 8 selection offsets ξ:
-    the cube's one-bounce light within 5 % rms of Mitsuba's (measured 2 %), the floor
-    ring's loss of bounce light to the cube's shadow within 4 % rms (measured 1.3 %), the
-    cube's red bounce on the floor within 20 % rms (measured 14 %) and 10 % on average over ξ
-    (measured 4 %).
+    the cube's one-bounce light within 5 % rms of Mitsuba's (measured 4.1 %), the floor
+    ring's loss of bounce light to the cube's shadow within 4 % rms (measured 2.5 %), the
+    cube's red bounce on the floor within 20 % rms (measured 18.5 %: a few VPLs on the cube
+    carry it) and 10 % on average over ξ (measured 0.5 %).
 
-    Rejects the unaimed RSM with VPLs picked by flux alone (6–8 VPLs on the cube: shadow of
-    bounce 7 % rms low, red bounce 31 % rms and 28 % low on average) and VPL weights not
-    renormalised by 1/π (flux Φ instead of Φ/π: several times too weak)."""
+    Rejects the unaimed RSM with VPLs picked by flux alone (cube's one-bounce 10 % rms,
+    shadow of bounce 4.5 % rms, red bounce 24 % rms) and VPL weights not renormalised by
+    1/π (flux Φ instead of Φ/π: ratios 0.02–0.3)."""
     r = _ratios(reference, {})
     rms = np.sqrt(((r - 1.0) ** 2).mean(axis=0))
     assert rms[0] <= 0.05 and rms[1] <= 0.04 and rms[2] <= 0.2, (rms, r)
@@ -103,7 +103,9 @@ def test_one_bounce_matches_path_traced_reference(reference):
 
 def test_unaimed_selection_is_rejected(reference):
     """The check above is able to fail: with the issue's unaimed maps (no aims, VPLs by flux
-    alone) the shadow on bounce light or the cube's bounce misses its tolerance."""
+    alone) one of the cube's one-bounce light, the shadow on bounce light or the cube's
+    bounce misses its tolerance."""
     r = _ratios(reference, {"aim_object": 0.0, "aim_view": 0.0, "vpl_importance": 0.0})
     rms = np.sqrt(((r - 1.0) ** 2).mean(axis=0))
-    assert rms[1] > 0.04 or rms[2] > 0.2 or abs(r[:, 2].mean() - 1.0) > 0.1, (rms, r)
+    assert (rms[0] > 0.05 or rms[1] > 0.04 or rms[2] > 0.2
+            or abs(r[:, 2].mean() - 1.0) > 0.1), (rms, r)

@@ -3,11 +3,12 @@
 Instant radiosity (Keller 1997) run twice per frame from the same reflective shadow maps:
 
 * per reduced light, an **aimed** RSM (:func:`~arlight.realtime.rsm.light_rays` with
-  :class:`~arlight.realtime.rsm.Aim` spheres, issue #33) of ``rsm_size²`` texels over the light's
-  own emission plus ``aim_object`` × as many on the virtual objects' sphere and ``aim_view``
-  × on the sphere of the scene the camera sees, each texel's flux from the mixture density
-  (so the texels still sum to the light's flux), cast into the mixed view (``R_ρ``: VPLs on
-  real and virtual surfaces) and the real view (``R_µ``);
+  :class:`~arlight.realtime.rsm.Aim` spheres, issue #33): ``s² ≈ rsm_size² ×`` its power
+  share texels over the light's own emission plus ``aim_object`` × as many on the virtual
+  objects' sphere and ``aim_view`` × on the sphere of the scene the camera sees, each
+  texel's flux from the mixture density (so the texels still sum to the light's flux),
+  cast into the mixed view (``R_ρ``: VPLs on real and virtual surfaces) and the real view
+  (``R_µ``);
 * ``vpls`` VPLs are **picked by importance** among the texels of all lights:
   ``q_i = max(Y(Φ_ρ,i), Y(Φ_µ,i)) · (1 + β · prox_i)`` with ``prox = 1/(1 + (d/r)²)``, ``d``
   the texel's distance outside the virtual objects' sphere of radius ``r`` (``β`` =
@@ -63,6 +64,7 @@ from arlight.realtime.rsm import (
     concat_rays,
     light_rays,
     render_rsm_pair,
+    replace_texels,
     rsm_subset,
     shared_texels,
 )
@@ -80,8 +82,9 @@ from arlight.timing import StageTimer
 OPTIONS: dict[str, Field] = {
     "vpls": Field("int", 256, "virtual point lights per frame, all lights together (Knecht "
                   "2010, Franke Fig. 5.19: 256)", "", min=1, max=65536),
-    "rsm_size": Field("int", 48, "texels per side of each light's own RSM, the VPL candidates "
-                      "(aimed maps come on top)", "texels", min=1, max=1024),
+    "rsm_size": Field("int", 64, "side of the VPL candidates' RSM, all lights together: each "
+                      "light's own map has rsm_size² × its power share texels (aimed texels "
+                      "come on top)", "texels", min=1, max=1024),
     "aim_object": Field("float", 1.0, "aimed texels on the virtual objects' sphere per texel "
                         "of a light's own map (0: none)", "", min=0.0, max=64.0),
     "aim_view": Field("float", 0.25, "aimed texels on the sphere of the scene the camera sees "
@@ -206,17 +209,39 @@ def frame_aims(data: DIRData, gb: GBuffer, options: Options) -> list[Aim]:
     return aims
 
 
-def make_vpls(data: DIRData, total: int, res: int = 48, aims: list[Aim] | None = None,
+def map_sides(lights: LightSet, total: int, bounds: tuple[np.ndarray, float]) -> list[int]:
+    """Side ``s`` of each light's own RSM: ``s² ≈ total × power share`` (directional lights:
+    the power through the scene's disk), at least 4."""
+    radius = bounds[1]
+    powers = []
+    for lt in lights.lights:
+        if lt.kind == "directional":
+            y = float(np.asarray(lt.intensity) @ LUMINANCE)
+            powers.append(y * math.pi * radius * radius)
+        else:
+            powers.append(lt.power)
+    tot = sum(powers) or 1.0
+    return [max(4, int(math.floor(math.sqrt(total * p / tot) + 1e-9))) for p in powers]
+
+
+def make_vpls(data: DIRData, total: int, res: int = 64, aims: list[Aim] | None = None,
               importance: float = 0.0, xi: float = 0.5) -> VPLs:
     """``total`` VPLs picked by importance (:func:`pick_by_importance`) among the texels of
-    every light's aimed RSM pair (``res²`` texels plus ``aims``), flux ``Φ_i / π_i`` (W)."""
+    every light's aimed RSM pair (``res²`` texels shared by power, :func:`map_sides`, plus
+    ``aims``), flux ``Φ_i / π_i`` (W)."""
     aims = list(aims or [])
-    rays = concat_rays([light_rays(lt, res, data.bounds, aims) for lt in data.lights.lights])
+    sides = map_sides(data.lights, res * res, data.bounds)
+    rays = concat_rays([light_rays(lt, s, data.bounds, aims)
+                        for lt, s in zip(data.lights.lights, sides, strict=True)])
     pair = render_rsm_pair(data.views, rays)
-    rho, mu = pair.rho, pair.mu()
+    rho = pair.rho
     y = np.asarray(LUMINANCE, np.float64)
-    q = np.maximum(y @ np.array(rho.flux_out, np.float64).reshape(3, -1),
-                   y @ np.array(mu.flux_out, np.float64).reshape(3, -1))
+    q = y @ np.array(rho.flux_out, np.float64).reshape(3, -1)
+    changed = np.array(pair.changed, np.int64)  # R_µ differs from R_ρ on these texels only
+    if changed.size:
+        q[changed] = np.maximum(q[changed], y @ np.array(pair.mu_changed.flux_out,
+                                                         np.float64).reshape(3, -1))
+    role = np.array(rho.role)
     box = virtual_bounds(data.world, data.views.mixed)
     if importance > 0.0 and box is not None:
         lo, hi = box
@@ -225,14 +250,20 @@ def make_vpls(data: DIRData, total: int, res: int = 48, aims: list[Aim] | None =
         out = np.maximum(np.linalg.norm(pos - c, axis=1) - r, 0.0) / r
         q = q * (1.0 + importance / (1.0 + out * out))
     idx, pi = pick_by_importance(q, total, xi)
-    sel = mi.UInt32(aligned(idx, np.uint32))
     w = mi.Float(aligned(1.0 / pi, np.float32))
-    rho_v, mu_v = rsm_subset(rho, sel), rsm_subset(mu, sel)
+    rho_v = rsm_subset(rho, mi.UInt32(aligned(idx, np.uint32)))
+    # R_µ of the picked texels: R_ρ's, with those that changed taken from pair.mu_changed
+    slot = np.full(role.size, -1, np.int64)
+    slot[changed] = np.arange(changed.size)
+    moved = slot[idx] >= 0
+    mu_v = replace_texels(rho_v, mi.UInt32(aligned(np.flatnonzero(moved), np.uint32)),
+                          rsm_subset(pair.mu_changed,
+                                     mi.UInt32(aligned(slot[idx[moved]], np.uint32))))
     rho_v.flux_out = rho_v.flux_out * w
     mu_v.flux_out = mu_v.flux_out * w
     shared = shared_texels(rho_v, mu_v)
     dr.eval(shared, rho_v.flux_out, mu_v.flux_out)
-    on_object = int(np.count_nonzero(np.array(rho.role)[idx] == ROLE_VIRTUAL))
+    on_object = int(np.count_nonzero(role[idx] == ROLE_VIRTUAL))
     return VPLs(rho_v, mu_v, shared, int(idx.size), on_object)
 
 
@@ -437,4 +468,4 @@ class DIRMethod(BaseMethod):
 
 
 __all__ = ["DIRData", "DIRMethod", "OPTIONS", "SPEC", "gather", "interleave_filter",
-           "frame_aims", "frame_vpls", "make_vpls", "pick_by_importance"]
+           "frame_aims", "frame_vpls", "make_vpls", "map_sides", "pick_by_importance"]
