@@ -12,11 +12,17 @@ Per frame:
      & Hanrahan's 9 coefficients, thesis Eqs. 4.4–4.9; higher orders are the map's SH minus
      the SH of the extracted lights);
    * ``A`` — ray-traced ambient occlusion of the virtual objects (Eq. 2.29, ``ao_rays``);
-   * ``S`` — GGX specular by filtered importance sampling of the mip-mapped environment
-     (Eqs. 4.11–4.23, ``samples`` = 40), for ``phong`` (``α = √(2/(n+2))``),
+   * ``S`` — GGX specular of the environment by the split sum (Karis 2013; issue #33): the
+     map prefiltered per roughness level (``samples`` = 64 importance samples per texel, once
+     per map) times ``F0 A + F90 B`` from the DFG table, times the AO-derived specular
+     occlusion (option ``specular_occlusion``), for ``phong`` (``α = √(2/(n+2))``),
      ``roughconductor``, ``mirror`` and ``pbr`` materials (``pbr``: one diffuse and one GGX
-     lobe per shape, :func:`arlight.realtime.ibl_shading.pbr_lobes`; no normal map); point,
-     spot and area lights give diffuse light only;
+     lobe per shape with Schlick's Fresnel to ``F90 = 1``,
+     :func:`arlight.realtime.ibl_shading.pbr_lobes`; no normal map); point, spot, area and
+     sun lights add their GGX reflection per pixel through their shadow ray;
+   * the ambient SH includes the bounce probe (option ``probe``): the change the
+     reconstructed real scene makes to the distant light at the objects
+     (:func:`arlight.realtime.ibl_shading.bounce_probe`, recomputed per pose);
 3. **real pixels** (:func:`arlight.realtime.oof.shade_real`): ``B · f`` with the
    multiplicative shadow factor of :func:`arlight.realtime.oof.shadow_factor` — shadow rays
    for the reduced lights, the AR object occlusion field for the ambient part;

@@ -3,11 +3,14 @@
 * **prepare** (once per world and mesh content): per virtual mesh the per-vertex diffuse
   transfer (:mod:`arlight.realtime.prt_transfer`: ray-traced self-occlusion, optional diffuse
   inter-reflection, ``order`` 2 or 3 → 9 or 16 SH coefficients), cached on disk by the mesh's
-  content hash, with a progress bar on a terminal; the world's light as radiance SH seen from
-  the virtual objects (environment maps projected exactly and rotated by their
-  ``rotation_deg``; point, spot, area and directional lights as SH delta lights from the
-  objects' centre, ``E = I/d²``); the reduced lights and occlusion field of the real-surface
-  relighting (as ``ibl``).
+  content hash, with a progress bar on a terminal; the world's *distant* light as radiance
+  SH (environment maps projected exactly and rotated by their ``rotation_deg``, constant
+  skies) plus the bounce probe's SH (:func:`arlight.realtime.ibl_shading.bounce_probe`, the
+  real scene's change to it at the objects, recomputed per pose); the reduced lights and
+  occlusion field of the real-surface relighting (as ``ibl``).
+* **local lights** (issue #33): point, spot, area and directional world lights are shaded
+  per pixel with one shadow ray each (:func:`shade_prt`), diffuse and GGX — not folded into
+  SH at the objects' centre (no fall-off across the object, smeared self-shadows).
 * **render** (per frame): the light rotated into each object's frame (exact SH rotation,
   ``l_obj = rotate(l, Rᵀ)``) and dotted with every vertex's transfer (Eq. 2.37); the virtual
   pixels interpolate those vertex values with the barycentrics of their primary hit and
@@ -19,8 +22,8 @@
   specular reflectance and α as ``ibl`` takes them, ``L̄`` the environment's mip chain that
   ``ibl`` uses, at the level whose texel solid angle is ``2πσ_k²``); ``V`` =
   ``clip(Σ_rgb s / Σ_rgb u, 0, 1)``, the ratio of the pixel's shadowed PRT value ``s`` to the
-  unshadowed SH irradiance ``u = E(n)/π`` of the same light at its normal. The glossy term
-  reflects the distant (environment) light only, as in ``ibl``.
+  unshadowed SH irradiance ``u = E(n)/π`` of the same light at its normal. The SoG term
+  reflects the environment map; local lights add their GGX reflection in :func:`shade_prt`.
 
 The transfer and face tables of the meshes (:func:`arlight.realtime.prt_shading.prt_meshes`)
 and the per-frame shading of the virtual pixels

@@ -5,23 +5,21 @@
 * :class:`MipEnvironment` — that map as a mip chain (2×2 box filter per level, the
   hardware mip generation the thesis uses) in one flat Dr.Jit array, looked up bilinearly
   per level and linearly between levels.
-* :func:`specular_fis` — **filtered importance sampling** of a GGX lobe [KC08]:
-  half vectors by inverting the GGX CDF (Eqs. 4.15–4.21: ``φ = 2π ξ_φ``,
-  ``θ = arccos √((1 − ξ_θ)/((α² − 1) ξ_θ + 1))``), ``N`` (40) samples per pixel on a fixed
-  Hammersley pattern, each fetched from the mip level of its pdf (Eqs. 4.22–4.23)
-
-      p = D(h) <n,h> / (4 <v,h>),   l = max(0, ½ log2(Ω_s / Ω_p)),
-      Ω_s = 1/(N p),   Ω_p = (2π/W)(π/H) sin θ_l,
-
-  i.e. the thesis's ``½ log2(wh/N) − ½ log2 p`` with the equirect texel's solid angle in
-  place of ``1/(wh)``; the estimator of ``∫ f_s L <n,l> dω`` for the microfacet BRDF
-  ``f_s = F D G / (4 <n,l> <n,v>)`` is ``(1/N) Σ L(l) F G <v,h> / (<n,h> <n,v>)`` with
-  Smith's separable GGX ``G = G1(v) G1(l)`` and ``F`` the specular reflectance.
-* :func:`specular_tables` — per world shape the GGX ``α`` and specular reflectance of its
+* **split-sum GGX specular** (Karis 2013; issue #33): :func:`prefilter_ggx` — the map
+  prefiltered with the GGX lobe per roughness level (half vectors by inverting the GGX CDF,
+  thesis Eqs. 4.20–4.21, each sample fetched from the box mip level of its solid angle,
+  Eq. 4.23 — filtered importance sampling at prepare instead of per pixel); :func:`dfg_table`
+  / :func:`dfg_lookup` — the Fresnel-scaled GGX albedo ``F0 A + F90 B``;
+  :func:`specular_split_sum` — their product towards the dominant direction;
+  :func:`specular_occlusion` — Lagarde's AO-derived cone occlusion; :func:`schlick`,
+  :func:`ggx_reflectance` — the BRDF itself for local lights.
+* :func:`specular_tables` — per world shape the GGX ``α`` and Schlick ``F0``/``F90`` of its
   material (``phong``: ``α = √(2/(n+2))``; ``roughconductor``; ``mirror`` as
-  :data:`MIRROR_ALPHA`; ``pbr`` by :func:`pbr_lobes`), the tables :func:`specular_fis` and
-  the SoG lobes look up; :func:`diffuse_weights` the factor on the G-buffer albedo
-  (``pbr``: ``(1 − metallic)(1 − transmission)``).
+  :data:`MIRROR_ALPHA`; ``pbr`` by :func:`pbr_lobes`), the tables the split sum, the local
+  lights' GGX and the SoG lobes look up; :func:`diffuse_weights` the factor on the G-buffer
+  albedo (``pbr``: ``(1 − metallic)(1 − transmission)``).
+* :func:`bounce_probe` — the change the real scene makes to the distant light at the virtual
+  objects (path traced from their centre), for the ambient SH of ``ibl`` and ``prt``.
 * :func:`ggx_d`, :func:`smith_g1` — the GGX normal distribution and Smith masking (the one
   copy; ``dvct``'s direct GGX specular uses them too).
 * :func:`ambient_occlusion` — ray-traced ambient occlusion of the virtual object (thesis

@@ -16,8 +16,9 @@ times the cosine, as a density in ``δ`` (with the map's Jacobian ``sin|δ|/|δ|
     f_s = D(h) G1(ω_o) G1(ω_i) / (4 <n,ω_i> <n,ω_o>)   with Fresnel factored out (F = 1).
 
 Fresnel is applied at runtime as the constant specular reflectance ``F0`` (the material's
-``ks``/``reflectance``), exactly like ``ibl``'s :func:`~arlight.realtime.ibl_shading.
-specular_fis` — no Schlick term, so both pipelines shade the same BRDF. Eq. 4.26 fits, per
+``ks``/``reflectance``): exact for ``prt``'s materials (Mitsuba's ``roughconductor`` with
+``material = none`` is ``F = 1`` times its reflectance; Kán's Phong has no Fresnel term).
+Eq. 4.26 fits, per
 roughness ``α`` and each of ``N`` view angles ``θ_o`` (default 16, uniform in ``cos θ_o``:
 ``cos θ_o,j = (j + ½)/N``), ``K`` (default 3) isotropic Gaussians
 
