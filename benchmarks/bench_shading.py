@@ -146,7 +146,8 @@ def main() -> None:
         HEADING, "",
         f"`python benchmarks/bench_shading.py --repeats {args.repeats} --block {args.block}`; "
         f"640×480, {os.cpu_count()} CPU threads (shared), Mitsuba llvm_ad_rgb, default options "
-        "(ibl: SH order 2, 40 GGX samples, 16 AO rays; prt: order 2, 512 rays per vertex; "
+        "(ibl: SH order 2, split-sum GGX (64 prefilter samples), 16 AO rays, bounce probe; "
+        "prt: order 2, 512 rays per vertex, local lights per pixel, bounce probe; "
         "AR-OOF order 4, 24 shells, 1024 rays per sample); medians of "
         f"{args.repeats} × {args.block} warm frames; PSNR (dB) of the composite against the "
         "synthetic ground truth (display images, as `arlight eval`); `onepass` at the spp whose "
