@@ -47,7 +47,13 @@ from arlight.methods.base import (
     Layers,
     RenderSettings,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, follow_volume
+from arlight.methods.fragments import (
+    GBUFFER_OPTIONS,
+    LATTICE_OPTIONS,
+    REDUCTION_OPTIONS,
+    follow_volume,
+    volume_grid,
+)
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
@@ -105,11 +111,13 @@ OPTIONS: dict[str, Field] = {
     "calibrate_rho": Field("float", CALIBRATE_RHO, "extra divisor of V_ρ reads (the indirect "
                            "light on the virtual objects); 1: none", "", min=0.0, max=100.0,
                            exclusive_min=True),
-    "geometry_volume": Field("bool", True, "KD10 fuzzy blocking: a geometry volume of the "
+    "geometry_volume": Field("bool", False, "KD10 fuzzy blocking: a geometry volume of the "
                              "real proxy and the virtual objects attenuates propagation, so "
-                             "light does not leak through objects and thin walls"),
+                             "light does not leak through objects and thin walls (off: it "
+                             "cost 0.2 dB on the training worlds, docs/methods/dlpv.md)"),
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
+    **LATTICE_OPTIONS,
     **REDUCTION_OPTIONS,
     **GBUFFER_OPTIONS,
 }
@@ -219,8 +227,7 @@ def prepare(world: World, options: Options) -> DLPVData:
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
-    grid = None if bounds is None else Grid.around(*bounds, n=options.volume_size,
-                                                     scale=options.volume_scale)
+    grid = None if bounds is None else volume_grid(bounds, options)
     if grid is None:
         return DLPVData(world, views, lights, None)
     k_delta, k_rho = read_scales(options)

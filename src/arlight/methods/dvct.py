@@ -72,7 +72,13 @@ from arlight.methods.base import (
     Layers,
     RenderSettings,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, follow_volume
+from arlight.methods.fragments import (
+    GBUFFER_OPTIONS,
+    LATTICE_OPTIONS,
+    REDUCTION_OPTIONS,
+    follow_volume,
+    volume_grid,
+)
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
@@ -139,6 +145,7 @@ OPTIONS: dict[str, Field] = {
     "level_bias": Field("float", LEVEL_BIAS, "cones sample mip levels this much finer than "
                         "log2(diameter / cell) (ours; [CNS+11], Franke: 0; chosen on training "
                         "worlds, issue #30)", "levels", min=0.0, max=4.0),
+    **LATTICE_OPTIONS,
     **REDUCTION_OPTIONS,
     **GBUFFER_OPTIONS,
 }
@@ -268,7 +275,7 @@ def prepare(world: World, options: Options) -> DVCTData:
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
     grid = real = tris = maps = None
     if bounds is not None:
-        grid = Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
+        grid = volume_grid(bounds, options)
         real = voxelize_shapes(world.real_shapes, grid)
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
         maps = real_maps(views, lights, grid, options.rsm_size, bounds)

@@ -78,21 +78,39 @@ def place_occluded(views, occluder, world: World, before: World,
     return (posed, moved) if ok else None
 
 
+def volume_grid(bounds: tuple[np.ndarray, np.ndarray], options: Options) -> Grid:
+    """The volume of dlpv and dvct around the virtual objects' bounds: Franke's cube
+    (``volume_scale`` × the largest edge, world-axis aligned) on the fixed world lattice of
+    :meth:`~arlight.realtime.sh_volume.Grid.on_lattice` (issue #32: it moves in steps of a
+    quarter of its edge), or centred on the cell lattice as Franke
+    (:meth:`~arlight.realtime.sh_volume.Grid.around`) with ``fixed_lattice`` off."""
+    if getattr(options, "fixed_lattice", True):
+        return Grid.on_lattice(*bounds, n=options.volume_size, scale=options.volume_scale)
+    return Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale)
+
+
 def follow_volume(views, grid, world: World, transforms: dict[str, np.ndarray],
                   options: Options):
     """``views`` moved in place to ``world.posed(transforms)`` and the volume placed again
-    around the virtual objects' new bounds (dlpv and dvct, Franke's placement:
-    :meth:`~arlight.realtime.sh_volume.Grid.around`): ``(posed world, new grid, bounds)``
-    — grid and bounds None when the data has no volume (``grid`` None) — or None when a
-    real shape moved."""
+    around the virtual objects' new bounds (dlpv and dvct, :func:`volume_grid`): ``(posed
+    world, new grid, bounds)`` — grid and bounds None when the data has no volume (``grid``
+    None) — or None when a real shape moved."""
     posed = place_views(views, world, transforms)
     if posed is None:
         return None
     if grid is None:
         return posed, None, None
     bounds = virtual_bounds(posed, views.mixed)
-    return posed, Grid.around(*bounds, n=options.volume_size, scale=options.volume_scale), bounds
+    return posed, volume_grid(bounds, options), bounds
 
 
-__all__ = ["GBUFFER_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS", "follow_volume",
-           "place_occluded"]
+LATTICE_OPTIONS: dict[str, Field] = {
+    "fixed_lattice": Field("bool", True, "place the volume on a fixed world lattice (moves in "
+                           "steps of a quarter of its edge, so a moving object keeps the real "
+                           "voxels and RSMs; issue #32); off: centred on the object as Franke"),
+}
+"""``fixed_lattice``: the placement of :func:`volume_grid` (dlpv and dvct)."""
+
+
+__all__ = ["GBUFFER_OPTIONS", "LATTICE_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS",
+           "follow_volume", "place_occluded", "volume_grid"]

@@ -106,6 +106,11 @@ def propagation_matrices() -> np.ndarray:
     return out
 
 
+LATTICE_BLOCKS = 4
+"""Positions of a volume per edge length on the fixed world lattice of
+:meth:`Grid.on_lattice`: the origin moves in steps of ``n / LATTICE_BLOCKS`` cells."""
+
+
 @dataclass(frozen=True)
 class Grid:
     """An axis-aligned cubic grid of ``n³`` cells of size ``cell`` (m) from ``origin``."""
@@ -147,6 +152,27 @@ class Grid:
         cell = edge / n
         centre = np.round((lo + hi) / 2.0 / cell) * cell
         return Grid(origin=centre - edge / 2.0, cell=cell, n=int(n))
+
+
+    @staticmethod
+    def on_lattice(lo: np.ndarray, hi: np.ndarray, n: int, scale: float = 2.0,
+                   blocks: int = LATTICE_BLOCKS) -> Grid:
+        """A volume on a fixed world lattice (issue #32): the cube that :meth:`around`
+        would place, its cell size rounded up to ``2^(k/8)`` m (integer ``k``, steps of 9 %)
+        and its origin a multiple of ``n/blocks`` cells, the one that centres the bounding
+        box ``[lo, hi]`` best. With ``blocks`` = 4 the box (at most ``n/scale`` cells wide)
+        keeps a margin of at least ``n (1/2 − 1/scale)/2 − n/(2·blocks)`` cells (``n/8``
+        at scale 2), and the volume moves only when the box's centre crosses the middle
+        between two lattice positions — every ``n/blocks`` cells of motion, not every cell
+        — so moving an object within it keeps the real-only state (voxels, RSMs) valid.
+        Depends on the box alone: preparing the posed world places the same volume."""
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        edge = max(float(np.max(hi - lo)), 1e-6) * scale
+        cell = 2.0 ** (math.ceil(8.0 * math.log2(edge / n) - 1e-9) / 8.0)
+        step = cell * (n // blocks if n >= blocks else 1)
+        size = cell * n
+        k = np.round(((lo + hi) / 2.0 - size / 2.0) / step)
+        return Grid(origin=k * step, cell=cell, n=int(n))
 
 
 @dataclass
@@ -572,7 +598,7 @@ def point_response(n: int, steps: int, dampening: bool) -> float:
     return _POINT_RESPONSE[key]
 
 
-__all__ = ["AXES", "Grid", "SHVolume", "basis", "cell_index", "cosine_lobe",
+__all__ = ["AXES", "LATTICE_BLOCKS", "Grid", "SHVolume", "basis", "cell_index", "cosine_lobe",
            "face_solid_angles", "inject", "propagate", "propagate_numpy",
            "face_transmittance", "plane_response", "point_response", "propagation_matrices",
            "transmittance_dr", "query_irradiance", "query_irradiance_compact",
