@@ -11,16 +11,16 @@
    against ``onepass`` with a fresh seed per frame at about the same time per frame; errors
    against a 256-spp ``onepass`` render of each frame.
 
-3. ``--heldout BEFORE.pkl AFTER.pkl``: the section "dic: validated lookups and equal time on
-   held-out worlds (issue #33)" from two saved ``bench_heldout.py --methods dic,onepass
-   --save`` runs (before: Kán's plain reprojection; after: the validated lookups), per
-   world: dic's PSNR minus the best onepass ladder frame that took at most dic's frame time
-   (same run), the worlds both runs measured, grouped by world class.
+3. ``--heldout A.pkl B.pkl ... --labels ...``: the section "dic: validated lookups and equal
+   time on held-out worlds (issue #33)" from saved ``bench_heldout.py --methods dic,onepass
+   --save`` runs of successive code states, per world: dic's PSNR minus the best onepass
+   ladder frame that took at most dic's frame time (same run), over the worlds every run
+   measured, by world class.
 
 Usage:
 
     python benchmarks/bench_dic.py [--repeats 3] [--write] [--flicker-only]
-    python benchmarks/bench_dic.py --heldout before.pkl after.pkl [--write]
+    python benchmarks/bench_dic.py --heldout a.pkl b.pkl --labels 'a: ...' 'b: ...' [--write]
 """
 
 from __future__ import annotations
@@ -170,39 +170,44 @@ def equal_time_delta(results, world: str) -> tuple[float, float, float]:
     return cell.seconds, cell.metrics["psnr"], cell.metrics["psnr"] - best
 
 
-def heldout_section(before, after, pressure: str, note: str = "") -> str:
-    """The issue-#33 section from two saved held-out runs (see the module docstring)."""
-    classes = after.world_classes()
-    worlds = [w for w in classes if w in before.world_classes()
-              and any(c.method == "dic" and c.scene == w for c in after.cells)]
+def heldout_section(runs: list, labels: list[str], pressure: str, note: str = "") -> str:
+    """The issue-#33 section from saved held-out runs (see the module docstring): per world
+    and run, dic's PSNR, frame time and Δ vs onepass at equal time (same run), over the
+    worlds every run measured; medians overall and per world class."""
+    classes = runs[-1].world_classes()
+    worlds = [w for w in classes if all(
+        any(c.method == "dic" and c.scene == w for c in r.cells) and w in r.ladders
+        for r in runs)]
     lines = [HELDOUT_HEADING, "",
-             f"`python benchmarks/bench_heldout.py --methods dic,onepass --worlds heldout:8 "
-             f"--width 160 --save X.pkl` run twice — before (Kán's plain reprojection, the "
-             f"code of 2f93175) and after the validated lookups — then `python benchmarks/"
-             f"bench_dic.py --heldout before.pkl after.pkl`. 160×120, 16 spp, defaults, "
-             f"ground truth 256 spp; Δ = dic's PSNR minus the best onepass frame of the same "
-             f"world and run that took at most dic's frame time. CPU pressure (PSI some "
-             f"avg60) at the end: {pressure or 'n/a'} % (2 cores shared with other helpers: "
-             f"absolute times inflated, the runs' loads differ; Δ is same-run). {note}", "",
-             "| world | class | dic before | Δ before | dic after | Δ after |",
-             "|---|---|---|---|---|---|"]
-    deltas: dict[str, list[tuple[float, float]]] = {}
+             "`python benchmarks/bench_heldout.py --methods dic,onepass --worlds heldout:8 "
+             "--width 160 --save X.pkl`, once per code state, then `python benchmarks/"
+             "bench_dic.py --heldout X.pkl ... --labels ...`. 160×120, 16 spp, defaults, "
+             "ground truth 256 spp; Δ = dic's PSNR minus the best onepass frame of the same "
+             "world and run that took at most dic's frame time. Runs: "
+             + "; ".join(labels) + f". CPU pressure (PSI some avg60) at the end: "
+             f"{pressure or 'n/a'} % (2 cores shared with other helpers all along: absolute "
+             f"times inflated and varying between runs; Δ is same-run). {note}", "",
+             "| world | class | " + " | ".join(f"dic {k} | Δ {k}" for k in
+                                              (lab.split(":")[0] for lab in labels)) + " |",
+             "|---|---|" + "---|---|" * len(runs)]
+    deltas: dict[str, list[list[float]]] = {}
     for w in worlds:
-        tb, pb, db = equal_time_delta(before, w)
-        ta, pa, da = equal_time_delta(after, w)
-        deltas.setdefault(classes[w], []).append((db, da))
-        lines.append(f"| {w} | {classes[w]} | {pb:.2f} dB, {tb * 1e3:.0f} ms | {db:+.2f} dB "
-                     f"| {pa:.2f} dB, {ta * 1e3:.0f} ms | {da:+.2f} dB |")
+        row = [equal_time_delta(r, w) for r in runs]
+        deltas.setdefault(classes[w], []).append([d for _, _, d in row])
+        lines.append(f"| {w} | {classes[w]} | " + " | ".join(
+            f"{p:.2f} dB, {t * 1e3:.0f} ms | {d:+.2f} dB" for t, p, d in row) + " |")
     lines.append("")
     every = [d for v in deltas.values() for d in v]
+    names = [lab.split(":")[0] for lab in labels]
     if every:
         def med(i, xs):
             return statistics.median(x[i] for x in xs)
-        lines.append(f"Median Δ over {len(every)} worlds: before {med(0, every):+.2f} dB, after "
-                     f"{med(1, every):+.2f} dB; dic ahead on {sum(d[1] > 0 for d in every)} of "
-                     f"{len(every)} after ({sum(d[0] > 0 for d in every)} before). By class: "
-                     + "; ".join(f"{k} ({len(v)}): {med(0, v):+.2f} → {med(1, v):+.2f} dB"
-                                 for k, v in sorted(deltas.items())) + ".")
+        lines.append(
+            f"Median Δ over {len(every)} worlds: " + ", ".join(
+                f"{k} {med(i, every):+.2f} dB (ahead on {sum(d[i] > 0 for d in every)})"
+                for i, k in enumerate(names)) + ". By class: " + "; ".join(
+                f"{c} ({len(v)}): " + " → ".join(f"{med(i, v):+.2f}" for i in range(len(runs)))
+                + " dB" for c, v in sorted(deltas.items())) + ".")
     return "\n".join(lines)
 
 
@@ -211,8 +216,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     ap.add_argument("--flicker-only", action="store_true", help="print the flicker line only")
-    ap.add_argument("--heldout", nargs=2, metavar=("BEFORE", "AFTER"),
-                    help="the issue-#33 section from two pickled bench_heldout runs")
+    ap.add_argument("--heldout", nargs="+", metavar="PKL",
+                    help="the issue-#33 section from pickled bench_heldout runs (in order)")
+    ap.add_argument("--labels", nargs="+", help="one 'name: what the code did' per run")
     ap.add_argument("--note", default="", help="a sentence appended to the section's header")
     args = ap.parse_args()
     if args.heldout:
@@ -222,7 +228,8 @@ def main() -> None:
         for path in args.heldout:
             with open(path, "rb") as f:
                 runs.append(pickle.load(f))
-        publish(heldout_section(*runs, cpu_pressure(), args.note), args.write)
+        labels = args.labels or [f"run{i}" for i in range(len(runs))]
+        publish(heldout_section(runs, labels, cpu_pressure(), args.note), args.write)
         return
     if args.flicker_only:
         print(flicker())

@@ -95,6 +95,10 @@ OPTIONS: dict[str, Field] = {
                       "(the pixel's surface within its smallest record footprint, normals "
                       "within Eq. 2.15's 10°/κ) and search the records in world space where "
                       "it fails; false: Kán's plain reprojection"),
+    "glossy": Field("bool", True, "the camera walk continues at glossy surfaces without a "
+                    "diffuse lobe (metals, rough glass) along its BSDF sample, as at mirrors, "
+                    "so their indirect reflection is traced (the cache holds diffuse light "
+                    "only); false: such a surface gets direct light only"),
     "invalidate_distance": Field("float", 0.3, "records this close to a moved virtual "
                                  "object's old or new bounds are dropped (DicSequence)", "m",
                                  min=0.0, max=1.0e6),
@@ -259,7 +263,8 @@ def render_frame(data: PathScenes, view: FrameView, options: Options,
                                  RecordGrid(records, camera, kappa, lo_px, hi_px), kappa)
         else:
             lookup = SplatLookup(camera, e_mixed, e_delta)
-        walk = CameraWalk(views, lookup, settings.max_depth, tracer.light_selection)
+        walk = CameraWalk(views, lookup, settings.max_depth, tracer.light_selection,
+                          glossy=options.glossy)
         background = frame_gather(frame)
     cam_counts: dict[str, int] = {}
 

@@ -18,7 +18,12 @@ the camera or through delta-specular bounces), and at a vertex with a smooth BSD
   they actually see; ``E_m`` for the mixed solution, ``E_m − E_d`` for the real one.
 
 and ends there; delta-specular vertices (mirrors, glass, Mitsuba's stochastic
-reflect/refract choice) continue the walk. The walk has no rules of its own: it follows the
+reflect/refract choice) continue the walk, and so — with ``glossy`` (dic's default, issue
+#33) — do glossy vertices without a diffuse lobe (rough metals, rough glass), along the BSDF
+sample whose emission the vertex just counted (MIS-weighted; the next vertex does not count
+it again): the cache holds diffuse irradiance only, so without this a rough metal showed
+direct light alone. Glossy lobes beside a diffuse one (phong, plastic) are not continued:
+their indirect glossy reflection is still missing. The walk has no rules of its own: it follows the
 one-pass tracer's (:mod:`arlight.tracing.onepass`) — :class:`HitRules` (a mixed walk that
 hits a virtual object forks: it goes on mixed-only, and its *real continuation*, the ray
 passing through the virtual object, is traced afterwards for the forked lanes only, in µ
@@ -77,9 +82,10 @@ record weighed on (the pixel's value kept)."""
 
 _HASH = (73856093, 19349663, 83492791)
 """Multipliers of the grid's spatial hash (Teschner et al. 2003), modulo 2³²."""
-_GRID_PAIRS = 1 << 22
-"""(cell, record) pairs a :class:`RecordGrid` holds at most (its cell size grows until
-they fit)."""
+_GRID_PAIRS_PER_RECORD = 32
+"""(cell, record) pairs a :class:`RecordGrid` holds per record at most (its cell size
+doubles until they fit): building millions of pairs cost seconds per frame on outdoor
+worlds whose far records have footprints 100× the near ones."""
 
 
 def _cell_hash(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, mask: int) -> np.ndarray:
@@ -102,8 +108,9 @@ class RecordGrid:
     bounding cube (``‖x − x_i‖ < R_i/(2κ)``, the clamped ``R_i`` of
     :func:`~arlight.tracing.irradiance_cache.effective_radius`) overlaps, so a point's own
     cell lists every record whose weight can be positive there (hash collisions only add
-    candidates; each is weighted exactly). ``h`` starts at the median footprint diameter and
-    doubles until at most :data:`_GRID_PAIRS` (cell, record) pairs are listed.
+    candidates; each is weighted exactly). ``h`` starts at the 90th-percentile footprint
+    diameter and doubles until at most :data:`_GRID_PAIRS_PER_RECORD` pairs per record are
+    listed (longer lists cost only the rejected lookups that walk them).
 
     The cubes are those of the *relaxed* footprint ``RELAX · R_i/(2κ)``: a point no record
     weighs on at ``κ`` (a silhouette's grazing side, the floor just behind an object) is
@@ -122,13 +129,13 @@ class RecordGrid:
         x = np.asarray(records.position, np.float64)
         # float32 rounding of the device's cell index: pad the cubes by more than it
         pad = 1e-5 * (1.0 + np.abs(x).max(initial=0.0)) + 1e-7
-        h = max(2.0 * float(np.median(foot)) if n else 1.0, 1e-6)
+        h = max(2.0 * float(np.percentile(foot, 90)) if n else 1.0, 1e-6)
         while True:
             lo = np.floor((x - (foot + pad)[:, None]) / h).astype(np.int64)
             hi = np.floor((x + (foot + pad)[:, None]) / h).astype(np.int64)
             ext = hi - lo + 1
             counts = ext.prod(axis=1)
-            if counts.sum() <= _GRID_PAIRS:
+            if counts.sum() <= _GRID_PAIRS_PER_RECORD * max(n, 1):
                 break
             h *= 2.0
         size = 1 << max(10, int(np.ceil(np.log2(max(2 * n, 1)))))
@@ -317,13 +324,14 @@ class CameraWalk:
     """
 
     def __init__(self, views: SceneViews, lookup: SplatLookup, max_depth: int,
-                 selection: LightSelection | None = None):
+                 selection: LightSelection | None = None, glossy: bool = False):
         self.mixed, self.real = views.mixed, views.real
         self.same_views = views.mixed is views.real
         self.rules = HitRules(views.mixed, views.real)
         self.light_selection = selection or LightSelection(views.mixed, views.real)
         self.lookup = lookup
         self.max_depth = max_depth
+        self.glossy = glossy
         self.ctx = mi.BSDFContext()
 
     def _limit(self, depth: mi.UInt32, extra: int) -> mi.Bool | bool:
@@ -341,12 +349,12 @@ class CameraWalk:
         state = (mi.Ray3f(rays), dr.full(mi.Color3f, 1.0, n), dr.full(mi.Bool, True, n),
                  dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n),
                  mi.UInt32(zero_u), dr.full(mi.Bool, False, n), mi.UInt32(zero_u),
-                 [mi.UInt32(zero_u) for _ in WALK_COUNTERS])
+                 dr.full(mi.Bool, True, n), [mi.UInt32(zero_u) for _ in WALK_COUNTERS])
 
-        def cond(ray, beta, active, lm, lr, mask, depth, forked, fork_depth, cnt):
+        def cond(ray, beta, active, lm, lr, mask, depth, forked, fork_depth, emit, cnt):
             return active
 
-        def body(ray, beta, active, lm, lr, mask, depth, forked, fork_depth, cnt):
+        def body(ray, beta, active, lm, lr, mask, depth, forked, fork_depth, emit, cnt):
             c = dict(zip(WALK_COUNTERS, cnt, strict=True))
             c["rays_mixed_radiance"] += dr.select(active, 1, 0)
             si = self.mixed.scene.ray_intersect(ray, mi.RayFlags.All, False, active)
@@ -357,12 +365,13 @@ class CameraWalk:
                                                               fork_depth)
             else:
                 to_real = mi.Bool(True)
-            ray, beta, active, lm, lr = self._vertex(self.mixed, si, ray, beta, active, key,
-                                                     depth, lm, lr, to_real, True, c)
-            return (ray, beta, active, lm, lr, mask, depth + 1, forked, fork_depth,
+            ray, beta, active, lm, lr, emit = self._vertex(self.mixed, si, ray, beta, active,
+                                                           key, depth, lm, lr, to_real, True,
+                                                           c, emit)
+            return (ray, beta, active, lm, lr, mask, depth + 1, forked, fork_depth, emit,
                     [c[k] for k in WALK_COUNTERS])
 
-        _, _, _, lm, lr, mask, _, forked, fork_depth, cnt = dr.while_loop(
+        _, _, _, lm, lr, mask, _, forked, fork_depth, _, cnt = dr.while_loop(
             state=state, cond=cond, body=body, label="dic_camera_mixed")
         dr.eval(lm, lr, mask, forked, fork_depth, cnt)
         counts = {k: int(dr.sum(v)[0]) for k, v in zip(WALK_COUNTERS, cnt, strict=True)}
@@ -382,22 +391,22 @@ class CameraWalk:
         zero_u = dr.zeros(mi.UInt32, m)
         state = (rays_b, dr.full(mi.Color3f, 1.0, m),
                  dr.full(mi.Bool, True, m), dr.gather(mi.Color3f, lr, idx), mi.UInt32(zero_u),
-                 mi.UInt32(zero_u), mi.UInt32(zero_u))
+                 dr.full(mi.Bool, True, m), mi.UInt32(zero_u), mi.UInt32(zero_u))
 
-        def cond(ray, beta, active, lr_b, depth, n_rad, n_sh, n_dir):
+        def cond(ray, beta, active, lr_b, depth, emit, n_rad, n_sh, n_dir):
             return active
 
-        def body(ray, beta, active, lr_b, depth, n_rad, n_sh, n_dir):
+        def body(ray, beta, active, lr_b, depth, emit, n_rad, n_sh, n_dir):
             c = {"rays_real_shadow": n_sh, "rays_real_radiance_direct": n_dir}
             n_rad += dr.select(active, 1, 0)
             si = self.real.scene.ray_intersect(ray, mi.RayFlags.All, False, active)
-            ray, beta, active, _, lr_b = self._vertex(self.real, si, ray, beta, active, key_b,
-                                                      depth, None, lr_b, depth >= start,
-                                                      False, c)
-            return (ray, beta, active, lr_b, depth + 1, n_rad, c["rays_real_shadow"],
+            ray, beta, active, _, lr_b, emit = self._vertex(
+                self.real, si, ray, beta, active, key_b, depth, None, lr_b, depth >= start,
+                False, c, emit)
+            return (ray, beta, active, lr_b, depth + 1, emit, n_rad, c["rays_real_shadow"],
                     c["rays_real_radiance_direct"])
 
-        _, _, _, lr_b, _, n_rad, n_sh, n_dir = dr.while_loop(
+        _, _, _, lr_b, _, _, n_rad, n_sh, n_dir = dr.while_loop(
             state=(*state, mi.UInt32(zero_u)), cond=cond, body=body, label="dic_camera_real")
         lr = mi.Color3f(lr)
         dr.scatter(lr, lr_b, idx)
@@ -422,10 +431,12 @@ class CameraWalk:
     def _vertex(self, view: SceneView, si: mi.SurfaceInteraction3f, ray: mi.Ray3f,
                 beta: mi.Color3f, active: mi.Bool, key: LaneSampler, depth: mi.UInt32,
                 lm: mi.Color3f | None, lr: mi.Color3f, to_real: mi.Bool, to_mixed: bool,
-                c: dict[str, mi.UInt32]):
-        """Shade one walk vertex in ``view``; returns the advanced walk and the radiances."""
+                c: dict[str, mi.UInt32], emit: mi.Bool):
+        """Shade one walk vertex in ``view``; returns the advanced walk, the radiances and
+        whether the next vertex's emission is still to be counted."""
         # emission: every vertex of the walk is seen by the camera or through delta bounces
-        le = beta * hit_emitter(view, si).eval(si, active)
+        # (after a glossy bounce it was counted, MIS-weighted, at the vertex before)
+        le = beta * hit_emitter(view, si).eval(si, active & emit)
         if to_mixed:
             lm = lm + le
         lr = lr + dr.select(to_real, le, 0.0)
@@ -479,11 +490,18 @@ class CameraWalk:
                 le_r, _ = self._bsdf_emission(self.real, si, ray_b, bs, beta * weight, need_r)
                 le_b = dr.select(need_r, le_r, le_b)
         lr = lr + dr.select(to_real, le_b, 0.0)
-        # delta-specular vertices continue the walk
+        # delta-specular vertices continue the walk; so do glossy ones without a diffuse
+        # lobe (metals, rough glass: nothing of theirs is cached), along the BSDF sample
+        # whose emission was just counted, where the next vertex can still take light
         cont = act & delta & self._limit(depth, 1) & (dr.max(weight) > 0)
+        if self.glossy:
+            gl = (smooth & ~delta & self._limit(depth, 2) & (dr.max(weight) > 0)
+                  & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.DiffuseReflection))
+            emit = dr.select(gl, False, dr.select(cont, True, emit))
+            cont |= gl
         ray = dr.select(cont, ray_b, ray)
         beta = dr.select(cont, beta * weight, beta)
-        return ray, beta, cont, lm, lr
+        return ray, beta, cont, lm, lr, emit
 
 
 
