@@ -107,13 +107,13 @@ def live_command(
     threads: Annotated[int | None, typer.Option(
         "--threads", help="Dr.Jit threads (default: all cores)", min=1, max=1024)] = None,
 ) -> None:
-    """Live AR: track a printed marker in every frame of a camera or a video, render the
-    virtual objects with an interactive method and show the composites in the studio page.
-
-    Units: sizes in metres, --fps in frames per second, times in the log in milliseconds
-    (latency: from the frame's capture — its arrival time when a video is played — to the
-    composite handed to the page and the recorder). At the end it prints frames composited,
-    frames per second, frames dropped, and the latency p50/p95.
+    """Live AR: a printed marker tracked in every frame of a camera or a video,
+    the virtual objects rendered by an interactive method, the composites shown
+    in the studio page. Units: sizes in metres, --fps in frames per second, log
+    times in milliseconds. Latency: from a frame's capture (a video's frame:
+    its arrival time) to its composite handed to the page and the recorder.
+    At the end: frames composited, frames per second, frames dropped (arrived
+    while one rendered, never queued), latency p50/p95, stage medians.
     """
     from arlight.errors import InputError
     from arlight.live import sources
