@@ -204,3 +204,31 @@ def test_quality_against_ground_truth(name):
 
     r = suite_quality("dir", name)
     assert r["all"] < 0.97 and r["virtual"] < 0.6 and r["ring"] < 0.95, r
+
+
+def test_vpl_flux_is_texel_flux_over_inclusion_probability():
+    """Without a virtual object (R_µ = R_ρ, no texel changed) the VPLs picked by flux carry
+    ``Φ_i/π_i`` in both maps: equal in R_ρ and R_µ, and their luminance sums to the whole
+    RSM's (with ``π_i ∝ Y(Φ_i)`` every VPL carries ``ΣY/n``: the Horvitz–Thompson sum is
+    exact). Rejects weighting R_µ twice when it is R_ρ's object (no changed texel: the
+    delta of a world whose light does not see the object was 2× the real VPLs' light) and
+    weights other than 1/π."""
+    import mitsuba as mi
+
+    from arlight.methods.dir import make_vpls, map_sides
+    from arlight.realtime.rsm import concat_rays, light_rays, render_rsm
+    from arlight.sphere.sh import LUMINANCE
+
+    scene = make(box_scene(virtual=False))
+    data = get_method("dir").prepare(scene.world, RenderSettings()).data
+    vp = make_vpls(data, 64, 16, [], 0.0, 0.5)
+    rho = np.array(vp.rho.flux_out, np.float64)
+    assert np.array_equal(rho, np.array(vp.mu.flux_out, np.float64))
+    sides = map_sides(data.lights, 16 * 16, data.bounds)
+    rays = concat_rays([light_rays(lt, s, data.bounds)
+                        for lt, s in zip(data.lights.lights, sides, strict=True)])
+    full = np.array(render_rsm(data.views.mixed, rays).flux_out, np.float64)
+    y = np.asarray(LUMINANCE)
+    assert vp.count == 64 and isinstance(vp.rho.flux_out, mi.Color3f)
+    assert (y @ rho.reshape(3, -1)).sum() == pytest.approx((y @ full.reshape(3, -1)).sum(),
+                                                           rel=1e-4)

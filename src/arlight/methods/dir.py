@@ -39,6 +39,7 @@ Stats: ``time_gbuffer``, ``time_rsm``, ``time_direct``, ``time_gather``, ``time_
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -259,8 +260,9 @@ def make_vpls(data: DIRData, total: int, res: int = 64, aims: list[Aim] | None =
     mu_v = replace_texels(rho_v, mi.UInt32(aligned(np.flatnonzero(moved), np.uint32)),
                           rsm_subset(pair.mu_changed,
                                      mi.UInt32(aligned(slot[idx[moved]], np.uint32))))
-    rho_v.flux_out = rho_v.flux_out * w
-    mu_v.flux_out = mu_v.flux_out * w
+    # new RSMs: mu_v is rho_v itself when no picked texel changed
+    rho_v = dataclasses.replace(rho_v, flux_out=rho_v.flux_out * w)
+    mu_v = dataclasses.replace(mu_v, flux_out=mu_v.flux_out * w)
     shared = shared_texels(rho_v, mu_v)
     dr.eval(shared, rho_v.flux_out, mu_v.flux_out)
     on_object = int(np.count_nonzero(role[idx] == ROLE_VIRTUAL))
