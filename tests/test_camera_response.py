@@ -37,3 +37,18 @@ def test_exposure_scales_radiance():
 def test_bad_transfer_rejected():
     with pytest.raises(ValueError, match="unknown transfer"):
         Transfer("log")
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_to_radiance_table_is_the_per_pixel_decode_bitwise(dtype):
+    """The lookup table equals decoding each pixel (rejects a table cached per dtype only,
+    so a second transfer reads the first's radiance, and an off-by-one code range)."""
+    v_max = np.iinfo(dtype).max
+    codes = np.random.default_rng(1).integers(0, v_max + 1, (9, 11, 3)).astype(dtype)
+    codes[0, 0] = [0, 1, v_max]
+    for t in (Transfer("srgb", exposure=0.0), Transfer("srgb", exposure=1.5),
+              Transfer("gamma", 2.4, -1.0)):
+        direct = t.decode(codes.astype(np.float64) / float(v_max)) / t.scale
+        got = t.to_radiance(codes)
+        assert got.dtype == np.float64 and got.flags.writeable
+        assert np.array_equal(got, direct)

@@ -14,6 +14,7 @@ use the exact inverse of the declared camera response rather than a photographic
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -85,9 +86,17 @@ class Transfer:
         return y
 
     def to_radiance(self, codes: np.ndarray) -> np.ndarray:
-        """Integer code values (uint8/uint16) -> linear radiance W/(sr·m²), float64."""
-        v_max = float(np.iinfo(codes.dtype).max)
-        return self.decode(codes.astype(np.float64) / v_max) / self.scale
+        """Integer code values (uint8/uint16) -> linear radiance W/(sr·m²), float64.
+
+        A table lookup: every code's radiance is computed once per transfer and dtype
+        (:func:`_radiance_table`), the same float64 operations as decoding each pixel, so
+        the result is bitwise the direct decode at a fraction of the cost (a 640×480 frame
+        per video frame in ``live`` and ``sequence``)."""
+        codes = np.asarray(codes)
+        if codes.dtype not in (np.uint8, np.uint16):
+            v_max = float(np.iinfo(codes.dtype).max)
+            return self.decode(codes.astype(np.float64) / v_max) / self.scale
+        return _radiance_table(self, codes.dtype.str)[codes]
 
     def to_display(self, radiance: np.ndarray, dtype: type = np.uint8) -> np.ndarray:
         """Linear radiance -> integer code values; out-of-range radiance is clipped."""
@@ -95,3 +104,14 @@ class Transfer:
         y = np.asarray(radiance, dtype=np.float64) * self.scale
         y = np.nan_to_num(y, nan=0.0, posinf=1.0, neginf=0.0)
         return np.rint(self.encode(y) * v_max).astype(dtype)
+
+
+@functools.lru_cache(maxsize=32)
+def _radiance_table(transfer: Transfer, dtype: str) -> np.ndarray:
+    """Radiance of every code value of ``dtype`` (``uint8``/``uint16``) under ``transfer``:
+    ``decode(v / v_max) / scale`` for ``v = 0 … v_max``, read-only."""
+    v_max = np.iinfo(np.dtype(dtype)).max
+    table = transfer.decode(np.arange(v_max + 1, dtype=np.float64) / float(v_max))
+    table = table / transfer.scale
+    table.setflags(write=False)
+    return table
