@@ -35,8 +35,9 @@ DEFAULT_RIDGE = 1e-3
 """Tikhonov weight relative to ``σ_max²``. Chosen with the reconstruction's smoothing
 (:data:`arlight.probeless.reconstruct.SMOOTH_ITERATIONS`) on *training* light setups — the
 modelled room under three real HDR maps, static and moving camera, path traced with
-interreflection — by the median upper-hemisphere error at Gruber's 10 cm visibility, and
-reported on Gruber's SH cap light, held out (issue #33, ``benchmarks/tune_light_estimation.py
+interreflection — by the median upper-hemisphere error, jointly with the visibility range
+under a near-lamp guard (the range stayed Gruber's 10 cm), and reported on Gruber's SH cap
+light, held out (issue #33, ``benchmarks/tune_light_estimation.py
 --part setups``, benchmarks/RESULTS.md): training median 0.622 → 0.568, Gruber's light
 0.567 → 0.352 (static) and 0.357 → 0.291 (moving) against the old 3e-3 without smoothing.
 3e-3 had been chosen on those very Gruber sequences on the raw marching-cubes mesh, whose

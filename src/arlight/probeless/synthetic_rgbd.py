@@ -4,11 +4,14 @@ A modelled "room corner" of real shapes — a floor, boxes of several sizes and 
 a sphere — with one uniform diffuse albedo, lit by an environment given either as 16 SH
 coefficients (a smooth cap around an animated direction over an ambient term: Gruber's
 "animated circular area light falling off from centre to border", projected to SH) or as a
-real HDR map (bundled, rotated per frame). Frames are rendered by Mitsuba's own path tracer
-through :func:`arlight.synthetic.synthesize` (direct light only by default, ``max_depth = 2``,
-as the Lambertian transfer model of E1 assumes); depth is the camera-space ``z`` of the first
-hit; poses are the cameras'. The *true* light of a frame is known: its SH (the cap) or the SH
-projection of the rotated map, hence the true dominant direction.
+real HDR map (bundled, rotated per frame), or by a *near* lamp (a 25 cm emitting square
+0.9 m from the objects, as bunny-box's, over a dim constant ambient: light the distant-light
+model of E5 does not describe, used to check that a constant does not break it). Frames are
+rendered by Mitsuba's own path tracer through :func:`arlight.synthetic.synthesize` (direct
+light only by default, ``max_depth = 2``, as the Lambertian transfer model of E1 assumes);
+depth is the camera-space ``z`` of the first hit; poses are the cameras'. The *true* light of
+a frame is known: its SH (the cap), the SH projection of the rotated map, or the light
+arriving at the objects (the lamp), and the true dominant direction.
 """
 
 from __future__ import annotations
@@ -29,6 +32,11 @@ from arlight.sphere import sh as SH
 from arlight.synthetic import sensor_depth
 
 ALBEDO = 0.6
+LAMP_TARGET = np.array([0.02, 0.065, 0.10])
+"""Where the near lamp of ``kind = "lamp"`` is aimed and its true light measured (m): the
+centre of :func:`virtual_objects`."""
+LAMP_DISTANCE = 0.9
+"""Distance of the near lamp from :data:`LAMP_TARGET` (m); bunny-box's is 0.88 m."""
 
 
 def _box(name: str, size, centre, yaw_deg: float = 0.0, mat: Material | None = None,
@@ -124,6 +132,22 @@ def light_directions(n: int) -> np.ndarray:
                      np.cos(el) * np.cos(az)], axis=1)
 
 
+def near_lamp(direction: np.ndarray, distance: float = LAMP_DISTANCE,
+              size: float = 0.25, radiance: float = 14.0) -> list[Light]:
+    """A square area lamp (``size`` m, ``radiance`` W/(sr·m²), warm) ``distance`` m from
+    :data:`LAMP_TARGET` along ``direction``, facing it, and a dim constant ambient (0.04):
+    bunny-box's lamp moved around the room."""
+    from arlight.scene.load import z_to
+
+    d = np.asarray(direction, np.float64) / np.linalg.norm(direction)
+    m = z_to(-d)
+    m[:3, 3] = LAMP_TARGET + distance * d
+    lamp = Light("lamp", "area", {"size": [size, size], "to_world": m,
+                                  "radiance": [radiance, radiance * 0.96, radiance * 0.9]})
+    amb = Light("ambient", "constant", {"radiance": [0.04, 0.04, 0.045]})
+    return [lamp, amb]
+
+
 def bundled_hdr() -> Path:
     """The bundled lat-long HDR map used for the "real map" sequences."""
     return Path(str(resources.files("arlight") / "data" / "demo" / "lebombo_512x256.hdr"))
@@ -137,7 +161,11 @@ def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: i
 
     Args:
         kind: ``"sh"`` (cap light as 16 SH coefficients, an ``sh`` light) or ``"hdr"`` (a real
-            HDR map rotated by 45° per frame about +Y, an ``envmap`` light).
+            HDR map rotated by 45° per frame about +Y, an ``envmap`` light) or ``"lamp"``
+            (:func:`near_lamp` along the animated direction; its true SH is the light
+            arriving at :data:`LAMP_TARGET`, by
+            :func:`arlight.probeless.experiment.incident_sh`, and its true direction the
+            lamp's from there).
         moving: camera on an arc (else static).
         max_depth: Mitsuba path depth (2: direct light only, the model of E1).
     """
@@ -164,15 +192,22 @@ def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: i
             light = Light("sky", "envmap", {"file": str(hdr or bundled_hdr()),
                                             "mapping": "equirect", "scale": 1.0,
                                             "rotation_deg": ang}, radiance_map=env)
-        else:
-            raise ValueError(f"kind must be 'sh' or 'hdr', got {kind!r}")
-        scene = ARScene(camera=cam, shapes=shapes, lights=[light])
+        elif kind != "lamp":
+            raise ValueError(f"kind must be 'sh', 'hdr' or 'lamp', got {kind!r}")
+        lights = near_lamp(dirs[i]) if kind == "lamp" else [light]
+        scene = ARScene(camera=cam, shapes=shapes, lights=lights)
+        true_dir = dirs[i] if kind == "lamp" else SH.dominant_direction(sh)
+        if kind == "lamp":
+            from arlight.probeless.experiment import incident_sh
+
+            sh = incident_sh(scene.world, LAMP_TARGET, emitter_samples=1 << 14,
+                             directions=1024, spp=4, max_depth=max_depth, seed=seed + i)
         photo = synthesize(scene, spp=spp, seed=seed + i, max_depth=max_depth,
                            cache_dir=cache_dir, batches=min(8, spp))
         hits = primary_hits(build_views(scene), cam, mixed=False)
         depth = np.where(np.isfinite(hits.z), hits.z, 0).astype(np.float32)
         frames.append(SyntheticFrame(RGBDFrame(photo.frame, depth, cam, f"frame{i}", float(i)),
-                                     sh, SH.dominant_direction(sh)))
+                                     sh, true_dir))
     return frames
 
 
@@ -193,6 +228,7 @@ if __name__ == "__main__":  # python -m arlight.probeless.synthetic_rgbd SCENE_F
     print(write_suite_depth(sys.argv[1]))
 
 
-__all__ = ["ALBEDO", "SyntheticFrame", "bundled_hdr", "camera_path", "cap_light",
-           "light_directions", "render_sequence", "room_shapes", "virtual_objects",
+__all__ = ["ALBEDO", "LAMP_DISTANCE", "LAMP_TARGET", "SyntheticFrame", "bundled_hdr",
+           "camera_path", "cap_light",
+           "light_directions", "near_lamp", "render_sequence", "room_shapes", "virtual_objects",
            "write_suite_depth"]
