@@ -459,7 +459,8 @@ estimate away from a near lamp (bunny-box: dot 0.99 → 0.77 at 1 m; the lamp's 
 where no distant direction puts them, docs/methods/probeless.md); 0.02 is the allowance the
 issue gives bunny-box (~0.97 → ≥ 0.95). The first run of this rule compared each candidate
 with 10 cm *at the same ridge*, which let ridge 1e-4 pass at 0.3 m because at 10 cm that
-ridge had already lost the lamp (dot 0.10): the baseline is the defaults since."""
+ridge had already lost the lamp (dot 0.10): the baseline is the defaults since (changed after
+that run's table, held-out columns included, had been seen; it kept the defaults)."""
 SETUP_DEPTH = {"training": 8, "heldout": 2}
 """Mitsuba path depth of the frames: the training frames carry interreflection, as real
 frames do (a transfer without interreflection must not be tuned on frames without it);
