@@ -211,6 +211,65 @@ def heldout_section(runs: list, labels: list[str], pressure: str, note: str = ""
     return "\n".join(lines)
 
 
+MOTION_WIDTH = 160
+MOTION_SPP = 4
+
+
+def motion_line(rounds: int = 3, warmup: int = 1) -> str:
+    """dic while the demo's bunny moves 1 cm (and turns 2°) every frame vs still (#32), at
+    160×120, 4 spp, interleaved frames, medians: ``DicMethod`` (cache rebuilt per frame;
+    shapes moved in place) and :class:`DicSequence` (records kept, dropped near the old and
+    new bounds)."""
+    import math
+    import time
+
+    from arlight.demo import DEMO_DIR
+    from arlight.scene.load import load_scene
+
+    scene = load_scene(DEMO_DIR / "scene.toml").resized(MOTION_WIDTH, MOTION_WIDTH * 3 // 4)
+    s = RenderSettings(spp=MOTION_SPP, seed=3)
+
+    def move(i: int) -> np.ndarray:
+        a = math.radians(2.0 * i)
+        m = np.eye(4)
+        m[[0, 0, 2, 2], [0, 2, 0, 2]] = [math.cos(a), math.sin(a), -math.sin(a), math.cos(a)]
+        m[0, 3] = 0.01 * i
+        return m
+
+    m = get_method("dic")
+    state = m.prepare(scene.world, s)
+    seq = DicSequence(scene.world, s)
+    times: dict[str, list[float]] = {k: [] for k in ("still", "moving", "seq_still",
+                                                     "seq_moving", "pose")}
+    dropped, kept = [], []
+    for i in range(1, warmup + rounds + 1):
+        view = replace(scene.view, object_transforms={"bunny": move(i)})
+        lm = m.render(state, view, s)
+        ls = m.render(state, view, s)
+        t0 = time.perf_counter()
+        qm = seq.render(view)
+        t1 = time.perf_counter()
+        seq.render(view)
+        t2 = time.perf_counter()
+        if i > warmup:
+            times["moving"].append(lm.stats["seconds"])
+            times["still"].append(ls.stats["seconds"])
+            times["pose"].append(lm.stats.get("time_pose", 0.0))
+            times["seq_moving"].append(t1 - t0)
+            times["seq_still"].append(t2 - t1)
+            dropped.append(qm.stats["records_dropped"])
+            kept.append(qm.stats["records"] - qm.stats["records_new"])
+    med = {k: statistics.median(v) for k, v in times.items()}
+    return (f"Incremental pose (#32), demo scene at {MOTION_WIDTH}×{MOTION_WIDTH * 3 // 4}, "
+            f"{MOTION_SPP} spp, the bunny moving 1 cm and turning 2° per frame, medians of "
+            f"{rounds} interleaved frames: DicMethod still {med['still'] * 1e3:.0f} ms, moving "
+            f"{med['moving'] * 1e3:.0f} ms (ratio {med['moving'] / med['still']:.2f}; pose "
+            f"{med['pose'] * 1e3:.0f} ms); DicSequence still {med['seq_still'] * 1e3:.0f} ms, "
+            f"moving {med['seq_moving'] * 1e3:.0f} ms (ratio "
+            f"{med['seq_moving'] / med['seq_still']:.2f}; {statistics.median(dropped):.0f} "
+            f"records dropped, {statistics.median(kept):.0f} kept per moving frame).")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
@@ -220,6 +279,8 @@ def main() -> None:
                     help="the issue-#33 section from pickled bench_heldout runs (in order)")
     ap.add_argument("--labels", nargs="+", help="one 'name: what the code did' per run")
     ap.add_argument("--note", default="", help="a sentence appended to the section's header")
+    ap.add_argument("--motion", action="store_true", help="with --heldout: measure dic's "
+                    "moving vs still frame time (#32) and add it to the section")
     args = ap.parse_args()
     if args.heldout:
         import pickle
@@ -229,7 +290,10 @@ def main() -> None:
             with open(path, "rb") as f:
                 runs.append(pickle.load(f))
         labels = args.labels or [f"run{i}" for i in range(len(runs))]
-        publish(heldout_section(runs, labels, cpu_pressure(), args.note), args.write)
+        text = heldout_section(runs, labels, cpu_pressure(), args.note)
+        if args.motion:
+            text += "\n\n" + motion_line() + f" CPU pressure {cpu_pressure()} %."
+        publish(text, args.write)
         return
     if args.flicker_only:
         print(flicker())
