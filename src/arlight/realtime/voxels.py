@@ -35,10 +35,21 @@ already gathered — the digest flags it as a probable typo, we use the standard
     c ← c + (1 − α) α_v c_v          α ← α + (1 − α) α_v
 
 where ``α_v c_v`` is the premultiplied radiance ``c_l`` above. The cone's diameter at distance
-``t`` is ``d(t) = max(s_0, 2 t tan(θ/2))``, its mip level ``log2(d / s_0) − 1``
+``t`` is ``d(t) = max(s_0, 2 t tan(θ/2))``, its mip level ``l = log2(d / s_0) − 1``
 (:data:`LEVEL_BIAS`; quadrilinear: trilinear in the two nearest levels, linear between
-them), and the step is one current cell size ``d`` (thesis §5.4.1: "the step size coincides
-with the current voxel size").
+them), and the step is the cell size of that level, ``s_0 2^l = d/2`` (thesis §5.4.1: "the
+step size coincides with the current voxel size"). Both from the cone's geometry (issue #33):
+
+* **level**: a sample of level ``l`` sees the box filter of the mip chain (width ``s_l``,
+  variance ``s_l²/12`` per axis) convolved with trilinear interpolation's tent (variance
+  ``s_l²/6``): footprint variance ``s_l²/4``. The cone's cross-section, a disk of diameter
+  ``d``, has the variance ``d²/16`` per axis; equal when ``s_l = d/2``, one level finer
+  than the diameter's.
+* **step**: the trilinear weights of a thin sheet at the samples ``t_k`` sum to 1 for any
+  phase only when samples are one cell of the sampled level apart (a partition of unity);
+  a step of ``d = 2 s_l`` (before issue #33) summed to 0–1 by phase — a lit plane read
+  0.4–1.07 of its radiance and a 60° cone could step over it — while ``s_l`` reads
+  0.83–1.0 (tested).
 
 Occlusion is accumulated twice, against ``α_all`` (real + virtual geometry) and ``α_real``
 (real geometry alone), and a third product keeps what the virtual objects take away from
@@ -81,18 +92,23 @@ geometry in the way (no light through walls, and fewer steps)."""
 
 SHELLS = 0.5
 """Coverage scale of a block of level ``l``: ``α_l = min(1, max(1, SHELLS · 2^l) · mean α)``
-(ours; ``dvct`` option ``shells``). 1 is exact for a single sheet (a real plane); closed
+(ours; ``dvct`` option ``shells``). The derivation brackets it without fixing it: a sheet
+seen at normal incidence covers ``2^l · mean α`` of the block (1), a sheet at a random
+orientation half of that on average (|cos| averages 1/2), a closed convex body smaller than
+the block a quarter (Cauchy: mean projected area = surface area / 4); 0.5, the middle of
+that range, stays chosen on training worlds (issue #33: 1 lost 0.2 dB of median
+changed_psnr on 6 training worlds with the derived step). Closed
 objects cross a block twice, so 0.5 (bunny-box 32.3 → 33.3 dB, red-paper 28.7 → 31.3 dB:
 Lucy's soft shadow had come out opaque). Re-chosen on 16 training worlds (issue #30,
 ``benchmarks/tune_realtime.py``): 0.25 won there, lost on the held-out worlds, and 0.5
 stays (docs/methods/dvct.md)."""
 
 LEVEL_BIAS = 1.0
-"""Mip levels finer than ``log2(d / s_0)`` at which a cone of diameter ``d`` samples (ours):
-trilinear interpolation between cell centres spreads a cell over a tent two cells wide, so
-sampling at the level whose cells equal the diameter blurs occluders over about twice the
-cone's cross-section (on bunny-box the soft shadow came out 3× too deep in the mean); one
-level finer matches the footprint (floor-shadow RMSE 0.044 → 0.028 against ray tracing).
+"""Mip levels finer than ``log2(d / s_0)`` at which a cone of diameter ``d`` samples, derived
+(module docstring): the box filter of the mip chain and the trilinear tent give a sample the
+footprint variance ``s_l²/4``, the cone's disk ``d²/16``, equal at ``s_l = d/2``. (On
+bunny-box the diameter's own level made the soft shadow 3× too deep in the mean; floor-shadow
+RMSE 0.044 → 0.028 against ray tracing with the bias.)
 ``dvct`` option ``level_bias``; re-chosen on 16 training worlds (issue #30): 0 (with
 ``SHELLS`` 0.25) won there, lost on the held-out worlds, and 1 stays."""
 
@@ -593,7 +609,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         ratio = dr.select(free > 1e-3, dr.clip((1.0 - al_all) / dr.maximum(free, 1e-3), 0.0,
                                                 1.0), 1.0)
         keep = dr.select(act, keep * ratio, keep)
-        t = t + diam
+        t = t + dr.maximum(s0, s0 * dr.exp2(lvl_f))  # the sampled level's cell (docstring)
         if light is None:
             done = keep < 1.0 - stop
         else:
