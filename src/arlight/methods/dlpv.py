@@ -23,7 +23,10 @@ Per frame and per reduced light (:mod:`arlight.realtime.light_reduction`):
    sh_volume.query_irradiance`) at the point moved half a cell along its normal.
 
 The volume is a world-axis-aligned cube around the virtual objects, ``volume_scale`` (2) ×
-their largest bounding-box edge, its centre snapped to the cell lattice. Layers: ``mixed``
+their largest bounding-box edge, on a fixed world lattice (``fixed_lattice``,
+:func:`~arlight.methods.fragments.volume_grid`). Injection is normalised by
+:func:`injection_scales` (direct lobes ÷ the lit-plane response, VPLs ÷ the one-VPL
+response); ``geometry_volume`` adds [KD10]'s blocking. Layers: ``mixed``
 is the shaded virtual object on virtual pixels and ``B + delta`` elsewhere (the method has no
 ``I_r``); ``delta`` is the DLPV term; ``mask`` the G-buffer coverage.
 
