@@ -1,11 +1,17 @@
-"""``dic``: differential irradiance caching (Kán §4.2) against the one-pass path tracer.
+"""``dic``: differential irradiance caching (Kán §4.2) against independent references —
+Mitsuba's own ``path`` integrator (indirect terms at pixel centres, over silhouette pixels,
+on a rough metal), a NumPy brute-force Eq. 2.15 (the record grid) — and the one-pass path
+tracer (direct light, slow tier).
 
 Wrong implementations these tests reject: records that also count the light they see
 directly (direct light twice), a record path one bounce too long or short, irradiance
-without the 1/π of a Lambertian BRDF, real pixels shaded with E_m instead of E_d, a camera
-walk without the one-pass shadow rules or the real continuation, re-evaluation with fresh
-random numbers (a static sequence flickers), a cache that is not dropped near a moved
-object, options out of range accepted.
+without the 1/π of a Lambertian BRDF, real pixels shaded with E_m instead of E_d, the
+unvalidated reprojection (a silhouette sample reads the other surface's irradiance), a
+validation without the world-space fallback, a record grid that lists a record only in its
+own cell, a walk that ends at a rough metal (no indirect reflection) or counts the emission
+its glossy sample found twice, a camera walk without the one-pass shadow rules or the real
+continuation, re-evaluation with fresh random numbers (a static sequence flickers), a cache
+that is not dropped near a moved object, options out of range accepted.
 """
 
 from __future__ import annotations
