@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from arlight.backend.mitsuba_scene import build_views
-from arlight.probeless.directions import SH_ORDER
+from arlight.probeless.directions import N_COEFFS, SH_ORDER, fibonacci_sphere
 from arlight.probeless.pipeline import primary_hits
 from arlight.probeless.reconstruct import RGBDFrame
 from arlight.scene.camera import Camera, look_at
-from arlight.scene.model import ARScene, Light, Material, Shape
+from arlight.scene.model import ARScene, Light, Material, Shape, World
 from arlight.sphere import sh as SH
 from arlight.synthetic import sensor_depth
 
@@ -153,6 +153,64 @@ def bundled_hdr() -> Path:
     return Path(str(resources.files("arlight") / "data" / "demo" / "lebombo_512x256.hdr"))
 
 
+def incident_sh(world: World, point: np.ndarray, emitter_samples: int = 1 << 16,
+                directions: int = 8192, spp: int = 16, max_depth: int = 8,
+                seed: int = 0) -> np.ndarray:
+    """The true 16-coefficient radiance SH ``(16, 3)`` of the light arriving at ``point`` in
+    ``world``'s real part (virtual shapes left out: the light of the frame), computed
+    independently of any estimate, by Mitsuba:
+
+    * **emitted light seen directly** (environment, sun, area, sphere, point and spot
+      lights): ``emitter_samples`` draws of ``Scene.sample_emitter_direction`` from the point
+      with visibility tested; each draw's radiance / pdf (for delta lights: the irradiance)
+      projected onto ``Y_k`` of its direction, averaged (an unbiased projection);
+    * **reflected light**: the ``path`` integrator with ``hide_emitters`` (emitters seen
+      directly count 0, every bounce after the first surface counts) from the point along
+      ``directions`` spherical-Fibonacci directions, ``spp`` paths each, projected with the
+      quadrature weight ``4π/directions``.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from arlight.backend.rays import np3
+    from arlight.nearfield.capture import real_scene
+
+    scene = real_scene(world)
+    p = np.asarray(point, np.float64).reshape(3)
+    out = np.zeros((N_COEFFS, 3))
+    # direct: emitter sampling
+    if scene.emitters():
+        rng = np.random.default_rng(seed)
+        n = int(emitter_samples)
+        it = dr.zeros(mi.Interaction3f, n)
+        it.p = mi.Point3f(*[np.full(n, c, np.float32) for c in p])
+        it.t = mi.Float(np.zeros(n, np.float32))
+        u = rng.random((n, 2)).astype(np.float32)
+        ds, spec = scene.sample_emitter_direction(it, mi.Point2f(u[:, 0], u[:, 1]), True)
+        col = np3(spec)
+        d = np3(ds.d)
+        col[~np.isfinite(col).all(axis=1)] = 0.0
+        out += SH.sh_basis(d, SH_ORDER).T @ col / n
+    # reflected: path tracing with the directly seen emitters hidden
+    d = fibonacci_sphere(int(directions))
+    dd = np.repeat(d, int(spp), axis=0)
+    m = len(dd)
+    integrator = mi.load_dict({"type": "path", "max_depth": int(max_depth),
+                               "hide_emitters": True})
+    o = np.broadcast_to(p.astype(np.float32), (m, 3))
+    ray = mi.Ray3f(mi.Point3f(*[np.ascontiguousarray(o[:, i]) for i in range(3)]),
+                   mi.Vector3f(*[np.ascontiguousarray(dd[:, i], np.float32)
+                                 for i in range(3)]))
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(int(seed) + 1, m)
+    spec, _, _ = integrator.sample(scene, sampler, ray)
+    col = np3(spec)
+    col[~np.isfinite(col).all(axis=1)] = 0.0
+    rad = col.reshape(len(d), int(spp), 3).mean(axis=1)
+    out += SH.sh_basis(d, SH_ORDER).T @ rad * (4 * np.pi / len(d))
+    return out
+
+
 def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: int = 160,
                     height: int = 120, spp: int = 32, seed: int = 1,
                     hdr: Path | None = None, max_depth: int = 2,
@@ -164,7 +222,7 @@ def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: i
             HDR map rotated by 45° per frame about +Y, an ``envmap`` light) or ``"lamp"``
             (:func:`near_lamp` along the animated direction; its true SH is the light
             arriving at :data:`LAMP_TARGET`, by
-            :func:`arlight.probeless.experiment.incident_sh`, and its true direction the
+            :func:`incident_sh`, and its true direction the
             lamp's from there).
         moving: camera on an arc (else static).
         max_depth: Mitsuba path depth (2: direct light only, the model of E1).
@@ -198,8 +256,6 @@ def render_sequence(kind: str = "sh", n: int = 8, moving: bool = False, width: i
         scene = ARScene(camera=cam, shapes=shapes, lights=lights)
         true_dir = dirs[i] if kind == "lamp" else SH.dominant_direction(sh)
         if kind == "lamp":
-            from arlight.probeless.experiment import incident_sh
-
             sh = incident_sh(scene.world, LAMP_TARGET, emitter_samples=1 << 14,
                              directions=1024, spp=4, max_depth=max_depth, seed=seed + i)
         photo = synthesize(scene, spp=spp, seed=seed + i, max_depth=max_depth,
@@ -229,6 +285,6 @@ if __name__ == "__main__":  # python -m arlight.probeless.synthetic_rgbd SCENE_F
 
 
 __all__ = ["ALBEDO", "LAMP_DISTANCE", "LAMP_TARGET", "SyntheticFrame", "bundled_hdr",
-           "camera_path", "cap_light",
+           "camera_path", "cap_light", "incident_sh",
            "light_directions", "near_lamp", "render_sequence", "room_shapes", "virtual_objects",
            "write_suite_depth"]
