@@ -1,23 +1,27 @@
 """Denoised differential rendering on held-out worlds (issue #31).
 
 **Equal time** (``--worlds``, default the first 8 held-out worlds whose materials are all
-diffuse, ``tags["all_diffuse"]``): per world, the real-time methods (``dlpv``, ``dir``,
-``dvct``, ``ibl``, ``prt``) are timed by the evaluation harness (one warm-up, ``--repeats``
-timed frames, the world prepared once) and ``onepass`` is timed on a ladder of spp, raw,
-with ``denoise = oidn`` (default options) and with ``denoise_quality = balanced``, up to the
-first frame slower than the world's slowest real-time method. At ``t*`` = that slowest
-method's frame time, the best ``onepass`` frame of each kind that took at most ``t*`` is
-compared with every real-time method: PSNR (display, against Mitsuba's ground truth), and
-the bias of :mod:`arlight.denoise.bias` (relative mean signed luminance error in the shadow,
-on the object, at the silhouette) against the ground truth and — the denoiser's own bias,
-proxy errors cancelled — against ``onepass`` at 256 spp.
+diffuse, ``tags["all_diffuse"]``; ``training-diffuse:N`` for the training worlds defaults
+are chosen on): per world, the real-time methods (``dlpv``, ``dir``, ``dvct``, ``ibl``,
+``prt``) are timed by the evaluation harness (one warm-up, ``--repeats`` timed frames, the
+world prepared once) and ``onepass`` is timed on a ladder of spp, raw and with ``denoise =
+oidn`` at each OIDN quality of ``--qualities`` (aux on, separate), up to the first frame
+slower than the world's slowest real-time method (worlds no real-time method renders are
+not counted; ties within :data:`TIE_DB` are counted as losses and named). At ``t*`` = that
+slowest method's frame time, the best ``onepass`` frame of each kind that took at most
+``t*`` is compared with every real-time method: PSNR (display, against Mitsuba's ground
+truth), and the bias of :mod:`arlight.denoise.bias` (relative mean signed luminance error
+in the shadow, on the object, at the silhouette) against the ground truth and — the
+denoiser's own bias, proxy errors cancelled — against ``onepass`` at 256 spp.
 
 **Variants** at ``--variant-spp`` (default 4): ``denoise_target = separate | delta``,
 ``denoise_aux = off``, ``denoise_quality = fast`` with aux off — PSNR and bias per world.
 
-**640×480** (``--full N``): on the first ``N`` worlds at 640×480 (ground truth
-``--full-gt-spp``), ``onepass`` raw, denoised and denoised at ``balanced`` quality at 1, 2,
-4 spp: frame time and PSNR.
+**640×480** (``--full N``, worlds ``--full-worlds``): ``onepass`` in each configuration of
+:data:`FULL_CONFIGS` (``--configs``) at 1 and 2 spp: frame time, stage times, its ratio to
+the raw 1-spp frame of the same run, PSNR against the ground truth (``--full-gt-spp``),
+against the noise-free truth (the ground truth's own noise, from its standard error,
+subtracted: :func:`gt_noise_mse`) and against converged onepass, and the proxy ceiling.
 
 **Flicker** (``--flicker``): the synthetic bunny-box sequence (96×72, 8 frames) moving
 (camera orbit 30°, bunny slides 6 cm, turns 60°; seed 0 every frame) and static (nothing
@@ -26,7 +30,7 @@ flicker = mean |e(t+1) − e(t)| (e = composite − GT), as in the sequence benc
 
     python benchmarks/bench_denoise.py [--worlds heldout-diffuse:8] [--width 160] [--full 2]
         [--flicker] [--save r.pkl] [--write]
-    python benchmarks/bench_denoise.py --load r.pkl --write
+    python benchmarks/bench_denoise.py --load a.pkl --load b.pkl --write   # parts merged
 
 The machine is shared (2 cores): every comparison is within one run and one world; the CPU
 pressure (PSI ``some avg60``) is printed at the start and the end.
