@@ -88,8 +88,10 @@ OPTIONS: dict[str, Field] = {
                       "come on top)", "texels", min=1, max=1024),
     "aim_object": Field("float", 1.0, "aimed texels on the virtual objects' sphere per texel "
                         "of a light's own map (0: none)", "", min=0.0, max=64.0),
-    "aim_view": Field("float", 0.25, "aimed texels on the sphere of the scene the camera sees "
-                      "per texel of a light's own map (0: none)", "", min=0.0, max=64.0),
+    "aim_view": Field("float", 0.0, "aimed texels on the sphere of the scene the camera sees "
+                      "per texel of a light's own map (0: none; > 0 makes the light maps "
+                      "depend on the camera, so every camera move casts them again)", "",
+                      min=0.0, max=64.0),
     "vpl_importance": Field("float", 4.0, "β of the VPL importance flux × (1 + β · proximity "
                             "to the virtual objects); 0: VPLs picked by flux alone", "",
                             min=0.0, max=1.0e4),
