@@ -41,9 +41,9 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.jit import aligned
-from arlight.methods.spec import Field
 from arlight.realtime.gbuffer import GBuffer
 from arlight.scene.model import World
+from arlight.scene.schema import Field
 from arlight.sphere.envmap import resize_equirect, rotate_equirect
 
 ENV_HEIGHT = 128
