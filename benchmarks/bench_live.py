@@ -39,8 +39,10 @@ METHODS = ["dlpv", "dir"]
 TARGET_FPS = 10.0
 
 
-def measure(method: str, loops: int, warmup: int, peer: int = 12) -> dict:
-    """One method: warm-up frames unpaced, then the video paced ``loops`` times."""
+def measure(method: str, loops: int, warmup: int, peer: int = 12, render_scale: int = 1
+            ) -> dict:
+    """One method at ``render_scale`` (``arlight live --render-scale``): warm-up frames
+    unpaced, then the video paced ``loops`` times."""
     from arlight.live import sources
     from arlight.live.cli import EXAMPLE
     from arlight.live.loop import LiveCompositor, MarkerTracker, run_live
@@ -56,7 +58,8 @@ def measure(method: str, loops: int, warmup: int, peer: int = 12) -> dict:
     clock = sources.WallClock()
     src = sources.VideoSource(EXAMPLE["video"], loops=loops)
     job, calib, spec = live_job(sc, src.size, method, settings, EXAMPLE["calib"],
-                                str(EXAMPLE["marker"]), src.fps, None, src.name)
+                                str(EXAMPLE["marker"]), src.fps, None, src.name,
+                                render_scale=render_scale)
     comp = LiveCompositor(job, MarkerTracker(calib, spec, job.camera), clock)
     t0 = time.perf_counter()
     prep = comp.prepare()
@@ -98,7 +101,9 @@ def table(results: dict[str, dict], loops: int, load: str, psi: str) -> str:
              f"(640×480, {any_r['video_fps']:.0f} frames/s, {any_r['arrived']} frames "
              "arriving in real time) played live — track the board, render, encode for the "
              "studio page — one process per method, after warm-up frames. Latency: a frame's "
-             "arrival to its composite encoded and posted to the page.", "",
+             "arrival to its composite encoded and posted to the page. *render scale 1/2*: "
+             "`--render-scale 2` (live's default): rendered at 320×240, the layers upsampled "
+             "and composited over the 640×480 frame (as the studio while dragging).", "",
              "| method | composited frames/s | dropped | latency p50 (ms) | latency p95 (ms) "
              "| track (ms) | render (ms) | show (ms) |",
              "|---|---|---|---|---|---|---|---|"]
@@ -139,19 +144,18 @@ def table(results: dict[str, dict], loops: int, load: str, psi: str) -> str:
               "render (" + ", ".join(f"{n} {100 * v:.0f} %" for n, v in share.items())
               + " of track + render + show), inside it dlpv's LPV propagation and dir's VPL "
               "gather; tracking and the encode are a few per cent, and the loop costs about "
-              "what sequence's path alone does (ratios above). With the CPU pressure below "
-              f"(the process got {worst['cpu_share']:.2f} CPUs) the absolute rates say little "
-              "about a quiet 2-core machine: compare the frame times of the same methods in "
-              "*Interactive methods while the virtual object moves* (a quiet run).",
+              "what sequence's path alone does (ratios above). The absolute rates depend on "
+              f"the machine's load, given below (the slowest process got "
+              f"{worst['cpu_share']:.2f} CPUs).",
               "", f"Load at the end of the run (`uptime`): {load}"
               + (f"; CPU pressure (PSI some avg60): {psi} %" if psi else "") + "."]
     return "\n".join(lines)
 
 
-def child(name: str, loops: int, warmup: int) -> dict:
+def child(name: str, loops: int, warmup: int, scale: int) -> dict:
     out = subprocess.run([sys.executable, __file__, "--child", name, "--loops", str(loops),
-                          "--warmup", str(warmup)], capture_output=True, text=True,
-                         check=True, cwd=str(HERE)).stdout
+                          "--warmup", str(warmup), "--render-scale", str(scale)],
+                         capture_output=True, text=True, check=True, cwd=str(HERE)).stdout
     line = next(x for x in out.splitlines() if x.startswith("RESULT"))
     return json.loads(line[len("RESULT"):])
 
@@ -162,17 +166,23 @@ def main() -> None:
     ap.add_argument("--loops", type=int, default=2, help="passes over the 3 s video")
     ap.add_argument("--warmup", type=int, default=5)
     ap.add_argument("--write", action="store_true", help="store the table in RESULTS.md")
+    ap.add_argument("--render-scales", default="1,2", help="`live --render-scale` values "
+                    "measured per method (1: full size; live's default is 2)")
+    ap.add_argument("--render-scale", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        print("RESULT" + json.dumps(measure(args.child, args.loops, args.warmup)))
+        print("RESULT" + json.dumps(measure(args.child, args.loops, args.warmup,
+                                             render_scale=args.render_scale)))
         return
     results = {}
     for name in args.methods.split(","):
-        t0 = time.perf_counter()
-        results[name] = child(name, args.loops, args.warmup)
-        print(f"{name}: {json.dumps(results[name])} ({time.perf_counter() - t0:.0f} s)",
-              flush=True)
+        for scale in (int(k) for k in args.render_scales.split(",")):
+            t0 = time.perf_counter()
+            row = name if scale == 1 else f"{name}, render scale 1/{scale}"
+            results[row] = child(name, args.loops, args.warmup, scale)
+            print(f"{row}: {json.dumps(results[row])} ({time.perf_counter() - t0:.0f} s)",
+                  flush=True)
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     publish(table(results, args.loops, load, cpu_pressure()), args.write)
 

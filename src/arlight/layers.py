@@ -20,6 +20,7 @@ Core tier: imports NumPy only (Dr.Jit arrays are passed in, never imported here)
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,6 +57,35 @@ def composite(background: np.ndarray, mixed: np.ndarray, delta: np.ndarray,
         mc = m.reshape(-1, 1)[covered].astype(out_type, copy=False)
         flat[covered] = mc * mixed.reshape(flat.shape)[covered] + (1.0 - mc) * flat[covered]
     return relit
+
+
+@functools.lru_cache(maxsize=32)
+def _taps(n: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bilinear taps from ``m`` samples to ``n``, pixel centres aligned, edges clamped:
+    ``(i0, i1, w)``, output ``j`` = ``(1 − w[j])·in[i0[j]] + w[j]·in[i1[j]]``."""
+    x = np.clip((np.arange(n) + 0.5) * (m / n) - 0.5, 0.0, m - 1)
+    i0 = np.floor(x).astype(np.intp)
+    return i0, np.minimum(i0 + 1, m - 1), (x - i0).astype(np.float32)
+
+
+def upsample(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Bilinear upsampling of ``(h, w[, c])`` to ``(height, width[, c])`` float32, pixel
+    centres aligned (``x_src = (x + 0.5)·w/width − 0.5``) and edges clamped: a constant
+    image stays constant, a linear ramp stays linear. Separable, in place where it can
+    (no BLAS: its threads fight for the cores of a loaded machine)."""
+    a = np.asarray(image, np.float32)
+    for axis, n in ((0, height), (1, width)):
+        if a.shape[axis] == n:
+            continue
+        i0, i1, w = _taps(n, a.shape[axis])
+        shape = [1] * a.ndim
+        shape[axis] = n
+        lo, hi = np.take(a, i0, axis=axis), np.take(a, i1, axis=axis)
+        hi -= lo
+        hi *= w.reshape(shape)
+        lo += hi
+        a = lo
+    return a
 
 
 def _check_image(layer: str, value: Any, shape: tuple[int, ...], where: str,
@@ -143,6 +173,21 @@ class Layers:
         return Layers(background=bg, mixed=mixed, delta=delta, mask=mask,
                       composite=composite(bg, mixed, delta, mask).astype(np.float32), **kwargs)
 
+    def upsampled(self, background: np.ndarray) -> Layers:
+        """These layers (rendered at a fraction of ``background``'s size) at the size of
+        ``background``: ``mixed``, ``delta`` and ``mask`` upsampled bilinearly
+        (:func:`upsample`) and composited over ``background``, the full-size frame (so
+        pixels the insertion does not change stay the frame's own). Same stats and method;
+        ``real`` and the standard errors are dropped (they describe the small render)."""
+        h, w = background.shape[:2]
+        if self.mixed.shape[:2] == (h, w):
+            return self
+        mixed, delta, mask = (upsample(a, h, w) for a in (self.mixed, self.delta, self.mask))
+        return Layers(background, mixed, delta, mask,
+                      composite(background, mixed, delta, mask).astype(np.float32,
+                                                                         copy=False),
+                      stats=self.stats, method=self.method)
+
     def check(self, height: int, width: int, where: str = "Layers") -> None:
         """Raise a ValueError naming the first layer that is not a finite float32 array of
         ``(height, width, 3)`` (``(height, width)`` for the mask); standard errors (float32
@@ -192,4 +237,4 @@ def layers_from_passes(frame: np.ndarray, result, **stats: float) -> Layers:
                            stats={**base, **stats})
 
 
-__all__ = ["Layers", "composite", "differential_samples", "layers_from_passes"]
+__all__ = ["Layers", "composite", "differential_samples", "layers_from_passes", "upsample"]

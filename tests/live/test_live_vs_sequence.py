@@ -42,7 +42,8 @@ def test_live_equals_sequence_on_the_same_frames(clip, clip_depth, tmp_path, met
     depth = ["--depth", clip_depth] if with_depth else []
     r = run.invoke(cli.app, ["sequence", clip.scene, "--frames", clip.frames, "--poses",
                              "marker", "--calib", clip.calib, "--marker", mv.MARKER,
-                             "-m", method, "-o", seq_out, "--video", "none", *depth])
+                             "-m", method, "-o", seq_out, "--video", "none",
+                             "--render-scale", "2", *depth])
     assert r.exit_code == 0, r.output
     rec, log = tmp_path / "rec", tmp_path / "live.jsonl"
     r = run.invoke(cli.app, ["live", clip.scene, "--video", clip.frames, "--calib",

@@ -50,6 +50,32 @@ def test_frame_equals_the_one_shot_render_of_its_view(tiny):
     assert np.array_equal(res.display, codes)
 
 
+def test_render_scale_renders_the_small_view_and_composites_over_the_full_frame(tiny):
+    """``render_scale = 2``: the frame is the method's render of the view box-filtered to
+    half size (camera intrinsics halved), its layers upsampled and composited over the
+    *full-size* frame. Rejects rendering the full-size view anyway, compositing over the
+    upsampled small frame (the photograph blurred where nothing changed), and the scale
+    left out of the job's identity (a resumed run would mix scales)."""
+    from arlight.errors import InputError
+    from arlight.layers import composite, upsample
+
+    job, src = _job(tiny, render_scale=2)
+    fr = list(src)[3]
+    res = render_frame(job, fr)
+    full = job.view(fr)
+    small = get_method("reference").render(
+        get_method("reference").prepare(job.world, RenderSettings(spp=4, seed=7)),
+        full.resized(16, 12), RenderSettings(spp=4, seed=7))
+    m, d, k = (upsample(a, 24, 32) for a in (small.mixed, small.delta, small.mask))
+    want = full.camera.transfer.to_display(composite(full.frame, m, d, k).astype(np.float32))
+    assert np.array_equal(res.display, want)
+    untouched = (k == 0) & np.all(d == 0, axis=2)
+    assert untouched.any() and np.array_equal(res.display[untouched], fr.codes[untouched])
+    assert job.key != _job(tiny)[0].key
+    with pytest.raises(InputError, match="render-scale"):
+        _job(tiny, render_scale=5)
+
+
 class _Counting(BaseMethod):
     """A method that counts its hooks (its frames are the input frame)."""
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arlight.studio.adaptive import ScaleController, at_rest, drag_factors, until_rest, upsample
+from arlight.layers import upsample
+from arlight.studio.adaptive import ScaleController, at_rest, drag_factors, until_rest
 
 LADDER = (1, 2, 4, 8)
 

@@ -10,7 +10,8 @@ from dataclasses import replace
 import numpy as np
 from PIL import Image
 
-from arlight.studio.adaptive import ScaleController, upsample
+from arlight.layers import upsample
+from arlight.studio.adaptive import ScaleController
 from tests.studio.conftest import SIZE, run_clients
 
 

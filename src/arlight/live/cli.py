@@ -79,6 +79,11 @@ def live_command(
     fps: Annotated[float | None, typer.Option(
         "--fps", help="play the video at this many frames per second (default: its own, "
                       "else 30)", min=0.1, max=1000)] = None,
+    render_scale: Annotated[int, typer.Option(
+        "--render-scale", help="render at 1/K of the frames' size and composite the "
+                               "upsampled layers over the full-size frame, as the studio "
+                               "does while dragging (K must divide the size; 1: full size)",
+        min=1, max=64)] = 2,
     unpaced: Annotated[bool, typer.Option(
         "--unpaced", help="take every video frame as fast as it renders (no wall clock, no "
                           "drops; deterministic)")] = False,
@@ -194,7 +199,8 @@ def live_command(
     try:
         job, calibration, spec = live_job(sc, src.size, name, settings, calib, marker,
                                           fps_in, threads, src.name,
-                                          has_depth=depths is not None)
+                                          has_depth=depths is not None,
+                                          render_scale=render_scale)
     except BaseException:
         if isinstance(src, CameraSource):
             src.close()  # the device is free again

@@ -17,7 +17,7 @@ from pathlib import Path
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.model import ARScene
-from arlight.sequence.job import SequenceJob
+from arlight.sequence.job import SequenceJob, scaled_settings
 
 
 def with_light_estimate(scene: ARScene, light: str | Path) -> ARScene:
@@ -40,7 +40,7 @@ def with_light_estimate(scene: ARScene, light: str | Path) -> ARScene:
 
 def live_job(scene: ARScene, size: tuple[int, int], method: str, settings: RenderSettings,
              calib: str | Path, marker: str, fps: float, threads: int | None = None,
-             source_name: str = "<frames>", has_depth: bool = False
+             source_name: str = "<frames>", has_depth: bool = False, render_scale: int = 1
              ) -> tuple[SequenceJob, object, object]:
     """(job, calibration, marker spec) for frames of ``size`` (w, h) px; InputError for an
     unknown method or option, a method that cannot render the world, one that needs depth
@@ -62,8 +62,9 @@ def live_job(scene: ARScene, size: tuple[int, int], method: str, settings: Rende
         raise InputError(f"{method} needs a depth image per frame", field="--depth")
     camera = calibrated_camera(fit_camera(scene.camera, size, where), calibration, size)
     job = SequenceJob(world=scene.world, camera=camera, poses=[], objects=[], method=method,
-                      settings=settings, fps=fps, calibration=calibration, threads=threads,
-                      frames_fingerprint=f"live:{source_name}")
+                      settings=scaled_settings(method, settings, render_scale), fps=fps,
+                      calibration=calibration, threads=threads,
+                      frames_fingerprint=f"live:{source_name}", render_scale=render_scale)
     return job, calibration, spec
 
 

@@ -143,6 +143,33 @@ class World(_ShapeRoles):
         return replace(self, shapes=_posed_shapes(self.shapes, transforms))
 
 
+def box_filtered(frame: np.ndarray | None, depth: np.ndarray | None, width: int,
+                 height: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``frame`` ``(H, W, 3)`` and ``depth`` ``(H, W)`` (either may be None) box-filtered to
+    ``height × width``: the frame's mean over each ``k × k`` block, the depth's over its
+    known (finite, positive) values (NaN where none is). ``H, W`` must be the same integer
+    multiple ``k`` of ``height, width`` (a ValueError says otherwise)."""
+    ref = frame if frame is not None else depth
+    if ref is None:
+        return None, None
+    h, w = ref.shape[:2]
+    if h % height or w % width or h // height != w // width:
+        raise ValueError(f"cannot box-filter a {w}×{h} frame to {width}×{height}")
+    k = h // height
+    small_depth = None
+    if depth is not None:
+        d = depth.reshape(height, k, width, k)
+        known = np.isfinite(d) & (d > 0)
+        n = known.sum(axis=(1, 3))
+        total = np.where(known, d, 0.0).sum(axis=(1, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            small_depth = np.where(n > 0, total / n, np.nan).astype(np.float32)
+    small = None
+    if frame is not None:
+        small = frame.reshape(height, k, width, k, 3).mean(axis=(1, 3)).astype(np.float32)
+    return small, small_depth
+
+
 @dataclass
 class FrameView:
     """One frame of a world: what changes from frame to frame.
@@ -171,6 +198,14 @@ class FrameView:
             raise ValueError(f"frame shape {self.frame.shape} != camera resolution {(h, w, 3)}")
         if self.depth is not None and self.depth.shape != (h, w):
             raise ValueError(f"depth shape {self.depth.shape} != camera resolution {(h, w)}")
+
+    def resized(self, width: int, height: int) -> FrameView:
+        """This frame seen by the same camera at ``width × height`` (an integer fraction of
+        its size): frame and depth box-filtered (:func:`box_filtered`), no code values (they
+        describe the full-size frame)."""
+        frame, depth = box_filtered(self.frame, self.depth, width, height)
+        return replace(self, camera=self.camera.resized(width, height), frame=frame,
+                       frame_codes=None, depth=depth)
 
 
 @dataclass
@@ -235,9 +270,8 @@ class ARScene(_ShapeRoles):
     def resized(self, width: int, height: int) -> ARScene:
         """The scene seen by the same camera at another resolution.
 
-        The frame and depth, if any, are box-filtered (depth over its known, positive values);
-        that needs the old size to be an integer multiple of the new one (a ValueError says
-        otherwise).
+        The frame and depth, if any, are box-filtered (:func:`box_filtered`); that needs the
+        old size to be an integer multiple of the new one (a ValueError says otherwise).
         """
         cam = self.camera.resized(width, height)
         raw = copy.deepcopy(self.raw)
@@ -248,21 +282,8 @@ class ARScene(_ShapeRoles):
         out = replace(self, camera=cam, frame=None, frame_codes=None, depth=None, raw=raw)
         if self.frame is None and self.depth is None:
             return out
-        h, w = self.camera.height, self.camera.width
-        if h % height or w % width or h // height != w // width:
-            raise ValueError(f"cannot box-filter a {w}×{h} frame to {width}×{height}")
-        k = h // height
-        if self.depth is not None:
-            d = self.depth.reshape(height, k, width, k)
-            known = np.isfinite(d) & (d > 0)
-            n = known.sum(axis=(1, 3))
-            total = np.where(known, d, 0.0).sum(axis=(1, 3))
-            with np.errstate(invalid="ignore", divide="ignore"):
-                out.depth = np.where(n > 0, total / n, np.nan).astype(np.float32)
-        if self.frame is None:
-            return out
-        small = self.frame.reshape(height, k, width, k, 3).mean(axis=(1, 3))
-        return out.with_frame(small.astype(np.float32))
+        frame, out.depth = box_filtered(self.frame, self.depth, width, height)
+        return out if frame is None else out.with_frame(frame)
 
     def with_frame(self, frame: np.ndarray, codes: np.ndarray | None = None) -> ARScene:
         """The same scene with another background frame (linear radiance ``(H, W, 3)``)."""

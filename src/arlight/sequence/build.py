@@ -28,7 +28,7 @@ from arlight.methods import RenderSettings, get_method
 from arlight.scene.camera import Camera
 from arlight.scene.model import ARScene
 from arlight.sequence.frames import FrameSource, InputFrame
-from arlight.sequence.job import SequenceJob
+from arlight.sequence.job import SequenceJob, scaled_settings
 from arlight.sequence.poses import camera_poses, object_transforms
 
 if TYPE_CHECKING:
@@ -131,8 +131,8 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
               poses: str | Path = "scene", objects: str | Path | None = None,
               axes: str = "opencv", calib: str | Path | None = None,
               marker: str | None = None, fps: float | None = None, vary_seed: bool = False,
-              layers: bool = False, threads: int | None = None, split: int = 1
-              ) -> SequenceJob:
+              layers: bool = False, threads: int | None = None, split: int = 1,
+              render_scale: int = 1) -> SequenceJob:
     """A job for ``scene`` (its world and camera) over the frames of ``source``.
 
     Raises :class:`InputError` for an unknown method or option, a pose file whose frame count
@@ -171,9 +171,11 @@ def build_job(scene: ARScene, source: FrameSource, method: str, settings: Render
         raise InputError(reason, file=where, field="method")
     rate = fps if fps else (source.fps or 24.0)
     return SequenceJob(world=world, camera=camera, poses=pose_list, objects=obj,
-                       method=method, settings=settings, vary_seed=vary_seed, layers=layers,
+                       method=method, settings=scaled_settings(method, settings, render_scale),
+                       vary_seed=vary_seed, layers=layers,
                        fps=rate, calibration=calibration, threads=threads,
-                       frames_fingerprint=source.fingerprint, split=split)
+                       frames_fingerprint=source.fingerprint, split=split,
+                       render_scale=render_scale)
 
 
 __all__ = ["build_job", "calibrated_camera", "fit_camera", "marker_codes", "marker_pose",

@@ -67,6 +67,10 @@ def sequence_command(
     split: Annotated[int, typer.Option("--split", help="render each frame in this many "
                      "parts of spp/split samples (separate Ray tasks), averaged; progressive "
                      "methods only", min=1, max=MAX_SPP)] = 1,
+    render_scale: Annotated[int, typer.Option(
+        "--render-scale", help="render at 1/K of the frames' size and composite the "
+                               "upsampled layers over the full-size frames (K must divide "
+                               "the size; 1: full size)", min=1, max=64)] = 1,
     restart: Annotated[bool, typer.Option("--restart", help="replace another sequence's "
                        "frames in OUT instead of refusing (nothing is removed before every "
                        "input is checked and the first new frame is rendered)")] = False,
@@ -125,7 +129,7 @@ def sequence_command(
     job = build_job(sc, source, given["method"], settings, poses=poses, objects=objects,
                     axes=pose_axes, calib=calib, marker=marker, fps=fps, vary_seed=vary_seed,
                     layers=layers, threads=threads if ray is not None else None,
-                    split=split)
+                    split=split, render_scale=render_scale)
     job.test_hook = os.environ.get("ARLIGHT_TEST_SEQUENCE_HOOK") or None  # fault tests
     summary = run_sequence(job, source, out, RunOptions(ray=ray, workers=workers,
                                                         videos=videos, restart=restart),

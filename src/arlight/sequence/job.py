@@ -61,6 +61,11 @@ class SequenceJob:
         frames_fingerprint: identifies the input frames (for resuming).
         test_hook: folder of the fault-injection test (see :func:`_test_hook`), or None.
         split: parts each frame is rendered in (progressive methods only; 1: whole frames).
+        render_scale: render each frame at ``1/render_scale`` of its size (the view's frame
+            and depth box-filtered, :meth:`FrameView.resized`) and composite the bilinearly
+            upsampled layers over the full-size frame (:meth:`Layers.upsampled`), as the
+            studio does while the pointer drags; 1: full size. Must divide the frame size.
+            The jobs' builders give such a job :func:`scaled_settings`.
     """
 
     world: World
@@ -77,6 +82,7 @@ class SequenceJob:
     frames_fingerprint: str = ""
     test_hook: str | None = None
     split: int = 1
+    render_scale: int = 1
     parts: dict[str, str] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -87,6 +93,12 @@ class SequenceJob:
 
             raise InputError(f"must be between 1 and --spp ({self.settings.spp}), got "
                              f"{self.split}", field="--split")
+        k, cam = self.render_scale, self.camera
+        if k < 1 or cam.width % k or cam.height % k:
+            from arlight.errors import InputError
+
+            raise InputError(f"must be a whole number >= 1 dividing the frame size "
+                             f"{cam.width}×{cam.height}, got {k}", field="--render-scale")
         self.parts = self._part_hashes()
 
     @property
@@ -112,7 +124,9 @@ class SequenceJob:
             "objects": h(self.objects),  # per frame: which frame a motion belongs to counts
             "method": h(self.method, s.options),
             "settings": h(s.spp, s.max_depth, s.rr_depth, s.seed, s.spp_per_pass,
-                          self.vary_seed, *([self.split] if self.split > 1 else [])),
+                          self.vary_seed, *([self.split] if self.split > 1 else []),
+                          *([("render_scale", self.render_scale)]
+                            if self.render_scale > 1 else [])),
             "frames": self.frames_fingerprint,
             "layers": h(self.layers),
         }
@@ -257,6 +271,19 @@ def _test_hook(job: SequenceJob, index: int) -> None:
         time.sleep(120)
 
 
+def scaled_settings(method: str, settings: RenderSettings, render_scale: int
+                    ) -> RenderSettings:
+    """``settings`` for frames rendered at 1/``render_scale`` of their size: the method's
+    own reduced options for that size (:meth:`MethodSpec.drag`, what the studio renders
+    drag frames with: light maps, VPLs, volumes shrunk with the image) over the given ones;
+    unchanged at 1 or for methods without such options."""
+    from arlight.methods import get_method
+
+    spec = get_method(method).spec
+    extra = spec.drag(spec.parse_options(settings.options), render_scale)
+    return replace(settings, options={**settings.options, **extra}) if extra else settings
+
+
 def render_frame(job: SequenceJob, frame: InputFrame, depth: np.ndarray | None = None,
                  part: int = 0, pose: np.ndarray | None = None,
                  objects: dict[str, np.ndarray] | None = None) -> FrameResult:
@@ -270,7 +297,11 @@ def render_frame(job: SequenceJob, frame: InputFrame, depth: np.ndarray | None =
     t0 = time.perf_counter()
     method, state, prep = prepared(job)
     view = job.view(frame, depth, pose, objects)
-    layers = method.render(state, view, job.frame_settings(frame.index, part))
+    k = job.render_scale
+    small = view if k == 1 else view.resized(view.camera.width // k, view.camera.height // k)
+    layers = method.render(state, small, job.frame_settings(frame.index, part))
+    if k > 1:
+        layers = layers.upsampled(view.frame)
     cam = view.camera
     # the bit depth of the input frame (as arlight.layer_files.display_dtype)
     dtype = np.uint16 if view.frame_codes is not None and \

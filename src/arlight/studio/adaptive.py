@@ -4,7 +4,7 @@ when the pointer rests — pure logic, no clock and no rendering (the engine fee
 * **Scales** are integer downscale factors ``k`` of the studio's size: the frame is
   rendered at ``(W/k) × (H/k)`` (the camera through ``Camera.resized``, the photo and depth
   box-filtered by ``ARScene.resized``) and its layers upsampled back to ``W × H``
-  (:func:`upsample`, bilinear) before compositing over the full-resolution photo. The
+  (:func:`arlight.layers.upsample`, bilinear) before compositing over the full-resolution photo. The
   ladder (:func:`drag_factors`) is the powers of two that divide both sides, down to a
   height of :data:`MIN_DRAG_HEIGHT` pixels.
 * **Which scale** (:class:`ScaleController`): an exponential moving average of the
@@ -20,11 +20,8 @@ when the pointer rests — pure logic, no clock and no rendering (the engine fee
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, field
-
-import numpy as np
 
 MIN_DRAG_HEIGHT = 60
 """Smallest frame height rendered while dragging, pixels (640×480 → at most 1/8)."""
@@ -138,30 +135,3 @@ class ScaleController:
         return best
 
 
-@functools.lru_cache(maxsize=32)
-def _taps(n: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bilinear taps from ``m`` samples to ``n``, pixel centres aligned, edges clamped:
-    ``(i0, i1, w)``, output ``j`` = ``(1 − w[j])·in[i0[j]] + w[j]·in[i1[j]]``."""
-    x = np.clip((np.arange(n) + 0.5) * (m / n) - 0.5, 0.0, m - 1)
-    i0 = np.floor(x).astype(np.intp)
-    return i0, np.minimum(i0 + 1, m - 1), (x - i0).astype(np.float32)
-
-
-def upsample(image: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Bilinear upsampling of ``(h, w[, c])`` to ``(height, width[, c])`` float32, pixel
-    centres aligned (``x_src = (x + 0.5)·w/width − 0.5``) and edges clamped: a constant
-    image stays constant, a linear ramp stays linear. Separable, in place where it can
-    (no BLAS: its threads fight for the cores of a loaded machine)."""
-    a = np.asarray(image, np.float32)
-    for axis, n in ((0, height), (1, width)):
-        if a.shape[axis] == n:
-            continue
-        i0, i1, w = _taps(n, a.shape[axis])
-        shape = [1] * a.ndim
-        shape[axis] = n
-        lo, hi = np.take(a, i0, axis=axis), np.take(a, i1, axis=axis)
-        hi -= lo
-        hi *= w.reshape(shape)
-        lo += hi
-        a = lo
-    return a

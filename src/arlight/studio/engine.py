@@ -64,7 +64,7 @@ from arlight.progressive import Accumulator, frame_settings
 from arlight.scene.load import PATH_KEYS
 from arlight.scene.model import ARScene
 from arlight.studio import imaging
-from arlight.studio.adaptive import ScaleController, at_rest, drag_factors, until_rest, upsample
+from arlight.studio.adaptive import ScaleController, at_rest, drag_factors, until_rest
 from arlight.studio.pose import ObjectPose
 from arlight.studio.protocol import Message, ProtocolError
 
@@ -798,20 +798,9 @@ class Engine:
         return self.scale_controller(method).choose()
 
     def _full_size(self, layers: Layers, factor: int) -> Layers:
-        """``layers`` rendered at 1/``factor`` of the size as full-size layers: mixed, delta
-        and mask upsampled bilinearly (:func:`arlight.studio.adaptive.upsample`), the
-        composite recomputed over the full-size photo."""
-        from arlight.layers import composite
-
-        if factor == 1:
-            return layers
-        h, w = self.height, self.width
-        mixed, delta, mask = (upsample(a, h, w) for a in (layers.mixed, layers.delta,
-                                                             layers.mask))
-        return Layers(self.view.frame, mixed, delta, mask,
-                      composite(self.view.frame, mixed, delta, mask).astype(np.float32,
-                                                                             copy=False),
-                      stats=layers.stats, method=layers.method)
+        """``layers`` rendered at 1/``factor`` of the size as full-size layers
+        (:meth:`arlight.layers.Layers.upsampled` over the full-size photo)."""
+        return layers if factor == 1 else layers.upsampled(self.view.frame)
 
     def _render(self, s: Session, refine: bool, settle: bool = False) -> None:
         """Render the session's newest state and send it: a new version (at the adaptive
