@@ -67,6 +67,7 @@ from arlight.realtime.ibl_shading import (
     diffuse_weights,
     environment_map,
     prefilter_ggx,
+    probe_drag_options,
     probe_for_world,
     specular_occlusion,
     specular_split_sum,
@@ -123,6 +124,7 @@ SPEC = MethodSpec(
     options=OPTIONS,
     capabilities=Capabilities(interactive=True, materials=MATERIALS,
                               lights=REDUCIBLE_LIGHTS),
+    drag_options=probe_drag_options,
 )
 
 
@@ -209,14 +211,16 @@ def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options
     object-space occluder and occlusion field are looked up through the new pose
     (:func:`~arlight.realtime.oof.move_occluder`, :func:`~arlight.realtime.oof.pose_field`;
     with several virtual shapes the world-space occluder's shapes move in place and the
-    world-space field is sampled again); lights, environment and tables are kept. Bitwise
-    the data :func:`prepare` makes of the posed world; None (nothing changed) when a real
-    shape moves."""
+    world-space field is sampled again); lights, environment and tables are kept, the
+    bounce probe traced again (kept with ``probe_follow`` off). Bitwise the data
+    :func:`prepare` makes of the posed world (with ``probe_follow`` on); None (nothing
+    changed) when a real shape moves."""
     moved = place_occluded(data.views, data.occluder, world, data.world, transforms)
     if moved is None:
         return None
     posed, occluder = moved
-    ambient = data.ambient_env + _probe_sh(posed, data.views, data.env_map, options)
+    ambient = (data.ambient_env + _probe_sh(posed, data.views, data.env_map, options)
+               if options.probe_follow else data.ambient)
     return replace(data, world=posed, occluder=occluder, ambient=ambient,
                    field=pose_field(data.field, posed, options),
                    ao_distance=_ao_distance(posed, data.views, options))

@@ -60,6 +60,7 @@ from arlight.realtime.ibl_shading import (
     MipEnvironment,
     SpecularTables,
     environment_map,
+    probe_drag_options,
     probe_for_world,
     rot_y,
     specular_tables,
@@ -118,6 +119,7 @@ SPEC = MethodSpec(
                               # vertices (realtime.prt_shading.object_mesh)
                               virtual_shapes=frozenset({"mesh", "box", "rectangle"}),
                               lights=REDUCIBLE_LIGHTS),
+    drag_options=probe_drag_options,
 )
 
 
@@ -208,7 +210,8 @@ def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options
     posed, occluder = moved
     objects = [replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
                for o in data.objects]
-    light = data.distant + _probe_sh(posed, data.views, options)
+    light = (data.distant + _probe_sh(posed, data.views, options) if options.probe_follow
+             else data.light)
     return replace(data, world=posed, objects=objects, light=light, occluder=occluder,
                    field=pose_field(data.field, posed, options))
 

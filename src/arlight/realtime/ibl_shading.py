@@ -172,8 +172,19 @@ PROBE_OPTIONS: dict[str, Field] = {
                    "real scene (bounce light, hidden sky; bounce_probe)"),
     "probe_spp": Field("int", 16, "path-traced rays per texel of the 16×32 probe", "",
                        min=1, max=1024),
+    "probe_follow": Field("bool", True, "trace the probe again at every pose of the objects "
+                          "(off: the probe of the pose the state was prepared in is kept — "
+                          "an approximation the studio's drag frames use)"),
 }
 """The options of :func:`probe_for_world`, shared by ``ibl`` and ``prt``."""
+
+
+def probe_drag_options(options, factor: int) -> dict[str, bool]:
+    """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32;
+    ``MethodSpec.drag_options`` of ``ibl`` and ``prt``): the bounce probe is not traced
+    again at each pose (``probe_follow`` off) — its cost (~0.1 s, mostly tracing Mitsuba's
+    path integrator) does not shrink with the image; the frame at rest traces it."""
+    return {"probe_follow": False}
 
 
 def probe_for_world(world: World, views, env: np.ndarray | None, options,
@@ -623,7 +634,8 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
 
 
 __all__ = ["DFG_SIZE", "ENV_HEIGHT", "MIRROR_ALPHA", "PREFILTER_LEVELS", "PROBE_HEIGHT",
-           "PROBE_OPTIONS", "BounceProbe", "GlossyLanes", "bounce_probe", "probe_for_world",
+           "PROBE_OPTIONS", "BounceProbe", "GlossyLanes", "bounce_probe", "probe_drag_options",
+           "probe_for_world",
            "MipEnvironment", "SpecularTables", "ambient_occlusion", "dfg_lookup", "dfg_table",
            "diffuse_weights", "environment_map", "ggx_d", "ggx_reflectance", "hammersley",
            "local_frame", "pbr_lobes", "prefilter_ggx", "rot_y", "schlick", "smith_g1",
