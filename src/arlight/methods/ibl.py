@@ -284,8 +284,9 @@ class IBLMethod(BaseMethod):
 
     def relit(self, data: IBLData, world: World, options: Options) -> IBLData | None:
         """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
-        place, the lights reduced again and the ambient SH projected again; the occluder,
-        its occlusion field, the environment and the material tables are kept. None
+        place, the lights reduced again, the ambient SH projected again and the bounce probe
+        traced again (it sees the moved lamps); the occluder, its occlusion field, the
+        environment and the material tables are kept. None
         (prepare again) when a distant light changed: the environment is made from it."""
         from arlight.methods.base import distant_changed, relight_views
 
@@ -293,8 +294,11 @@ class IBLMethod(BaseMethod):
                 data.views, data.world.lights, world.lights):
             return None
         lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
-        return replace(data, world=world, lights=lights, ambient=ambient_sh(
-            world, lights, options.sh_order, environment_map(world)))
+        ambient_env = ambient_sh(world, lights, options.sh_order, data.env_map)
+        # the probe sees the real scene, whose lamps just moved in place: traced again
+        return replace(data, world=world, lights=lights, ambient_env=ambient_env,
+                       ambient=ambient_env + _probe_sh(world, data.views, data.env_map,
+                                                       options))
 
     def render_view(self, data: IBLData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -273,16 +273,19 @@ class PRTMethod(BaseMethod):
 
     def relit(self, data: PRTData, world: World, options: Options) -> PRTData | None:
         """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
-        place and the lights reduced again; the transfer, the light SH (distant lights
-        only), the occluder, its occlusion field and the glossy tables are kept. None
+        place, the lights reduced again and the bounce probe traced again (it sees the moved
+        lamps); the transfer, the distant lights' SH, the occluder, its occlusion field and
+        the glossy tables are kept. None
         (prepare again) when a distant light changed."""
         from arlight.methods.base import distant_changed, relight_views
 
         if distant_changed(data.world.lights, world.lights) or not relight_views(
                 data.views, data.world.lights, world.lights):
             return None
+        # the probe sees the real scene, whose lamps just moved in place: traced again
         return replace(data, world=world, lights=reduce_lights(
-            world, env_lights=options.env_lights, area_grid=options.area_grid))
+            world, env_lights=options.env_lights, area_grid=options.area_grid),
+            light=data.distant + _probe_sh(world, data.views, options))
 
     def render_view(self, data: PRTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
