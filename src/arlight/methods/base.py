@@ -176,13 +176,20 @@ class BaseMethod(ABC):
         pose), preparing from scratch where ``move`` cannot; its renders must then be
         bitwise those of ``prepare(state.world.posed(transforms))``."""
         def prepare() -> Any:
-            return self.prepare_world(state.world.posed(transforms), state.options, settings)
+            return self.prepare_posed(state, transforms, settings)
 
         if not self.incremental_pose:
             return prepare()
         return posed_data(state, transforms,
                           lambda data: self.move(data, state.world, transforms, state.options),
                           prepare)
+
+    def prepare_posed(self, state: Prepared, transforms: dict[str, np.ndarray],
+                      settings: RenderSettings) -> Any:
+        """The data of ``state.world.posed(transforms)`` prepared from scratch (what
+        :meth:`pose` falls back to): ``prepare_world`` of the posed world; a method whose
+        state carries more than its world (e.g. a light given from outside) overrides it."""
+        return self.prepare_world(state.world.posed(transforms), state.options, settings)
 
     def move(self, data: Any, world: World, transforms: dict[str, np.ndarray],
              options: Options) -> Any | None:

@@ -276,6 +276,17 @@ class NearFieldMethod(BaseMethod):
 
     incremental_pose = True
 
+    def prepare_posed(self, state: Prepared, transforms: dict[str, np.ndarray],
+                      settings: RenderSettings) -> NearFieldData:
+        """The posed world prepared again (where :meth:`move` cannot, e.g. a virtual
+        primitive) with the state's light and server — not a capture of its own: the light
+        of the last pose (``with_light`` sets it), its SH re-traced where the server made
+        it."""
+        data = state.last if state.last is not None else state.data
+        world = state.world.posed(transforms)
+        return prepare(world, state.options, _server_light(data.server, world, data.light),
+                       data.server)
+
     def move(self, data: NearFieldData, world: World, transforms: dict[str, np.ndarray],
              options: Options) -> NearFieldData | None:
         """``data`` (prepared for ``world`` in any pose) moved in place to
