@@ -430,19 +430,22 @@ def _ibl_and_reference(shapes: list[dict]):
 
 
 def test_ibl_approximates_pbr_as_diffuse_plus_ggx():
-    """``ibl`` shades pbr as one diffuse and one GGX lobe: a metallic pbr is exactly the
-    ``roughconductor`` with α = roughness² and reflectance = base colour; on the textured
-    pair its error against ``reference`` (object pixels' mean) is no larger than ibl's own
-    error on the same scene with diffuse (textured) + roughconductor materials (+24 % red
-    on this scene, ibl's approximations). Rejects: α = roughness (not squared), the base
-    colour's diffuse left on for metals, a metal's F0 not its base colour, a metal shaded
-    without its GGX lobe. Not rejected (tried): the dielectric 4 % F0 dropped — it lies
-    within ibl's own error here."""
-    pbr_ball = _model(GLB, select="ball")
-    rc_ball = _model(GLB, select="ball", material={
-        "type": "roughconductor", "alpha": 0.25 ** 2, "reflectance": GOLD})
-    assert np.array_equal(_ibl_and_reference(pbr_ball)[0].composite,
-                          _ibl_and_reference(rc_ball)[0].composite)
+    """``ibl`` shades pbr as one diffuse and one GGX lobe: a metallic pbr has no diffuse
+    lobe, α = roughness² and Schlick F0 = its base colour (F90 = 1, as Mitsuba's
+    ``principled``; a ``roughconductor`` has F90 = its reflectance, so the two no longer
+    render identically since the split sum); on the textured pair its error against
+    ``reference`` (object pixels' mean) is no larger than ibl's own error on the same scene
+    with diffuse (textured) + roughconductor materials (ibl's approximations). Rejects:
+    α = roughness (not squared), the base colour's diffuse left on for metals, a metal's F0
+    not its base colour, a metal shaded without its GGX lobe. Not rejected (tried): the
+    dielectric 4 % F0 dropped — it lies within ibl's own error here."""
+    from arlight.realtime.ibl_shading import pbr_lobes
+
+    ball = parse_scene(_scene(_model(GLB, select="ball"))).world.virtual_shapes[0]
+    assert ball.material.type == "pbr" and ball.material.params["metallic"] == 1.0
+    diffuse, alpha, f0 = pbr_lobes(ball.material.params)
+    assert diffuse == 0.0 and alpha == pytest.approx(0.25 ** 2)
+    assert np.allclose(f0, GOLD, atol=2e-3)
     ibl, ref = _ibl_and_reference(_model(GLB))
     substitute = [dict(HAND_SHAPES[0], material={"type": "diffuse",
                                                   "texture": str(HAND / "base_color.png")}),
@@ -452,7 +455,11 @@ def test_ibl_approximates_pbr_as_diffuse_plus_ggx():
     mask = ref.mask > 0.99
     err = np.abs(ibl.mixed[mask].mean(0) / ref.mixed[mask].mean(0) - 1)
     err0 = np.abs(ibl0.mixed[mask].mean(0) / ref0.mixed[mask].mean(0) - 1)
-    assert np.all(err <= err0 + 0.05), (err, err0)
+    # split sum: pbr's grazing Fresnel rises to 1 (F90), the substitute's stays at its
+    # reflectance, so the two approximations differ by a few per cent (measured 0.18–0.19
+    # against 0.13–0.15); a metal without its GGX lobe or with its diffuse lobe on is off
+    # by far more
+    assert np.all(err <= err0 + 0.06), (err, err0)
 
 
 def test_sequence_moves_a_model_by_its_entry_name(tmp_path):
