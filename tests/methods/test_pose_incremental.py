@@ -93,8 +93,12 @@ def _hits(views, scene) -> dict[str, np.ndarray]:
     cam = scene.camera
     v, u = np.mgrid[0:cam.height, 0:cam.width]
     o, d = cam.pixel_rays(np.stack([u.ravel() + 0.5, v.ravel() + 0.5], axis=1))
-    ray = mi.Ray3f(mi.Point3f(*(o.T.astype(np.float32))),
-                   mi.Vector3f(*(d.T.astype(np.float32))))
+    return view_hits(views, mi.Ray3f(mi.Point3f(*(o.T.astype(np.float32))),
+                                     mi.Vector3f(*(d.T.astype(np.float32)))))
+
+
+def view_hits(views, ray) -> dict[str, np.ndarray]:
+    """Per ray: distance, normal and hit shape index in the real and the mixed view."""
     out = {}
     for name in ("real", "mixed"):
         view = getattr(views, name)

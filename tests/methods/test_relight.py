@@ -23,6 +23,7 @@ from tests.methods.test_pose_incremental import (  # noqa: F401
     demo,
     nearfield_light,
     options_for,
+    view_hits,
 )
 
 RELIT = ["dir", "dlpv", "dvct", "ibl", "prt", "onepass", "reference", "probeless",
@@ -115,17 +116,10 @@ def _up_hits(views) -> dict[str, np.ndarray]:
 
     x, z = np.meshgrid(np.linspace(0.1, 0.8, 24), np.linspace(-0.05, 0.55, 20))
     n = x.size
-    ray = mi.Ray3f(mi.Point3f(x.ravel().astype(np.float32), np.full(n, 0.3, np.float32),
-                              z.ravel().astype(np.float32)),
-                   mi.Vector3f(np.zeros(n, np.float32), np.ones(n, np.float32),
-                               np.zeros(n, np.float32)))
-    out = {}
-    for name in ("real", "mixed"):
-        view = getattr(views, name)
-        si = view.scene.ray_intersect(ray)
-        out[name] = np.concatenate([np.array(si.t)[:, None], np.array(si.n).T,
-                                    np.array(view.hit_shape(si))[:, None]], axis=1)
-    return out
+    return view_hits(views, mi.Ray3f(
+        mi.Point3f(x.ravel().astype(np.float32), np.full(n, 0.3, np.float32),
+                   z.ravel().astype(np.float32)),
+        mi.Vector3f(np.zeros(n, np.float32), np.ones(n, np.float32), np.zeros(n, np.float32))))
 
 
 def test_relight_views_moves_the_lamp_geometry(demo):  # noqa: F811
