@@ -105,6 +105,11 @@ OPTIONS: dict[str, Field] = {
                       "texels", min=1, max=16384),
     "dampening": Field("bool", True, "directional-derivative dampening of shadow bleeding "
                        "(Franke §4.4)"),
+    "dampen_bounce": Field("bool", False, "apply the dampening to the VPLs' (bounce) light "
+                           "too, in one V_Δ propagation as before issue #33 (the bounce then "
+                           "came out at 0.26–0.46× a path-traced one-bounce render; off: the "
+                           "direct lobes and the VPLs propagate separately, only the direct "
+                           "lobes damped; docs/methods/dlpv.md)"),
     "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
                            "§4.3.2); off: indirect change only"),
     "calibrate": Field("float", CALIBRATE, "extra divisor of V_Δ reads on top of the derived "
@@ -323,15 +328,37 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
     with timer.stage("inject_delta_indirect"):
         v_delta = SHVolume.zeros(grid)
         injected = inject_delta(v_delta, pairs, direct=False, scales=k)
+    damp_bounce, damp_direct = delta_dampening(options)
+    split = options.direct_inject and damp_bounce != damp_direct
+    v_direct = SHVolume.zeros(grid) if split else v_delta
     if options.direct_inject:
         with timer.stage("inject_delta_direct"):
-            inject_delta(v_delta, pairs, direct=True, indirect=False, scales=k)
+            inject_delta(v_direct, pairs, direct=True, indirect=False, scales=k)
     trans = data.transmittance
     with timer.stage("propagate_rho"):
         v_rho = propagate(v_rho, options.steps, options.dampening, transmittance=trans)
     with timer.stage("propagate_delta"):
-        v_delta = propagate(v_delta, options.steps, options.dampening, transmittance=trans)
+        if split:
+            bounce = propagate(v_delta, options.steps, damp_bounce, transmittance=trans)
+            direct = propagate(v_direct, options.steps, damp_direct, transmittance=trans)
+            v_delta = SHVolume(grid, [a + b for a, b in zip(bounce.coeffs, direct.coeffs,
+                                                            strict=True)])
+        else:
+            damp = damp_direct if options.direct_inject else damp_bounce
+            v_delta = propagate(v_delta, options.steps, damp, transmittance=trans)
     return Volumes(v_delta, v_rho, injected)
+
+
+def delta_dampening(options: Options) -> tuple[bool, bool]:
+    """Whether ``V_Δ``'s VPLs (bounce) and its direct lobes are damped (issue #33):
+    ``(dampening and dampen_bounce, dampening)``. The dampening (§4.4) is there against
+    shadow bleeding; with the VPLs in the direct lobes' volume its ratios are dominated by the
+    direct antiradiance and the subtracted ``R_µ`` texels next to the object, and it removed
+    55–75 % of the object's bounce (tests/methods/test_dlpv_reference.py). When the two
+    differ the VPLs and the direct lobes propagate as two volumes whose sum is read as one
+    (without dampening propagation is linear: the VPLs' volume is the bounce ``V_Δ`` would
+    carry alone)."""
+    return bool(options.dampening and options.dampen_bounce), bool(options.dampening)
 
 
 def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Color3f]:
@@ -420,4 +447,4 @@ class DLPVMethod(BaseMethod):
 __all__ = ["CALIBRATE", "CALIBRATE_RHO", "DLPVData", "DLPVMethod", "OPTIONS", "RealMaps",
            "SPEC", "Volumes", "build_volumes", "compose", "geometry_volume", "inject_delta",
            "inject_regular", "injected_count", "injection_scales", "prepare", "read_scales",
-           "real_maps", "rsm_pair"]
+           "real_maps", "rsm_pair", "delta_dampening"]
