@@ -1,0 +1,117 @@
+"""``dlpv``'s one-bounce light against Mitsuba's path tracer (issue #33): the light the
+floor and wall throw on the virtual cube (``V_ρ``), the cube's red bounce on the floor and
+the floor ring's loss of bounce light (``V_Δ``'s VPLs), against ``path`` (max_depth 3)
+minus ``path`` (max_depth 2) — independent code, one bounce exactly. Same box scene and
+regions as ``tests/methods/test_dir_reference.py``.
+
+The volume is ``VOLUME_SCALE`` (4) × the cube's edge so that the floor ring lies inside it:
+at Franke's 2 only 25 of the ring's 210 pixels do, and the LPV is zero outside its volume —
+a cut-off by design, not a radiometric error (docs/methods/dlpv.md)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.ndimage import binary_dilation, binary_erosion
+
+from arlight.methods.dlpv import SPEC, build_volumes, prepare, shade
+from arlight.realtime.gbuffer import render_gbuffer
+from arlight.realtime.sh_volume import query_irradiance
+from tests.methods.test_dir_reference import one_bounce
+from tests.methods.test_dlpv import box_scene, make
+
+W, H = 40, 30
+VOLUME_SCALE = 4.0
+BAND = 0.3
+"""Tolerance on each region mean's ratio: an LPV blurs the bounce over 2–3 cells and its
+response to one VPL varies by ±25 % with direction and distance (``point_response``)."""
+
+
+def _image(c) -> np.ndarray:
+    """A Dr.Jit colour array of the G-buffer's lanes as ``(H, W, 3)`` float64."""
+    return np.array(c, np.float64).reshape(3, -1).T.reshape(H, W, 3)
+
+
+@pytest.fixture(scope="module")
+def reference():
+    """The box scene, its G-buffer, the regions (cube's pixels eroded by one pixel; the
+    floor ring 2–6 px around the cube) and Mitsuba's one-bounce images of the mixed scene
+    and of the change (mixed − real)."""
+    scene = make(box_scene(w=W, h=H))
+    data = prepare(scene.world, SPEC.parse_options({"volume_scale": VOLUME_SCALE}))
+    gb = render_gbuffer(data.views.mixed, scene.camera, 1, 0)
+    role = np.array(gb.role).reshape(H, W)
+    virt = binary_erosion(role == 1, iterations=1)
+    ring = (binary_dilation(role == 1, iterations=6) & ~binary_dilation(role == 1, iterations=1)
+            & (role == 0))
+    mixed = one_bounce(data.views.mixed, scene.camera)
+    real = one_bounce(data.views.real, scene.camera)
+    return scene, gb, virt, ring, mixed, mixed - real
+
+
+def _ratios(ref, opts: dict) -> dict[str, float]:
+    """dlpv / Mitsuba for: ``cube_red``, ``cube_green`` — ``V_ρ``'s indirect light on the
+    cube (green: the white floor's and wall's bounce alone, red also the cube's own VPLs);
+    ``bleed`` — the ring's red − green change at the given options (the light is white, so
+    the direct lobes cancel in red − green: the cube's red bounce); ``loss`` — the ring's
+    green change of ``V_Δ``'s VPLs alone (``direct_inject`` off)."""
+    scene, gb, virt, ring, mixed, delta = ref
+    rv = mixed[:, virt].mean(axis=1).mean(axis=0)
+    rr = delta[:, ring].mean(axis=1).mean(axis=0)
+    alb = _image(gb.albedo) / math.pi
+    out = {}
+    for direct in (True, False):
+        o = SPEC.parse_options({"volume_scale": VOLUME_SCALE, **opts,
+                                "direct_inject": direct})
+        data = prepare(scene.world, o)
+        pos = _image(gb.position)
+        assert np.all((pos[ring] > data.grid.origin)
+                      & (pos[ring] < data.grid.origin + data.grid.size))
+        vols = build_volumes(data, o)
+        gr = _image(shade(data, gb, vols)[1])[ring].mean(axis=0)
+        if direct:
+            out["bleed"] = (gr[0] - gr[1]) / (rr[0] - rr[1])
+            half = 0.5 * data.grid.cell
+            e = _image(query_irradiance(vols.rho, gb.position + gb.normal * half, gb.normal))
+            gv = (e * alb * data.rho_scale)[virt].mean(axis=0)
+            out["cube_red"], out["cube_green"] = gv[0] / rv[0], gv[1] / rv[1]
+        else:
+            out["loss"] = gr[1] / rr[1]
+    return out
+
+
+def _within(r: dict[str, float]) -> bool:
+    return all(abs(v - 1.0) <= BAND for v in r.values())
+
+
+def test_reference_standard_errors_are_small(reference):
+    """The reference's standard errors (over its 8 passes) are ≤ 3 % of the four means."""
+    _, _, virt, ring, mixed, delta = reference
+    for img, reg, ch in ((mixed, virt, [0]), (mixed, virt, [1]), (delta, ring, [1]),
+                         (delta, ring, [0, 1])):
+        per = img[:, reg].mean(axis=1)
+        x = per[:, ch[0]] - (per[:, ch[1]] if len(ch) == 2 else 0.0)
+        assert x.std(ddof=1) / math.sqrt(len(per)) <= 0.03 * abs(x.mean())
+
+
+def test_one_bounce_matches_path_traced_reference(reference):
+    """dlpv at its defaults (32³, 32 steps, dampening of the direct lobes only): each of the
+    cube's indirect light (red 1.27×, green 0.75× measured), the cube's red bounce on the
+    floor ring (0.92×) and the ring's loss of bounce light (0.96×) within 30 % of Mitsuba's.
+
+    Rejects the code before issue #33's fix, which damped the VPLs in the direct lobes'
+    volume (``dampen_bounce``: red bounce 0.26×, loss 0.46×), VPLs at Φ instead of Φ/π
+    (3.1×) or without the point-response normalisation (cube's green 0.66×, mutation-checked).
+    A missing albedo at the (0.8 white) floor (1.25×) is within the band: not rejected."""
+    r = _ratios(reference, {})
+    assert _within(r), r
+
+
+def test_damped_bounce_is_rejected(reference):
+    """The check above is able to fail: with the VPLs damped together with the direct lobes
+    (today's code before the fix) the bounce misses the band."""
+    r = _ratios(reference, {"dampen_bounce": True})
+    assert not _within(r), r
+    assert r["bleed"] < 1.0 - BAND, r
