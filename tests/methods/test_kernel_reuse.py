@@ -24,7 +24,7 @@ def demo():
     return load_scene(DEMO_DIR / "scene.toml").resized(64, 48)
 
 
-@pytest.mark.parametrize("name", ["dir", "dlpv", "dvct", "ibl", "prt", "onepass"])
+@pytest.mark.parametrize("name", ["dir", "dlpv", "dvct", "ibl", "prt", "nearfield", "onepass"])
 def test_moving_frames_reuse_the_compiled_kernels(demo, name):
     method = get_method(name)
     state = method.prepare(demo.world)

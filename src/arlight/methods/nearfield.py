@@ -189,7 +189,8 @@ def _server_light(server, world: World, light: NearFieldLight) -> NearFieldLight
     if server is None or server.last is None:
         return light
     probes = IndirectProbes(server.mesh.vertices, server.mesh.faces, server.layout,
-                            virtual_objects(world), server.settings.cube_resolution)
+                            virtual_objects(world), server.settings.cube_resolution,
+                            server.proxy_scene)
     v = server.last.vals
     sh = probes.coefficients(server.last.indirect_atlas, np.zeros_like(light.sh),
                              (v.positions, v.normals, v.intensity, v.area))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mitsuba as mi
 import numpy as np
 
 from arlight.nearfield import cubemap
@@ -83,21 +84,27 @@ class IndirectProbes:
         layout: the atlas layout (hit → atlas coordinates).
         objects: the virtual objects, in the order of ``NearFieldLight.sh``.
         res: cube-map side (32).
+        proxy_scene: :func:`~arlight.nearfield.raytrace.mesh_scene` of the proxy mesh alone,
+            if the caller has it (the server's): reused, not built again — it is all an
+            object's cube map sees when it is the only object, so probes re-made for a
+            moved object (``methods.nearfield``'s pose) build no scene (issue #32).
     """
 
     def __init__(self, proxy_vertices: np.ndarray, proxy_faces: np.ndarray,
-                 layout: AtlasLayout, objects: list[VirtualObject], res: int = 32) -> None:
+                 layout: AtlasLayout, objects: list[VirtualObject], res: int = 32,
+                 proxy_scene: mi.Scene | None = None) -> None:
         self.layout = layout
         self.objects = objects
         self.res = int(res)
         proxy = (proxy_vertices, proxy_faces)
-        self.scenes = [mesh_scene([proxy] + [(o.vertices, o.faces) for j, o in
-                                             enumerate(objects) if j != i])
-                       for i in range(len(objects))]
+        self.proxy_scene = mesh_scene([proxy]) if proxy_scene is None else proxy_scene
         self.others = [[j for j in range(len(objects)) if j != i] for i in range(len(objects))]
-        self.proxy_scene = mesh_scene([proxy])
+        self.scenes = [mesh_scene([proxy] + [(objects[j].vertices, objects[j].faces)
+                                             for j in others]) if others else self.proxy_scene
+                       for others in self.others]
+        # only direct_at (several objects) traces the objects themselves
         self.virtual_scene = (mesh_scene([(o.vertices, o.faces) for o in objects])
-                              if objects else None)
+                              if len(objects) > 1 else None)
         if len(objects) > 1:
             for o in objects:
                 if o.transfer is None:

@@ -214,7 +214,8 @@ class NearFieldServer:
         self.world = world
         self.objects = virtual_objects(world)
         self.probes = IndirectProbes(self.mesh.vertices, self.mesh.faces, self.layout,
-                                     self.objects, self.settings.cube_resolution)
+                                     self.objects, self.settings.cube_resolution,
+                                     self.proxy_scene)
         self._sh = np.zeros((len(self.objects), 9, 3))
 
     def set_object_transforms(self, transforms: Mapping[str, np.ndarray]) -> None:

@@ -162,31 +162,42 @@ def frusta(light: NearFieldLight, sphere: tuple[np.ndarray, float]) -> Frusta:
 def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
                 sphere: tuple[np.ndarray, float], size: int = 128) -> ShadowMaps:
     """Real and virtual depth maps of every VAL over the virtual objects' bounding
-    ``sphere`` (centre, radius)."""
+    ``sphere`` (centre, radius).
+
+    Texel ``(r, c)`` of VAL ``j``'s maps holds the distance (m) from the frustum apex
+    ``o_j`` to the first hit of ``proxy`` (real) or ``virtual`` along
+    ``normalize(a_j + tan_half_j (g_c u_j + g_r v_j))``, ``g_i = (i + ½)/S · 2 − 1``
+    (``inf``: no hit, or a VAL without frustum). Traced in one Dr.Jit pass of ``M·S²``
+    lanes (no NumPy ray set-up: a moving object redraws the maps every frame, issue #32)."""
+    from arlight.jit import aligned, columns
+
     fr = frusta(light, sphere)
     M, S = light.count, int(size)
-    g = (np.arange(S) + 0.5) / S * 2.0 - 1.0
-    gy, gx = np.meshgrid(g, g, indexing="ij")
-    real = np.full(M * S * S, np.inf, np.float32)
-    virt = np.full(M * S * S, np.inf, np.float32)
-    live = [j for j in range(M) if fr.tan_half[j] > 0]
-    if live:
-        dirs = []
-        for j in live:
-            w = fr.axis[j][None] + fr.tan_half[j] * (gx.reshape(-1, 1) * fr.u[j][None]
-                                                    + gy.reshape(-1, 1) * fr.v[j][None])
-            dirs.append(w / np.linalg.norm(w, axis=1, keepdims=True))
-        o = np.concatenate([np.repeat(fr.origin[j][None], S * S, 0) for j in live])
-        d = np.concatenate(dirs)
-        idx = np.concatenate([np.arange(j * S * S, (j + 1) * S * S) for j in live])
-        ray = mi.Ray3f(mi.Point3f(*[o[:, i].astype(np.float32) for i in range(3)]),
-                       mi.Vector3f(*[d[:, i].astype(np.float32) for i in range(3)]))
-        for scene, out in ((proxy, real), (virtual, virt)):
-            pi = scene.ray_intersect_preliminary(ray)
-            t = np.asarray(dr.select(pi.is_valid(), pi.t, dr.inf), np.float32)
-            out[idx] = t
-    return ShadowMaps(fr.origin, fr.axis, fr.u, fr.v, fr.tan_half, mi.Float(real),
-                      mi.Float(virt), S)
+    if not np.any(fr.tan_half > 0):
+        return ShadowMaps(fr.origin, fr.axis, fr.u, fr.v, fr.tan_half,
+                          dr.full(mi.Float, dr.inf, M * S * S),
+                          dr.full(mi.Float, dr.inf, M * S * S), S)
+    lane = dr.arange(mi.UInt32, M * S * S)
+    j = lane // (S * S)
+    texel = lane - j * (S * S)
+    row = texel // S
+    col = texel - row * S
+
+    def per_val(a: np.ndarray) -> mi.Vector3f:
+        return dr.gather(mi.Vector3f, mi.Vector3f(*columns(a, np.float32)), j)
+
+    tan_half = dr.gather(mi.Float, mi.Float(aligned(fr.tan_half, np.float32)), j)
+    live = tan_half > 0.0
+    gx = (mi.Float(col) + 0.5) * (2.0 / S) - 1.0
+    gy = (mi.Float(row) + 0.5) * (2.0 / S) - 1.0
+    d = dr.normalize(per_val(fr.axis) + tan_half * (gx * per_val(fr.u) + gy * per_val(fr.v)))
+    ray = mi.Ray3f(mi.Point3f(per_val(fr.origin)), d)
+    depth = []
+    for scene in (proxy, virtual):
+        pi = scene.ray_intersect_preliminary(ray, active=live)
+        depth.append(dr.select(pi.is_valid(), pi.t, dr.inf))
+    dr.eval(*depth)
+    return ShadowMaps(fr.origin, fr.axis, fr.u, fr.v, fr.tan_half, depth[0], depth[1], S)
 
 
 TILE = 8
