@@ -359,8 +359,10 @@ def composite_metrics(composite: np.ndarray, photo: SyntheticPhoto, transfer,
 def onepass_ladder(scene: SuiteScene, photo: SyntheticPhoto, config: EvalConfig,
                    options: dict[str, Any] | None, max_seconds: float) -> list[LadderPoint]:
     """``onepass`` on ``scene`` at each spp of ``config.ladder_spp`` (the world prepared once;
-    per spp one warm-up and one timed frame), stopped after the first frame slower than
-    ``max_seconds``; empty when onepass cannot render the scene."""
+    per spp one warm-up and ``config.repeats`` timed frames, their median time — timed as
+    the methods' cells are, so a load spike during one frame does not decide an equal-time
+    comparison), stopped after the first spp slower than ``max_seconds``; empty when
+    onepass cannot render the scene."""
     render = get_method(LADDER_METHOD)
     ar = scene.ar_scene(photo)
     if render.spec.unsupported_reason(ar, ar):
@@ -375,9 +377,12 @@ def onepass_ladder(scene: SuiteScene, photo: SyntheticPhoto, config: EvalConfig,
     points = []
     for spp in sorted(config.ladder_spp):
         render.render(state, ar.view, settings(spp))  # warm-up: kernels compile per spp
-        t0 = time.perf_counter()
-        out = render.render(state, ar.view, settings(spp))
-        dt = time.perf_counter() - t0
+        times = []
+        for _ in range(config.repeats):
+            t0 = time.perf_counter()
+            out = render.render(state, ar.view, settings(spp))
+            times.append(time.perf_counter() - t0)
+        dt = statistics.median(times)
         points.append(LadderPoint(spp, dt, composite_metrics(out.composite, photo, tr,
                                                              region)))
         if dt > max_seconds:
