@@ -105,11 +105,11 @@ OPTIONS: dict[str, Field] = {
                       "texels", min=1, max=16384),
     "dampening": Field("bool", True, "directional-derivative dampening of shadow bleeding "
                        "(Franke §4.4)"),
-    "dampen_bounce": Field("bool", False, "apply the dampening to the VPLs' (bounce) light "
-                           "too, in one V_Δ propagation as before issue #33 (the bounce then "
-                           "came out at 0.26–0.46× a path-traced one-bounce render; off: the "
-                           "direct lobes and the VPLs propagate separately, only the direct "
-                           "lobes damped; docs/methods/dlpv.md)"),
+    "dampen_bounce": Field("bool", False, "apply the dampening to the virtual objects' own "
+                           "VPLs (+R_ρ, their bounce on the real scene) too, in one V_Δ "
+                           "propagation as before issue #33 (their bounce then came out at "
+                           "0.26× a path-traced one; off: they propagate undamped in a volume "
+                           "of their own; docs/methods/dlpv.md)"),
     "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
                            "§4.3.2); off: indirect change only"),
     "calibrate": Field("float", CALIBRATE, "extra divisor of V_Δ reads on top of the derived "
@@ -270,13 +270,15 @@ def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], option
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
-                 indirect: bool = True, scales: tuple[float, float] = (1.0, 1.0)
-                 ) -> list[mi.Bool]:
+                 indirect: bool = True, scales: tuple[float, float] = (1.0, 1.0),
+                 bounce: SHVolume | None = None) -> list[mi.Bool]:
     """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``. Texels that see
     the same surface in both maps cancel and are skipped (§4.3.1: "VPLs visible in both RSMs
     are eliminated"): only the texels whose mixed-scene hit is virtual are injected. Returns
     the injected-lane masks of the indirect lobes (see :func:`injected_count`). ``scales``:
-    the flux factors of direct lobes and VPLs (:func:`injection_scales`)."""
+    the flux factors of direct lobes and VPLs (:func:`injection_scales`); ``bounce`` (default
+    ``vol``): the volume that receives the ``+R_ρ`` VPLs, the virtual objects' own bounce
+    (:func:`delta_dampening`)."""
     half = 0.5 * vol.grid.cell
     k_dir, k_ind = float(scales[0]), float(scales[1])
     masks = []
@@ -285,7 +287,8 @@ def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
             continue
         for r, sign in ((pair.rho_changed(), 1.0), (pair.mu_changed, -1.0)):
             if indirect:
-                masks.append(inject(vol, r.position, r.normal, r.flux_out * (sign * k_ind),
+                target = bounce if bounce is not None and sign > 0 else vol
+                masks.append(inject(target, r.position, r.normal, r.flux_out * (sign * k_ind),
                                     r.valid, offset=r.normal * half))
             if direct:
                 inject(vol, r.position, r.direction, r.flux_in * (sign * k_dir), r.valid,
@@ -325,39 +328,38 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
     with timer.stage("inject_rho"):
         v_rho = SHVolume.zeros(grid)
         inject_regular(v_rho, pairs, 0, scales=k)
+    damp_bounce, damp_rest = delta_dampening(options)
+    split = damp_bounce != damp_rest
     with timer.stage("inject_delta_indirect"):
         v_delta = SHVolume.zeros(grid)
-        injected = inject_delta(v_delta, pairs, direct=False, scales=k)
-    damp_bounce, damp_direct = delta_dampening(options)
-    split = options.direct_inject and damp_bounce != damp_direct
-    v_direct = SHVolume.zeros(grid) if split else v_delta
+        v_bounce = SHVolume.zeros(grid) if split else None
+        injected = inject_delta(v_delta, pairs, direct=False, scales=k, bounce=v_bounce)
     if options.direct_inject:
         with timer.stage("inject_delta_direct"):
-            inject_delta(v_direct, pairs, direct=True, indirect=False, scales=k)
+            inject_delta(v_delta, pairs, direct=True, indirect=False, scales=k)
     trans = data.transmittance
     with timer.stage("propagate_rho"):
         v_rho = propagate(v_rho, options.steps, options.dampening, transmittance=trans)
     with timer.stage("propagate_delta"):
-        if split:
-            bounce = propagate(v_delta, options.steps, damp_bounce, transmittance=trans)
-            direct = propagate(v_direct, options.steps, damp_direct, transmittance=trans)
-            v_delta = SHVolume(grid, [a + b for a, b in zip(bounce.coeffs, direct.coeffs,
+        v_delta = propagate(v_delta, options.steps, damp_rest, transmittance=trans)
+        if v_bounce is not None:
+            v_bounce = propagate(v_bounce, options.steps, damp_bounce, transmittance=trans)
+            v_delta = SHVolume(grid, [a + b for a, b in zip(v_delta.coeffs, v_bounce.coeffs,
                                                             strict=True)])
-        else:
-            damp = damp_direct if options.direct_inject else damp_bounce
-            v_delta = propagate(v_delta, options.steps, damp, transmittance=trans)
     return Volumes(v_delta, v_rho, injected)
 
 
 def delta_dampening(options: Options) -> tuple[bool, bool]:
-    """Whether ``V_Δ``'s VPLs (bounce) and its direct lobes are damped (issue #33):
-    ``(dampening and dampen_bounce, dampening)``. The dampening (§4.4) is there against
-    shadow bleeding; with the VPLs in the direct lobes' volume its ratios are dominated by the
-    direct antiradiance and the subtracted ``R_µ`` texels next to the object, and it removed
-    55–75 % of the object's bounce (tests/methods/test_dlpv_reference.py). When the two
-    differ the VPLs and the direct lobes propagate as two volumes whose sum is read as one
-    (without dampening propagation is linear: the VPLs' volume is the bounce ``V_Δ`` would
-    carry alone)."""
+    """Whether ``V_Δ``'s ``+R_ρ`` VPLs (the virtual objects' own bounce) and the rest (the
+    ``−R_µ`` VPLs and the direct lobes) are damped (issue #33): ``(dampening and
+    dampen_bounce, dampening)``. The dampening (§4.4) is there against bleeding of the real
+    surfaces' antiradiance ("bleeding out from below virtual objects"); in one volume its
+    ratios are dominated by that antiradiance next to the object, and it removed 74 % of the
+    object's bounce on the floor (tests/methods/test_dlpv_reference.py). When the two
+    differ the ``+R_ρ`` VPLs propagate in a volume of their own whose sum with the rest is
+    read as one. The real surfaces' ``−R_µ`` VPLs stay damped: undamped, a real surface's
+    own VPLs light it (an LPV reads an emitting plane on itself at 1.4× its exitance, 1.1×
+    damped, where 0 is right) and the cube's shadow came out 1.6× too deep."""
     return bool(options.dampening and options.dampen_bounce), bool(options.dampening)
 
 
