@@ -4,11 +4,14 @@
     .venv/bin/python benchmarks/tune_realtime.py --train 4 --heldout 4 --methods dvct
     .venv/bin/python benchmarks/tune_realtime.py --write         # also RESULTS.md
 
-The constants were chosen on the suite scenes they were reported on: ``dlpv``'s calibration
-(reads divided by the LPV's response to a directly lit plane, 1.92, also for the indirect
-light in ``V_ρ``) and ``dvct``'s ``SHELLS`` (0.5) and ``LEVEL_BIAS`` (1). Each is a method
-option (``dlpv.calibrate``, ``dlpv.calibrate_rho``, ``dvct.shells``, ``dvct.level_bias``), so
-``arlight eval --option dvct.shells=1`` reproduces any cell below.
+The constants were chosen on the suite scenes they were reported on: ``dvct``'s ``SHELLS``
+(0.5) and ``LEVEL_BIAS`` (1). ``dlpv``'s normalisation is derived since issue #33 (direct
+lobes ÷ the plane response, VPLs ÷ the point response, :func:`arlight.methods.dlpv.
+injection_scales`); its ``calibrate`` and ``calibrate_rho`` are extra divisors on top (1:
+none), and the sweep checks on training worlds that the derived scale (1) is where the
+changed pixels are best. Each is a method option (``dlpv.calibrate``, ``dlpv.calibrate_rho``,
+``dvct.shells``, ``dvct.level_bias``), so ``arlight eval --option dvct.shells=1`` reproduces
+any cell below.
 
 Protocol (docs/testing.md, :mod:`arlight.evaluate.worlds`):
 
@@ -37,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import statistics
 import sys
 import time
@@ -56,46 +58,6 @@ TIE_DB = 0.05
 """Candidates within this many dB of the best median training ``changed_psnr`` are ties."""
 HEADING = ("## Held-out worlds: dlpv and dvct constants re-chosen on training worlds "
            "(issue #30)")
-
-
-# --------------------------------------------------------------------------------------------
-# The principled dlpv divisor: one VPL against Φ/(πr²)
-# --------------------------------------------------------------------------------------------
-
-def vpl_response(n: int = 32, steps: int = 32, dampening: bool = True,
-                 distances: tuple[float, ...] = (2.0, 3.0, 4.0)) -> float:
-    """How much an LPV over-reads the light of one VPL: the geometric mean over
-    ``distances`` (cells) and three directions (along an axis, a face diagonal and a body
-    diagonal) of ``E_LPV / E_true``, where a VPL of flux Φ (lobe ``Φ/π <d, ω>+``, injected
-    half a cell along ``d`` as ``dlpv`` does) lights a receiver at distance ``r`` on its axis
-    facing it: ``E_true = Φ/(πr²)``; ``E_LPV`` is read half a cell off the receiver along its
-    normal, as ``dlpv.shade`` reads. The LPV over-reads near (2.6× at 2 cells along an axis)
-    and under-reads far (0.36× at 8 cells): no single scale is right at every distance."""
-    import mitsuba as mi
-
-    from arlight.realtime.sh_volume import (
-        Grid,
-        SHVolume,
-        inject,
-        propagate,
-        query_irradiance,
-    )
-
-    g = Grid(np.zeros(3), 1.0, int(n))
-    logs = []
-    for d in ([0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0]):
-        d = np.asarray(d) / np.linalg.norm(d)
-        centre = np.full(3, n // 3 + 0.5)
-        p = centre - 0.5 * d  # the VPL; p + d/2 is the centre of its cell
-        v = SHVolume.zeros(g)
-        inject(v, mi.Point3f(*map(float, p)), mi.Vector3f(*map(float, d)), mi.Color3f(1.0),
-               mi.Bool(True), offset=mi.Vector3f(*map(float, 0.5 * d)))
-        v = propagate(v, int(steps), bool(dampening))
-        for r in distances:
-            q = p + (r - 0.5) * d  # the receiver p + r d, read half a cell towards the VPL
-            e = query_irradiance(v, mi.Point3f(*map(float, q)), mi.Vector3f(*map(float, -d)))
-            logs.append(math.log(float(np.ravel(np.array(e))[0]) * math.pi * r * r))
-    return math.exp(float(np.mean(logs)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -169,22 +131,14 @@ def _fmt(v: float) -> str:
 
 
 def dlpv_tuning() -> Tuning:
-    """``calibrate`` (``V_Δ``) × ``calibrate_rho`` (``V_ρ``): 1 (KD10's raw scale), the
-    one-VPL response (:func:`vpl_response`), 0 = the plane response (1.92, the old default), and
-    1.25, 1.5, 2.5 around them."""
-    from arlight.realtime.sh_volume import plane_response
-
-    vpl = round(vpl_response(), 3)
-    plane = plane_response(32, 32, True)
-    values = sorted({1.0, 1.25, 1.5, vpl, 0.0, 2.5}, key=lambda x: plane if x == 0 else x)
-    labels = {}
-    for k in ("calibrate", "calibrate_rho"):
-        labels[(k, 0.0)] = f"0 (plane {plane:.3f})"
-        labels[(k, vpl)] = f"{vpl} (VPL)"
-        labels[(k, 1.0)] = "1 (raw)"
+    """``calibrate`` (``V_Δ``) × ``calibrate_rho`` (``V_ρ``), extra divisors of the volume
+    reads on top of the derived normalisation (issue #33): 1 (none, the default and the
+    principled value) and 0.5, 0.75, 1.25, 1.5, 2 around it."""
+    values = (0.5, 0.75, 1.0, 1.25, 1.5, 2.0)
     grid = [{"calibrate": a, "calibrate_rho": b} for a in values for b in values]
-    principled = {k: (1.0, vpl, 0.0) for k in ("calibrate", "calibrate_rho")}
-    return Tuning("dlpv", {"calibrate": 0.0, "calibrate_rho": 0.0}, grid, principled, labels)
+    principled = {k: (1.0,) for k in ("calibrate", "calibrate_rho")}
+    labels = {(k, 1.0): "1 (derived)" for k in ("calibrate", "calibrate_rho")}
+    return Tuning("dlpv", {"calibrate": 1.0, "calibrate_rho": 1.0}, grid, principled, labels)
 
 
 def dvct_tuning() -> Tuning:
