@@ -93,6 +93,7 @@ from arlight.realtime.shading import (
     virtual_bounds,
 )
 from arlight.realtime.voxels import (
+    ANISO_CHANNELS,
     LEVEL_BIAS,
     SHELLS,
     ConeResult,
@@ -131,6 +132,18 @@ OPTIONS: dict[str, Field] = {
     "point_light_radius": Field("float", 0.0, "radius given to point and spot lights for "
                                 "their shadow cone (0: hard shadows)", "m", min=0.0,
                                 max=100.0),
+    "anisotropic": Field("bool", False, "V_Δ/V_ρ hold the Lambertian intensity towards "
+                         "the 6 axis directions (issue #33: isotropic cells show a cube's lit "
+                         "top to the floor beside it, its red bounce 4.1× a path tracer's, "
+                         "0.67× anisotropic); off (chosen on training worlds: anisotropic "
+                         "lost 0.43 dB median changed_psnr on 5, the bounce then too dark, "
+                         "tests/methods/test_dvct_reference.py): one isotropic Φ/π per cell, "
+                         "as Franke"),
+    "occluded_bounce": Field("bool", False, "real receivers also lose the first bounce the "
+                             "virtual objects hide from them: diffuse cones on real pixels "
+                             "gather Δ·k − (1 − k)·µ = Δ − (1 − k)·ρ per sample (Eq. 5.27's "
+                             "C_ρ − C_µ − C_Δ; issue #33); off: Δ·k as Franke (chosen on "
+                             "training worlds: +0.004 dB median on 4, neutral)"),
     "back_faces": Field("bool", False, "dim V_Δ/V_ρ cells seen from behind their V_η normal "
                         "(costs a third more cone gathers; no gain on the suite)"),
     "diffuse_cones": Field("bool", True, "trace the 9 diffuse cones (T_Δ², Eq. 5.21; "
@@ -330,24 +343,39 @@ class Volumes:
 
 def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f,
             flux: mi.Color3f, active: mi.Bool, sign: float) -> int:
-    """Add VPL intensities ``sign · Φ/π`` (Eq. 5.17) into a packed 3-channel level, each at
-    the cell of its position moved half a cell along its normal. Returns the VPLs injected."""
+    """Add VPL intensities ``sign · Φ/π`` (Eq. 5.17) into a packed level, each at the cell of
+    its position moved half a cell along its normal. Returns the VPLs injected.
+
+    A 3-channel level (isotropic) receives the peak intensity ``Φ/π``; an anisotropic one
+    (:data:`~arlight.realtime.voxels.ANISO_CHANNELS`, 6 directions × RGB) the Lambertian
+    intensity towards each axis direction ``e``, ``Φ/π · max(0, <n, e>)`` (a cone reads
+    ``Σ_a |ω_a| c_slot(a)``, exactly ``Φ/π · max(0, <n, ω>)`` for axis-aligned ``n``)."""
     idx, inside = cell_index(grid, position + normal * (0.5 * grid.cell))
     act = active & inside
     val = flux * (sign / math.pi)
-    n = dr.width(buf) // 3
-    sums = scatter_sum_exact([val[0], val[1], val[2]], idx, act, n)  # order-independent
-    lanes = dr.arange(mi.UInt32, n)
-    for c in range(3):
-        dr.scatter_reduce(dr.ReduceOp.Add, buf, sums[c], lanes * 3 + c)  # one lane a slot
+    cells = grid.n ** 3
+    if dr.width(buf) == cells * 3:
+        parts = [(mi.UInt32(0), mi.Float(1.0), 1)]
+    else:  # per axis, the emission goes to the slot of the normal's sign on that axis
+        parts = [(dr.select(normal[a] < 0.0, mi.UInt32(2 * a + 1), mi.UInt32(2 * a)),
+                  dr.abs(normal[a]), 6) for a in range(3)]
+    for slot, w, stride in parts:
+        # order-independent sums, one per cell and slot
+        sums = scatter_sum_exact([val[0] * w, val[1] * w, val[2] * w], idx * stride + slot,
+                                 act, cells * stride)
+        for c in range(3):
+            dr.scatter_reduce(dr.ReduceOp.Add, buf, sums[c],
+                              dr.arange(mi.UInt32, cells * stride) * 3 + c)
     return int(dr.count(act)[0]) if dr.width(act) else 0
 
 
-def inject_split(grid: Grid, pairs: list[RSMPair]) -> tuple[mi.Float, mi.Float, int]:
+def inject_split(grid: Grid, pairs: list[RSMPair], channels: int = 3
+                 ) -> tuple[mi.Float, mi.Float, int]:
     """Split injection (thesis §5.4.1, Eq. 5.17): packed finest levels of ``V_Δ`` (only the
     texels whose mixed hit is virtual: ``+R_ρ`` there, ``−R_µ`` at what the real scene shows
-    there) and ``V_ρ`` (every ``R_ρ`` texel)."""
-    m = grid.n ** 3 * 3
+    there) and ``V_ρ`` (every ``R_ρ`` texel); ``channels`` 3 (isotropic) or
+    :data:`~arlight.realtime.voxels.ANISO_CHANNELS`."""
+    m = grid.n ** 3 * channels
     delta, rho = dr.zeros(mi.Float, m), dr.zeros(mi.Float, m)
     count = 0
     for pair in pairs:
@@ -362,15 +390,22 @@ def inject_split(grid: Grid, pairs: list[RSMPair]) -> tuple[mi.Float, mi.Float, 
     return delta, rho, count
 
 
-def inject_regular(grid: Grid, pairs: list[RSMPair], which: int) -> mi.Float:
+def inject_regular(grid: Grid, pairs: list[RSMPair], which: int, channels: int = 3
+                   ) -> mi.Float:
     """Packed finest level of a regular volume: every ``R_ρ`` (``which=0``) or ``R_µ``
-    (``which=1``) texel — ``V_ρ`` and ``V_µ`` of Eq. 5.26."""
-    buf = dr.zeros(mi.Float, grid.n ** 3 * 3)
+    (``which=1``) texel — ``V_ρ`` and ``V_µ`` of Eq. 5.26 (``channels`` as
+    :func:`inject_split`)."""
+    buf = dr.zeros(mi.Float, grid.n ** 3 * channels)
     for pair in pairs:
         r = pair.rho if which == 0 else pair.mu()
         _inject(buf, grid, r.position, r.normal, r.flux_out, r.valid, 1.0)
     dr.eval(buf)
     return buf
+
+
+def light_channels(options: Options) -> int:
+    """Channels per cell of ``V_Δ``, ``V_ρ`` (and ``V_µ``): 18 with ``anisotropic``, else 3."""
+    return ANISO_CHANNELS if options.anisotropic else 3
 
 
 def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = None
@@ -385,17 +420,18 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
     with timer.stage("voxelize"):
         virt = voxelize(data.virtual_triangles, grid)
         alpha0, normal0 = eta_level0(data.real_voxels, virt)
+    ch = light_channels(options)
     with timer.stage("inject"):
         if pairs:
-            d0, r0, count = inject_split(grid, pairs)
+            d0, r0, count = inject_split(grid, pairs, ch)
         else:
-            d0 = r0 = dr.zeros(mi.Float, grid.n ** 3 * 3)
+            d0 = r0 = dr.zeros(mi.Float, grid.n ** 3 * ch)
             count = 0
     with timer.stage("filter"):
         alpha = build_mips(alpha0, grid, 2)
         normal = build_mips(normal0, grid, 3) if options.back_faces else None
-        delta = build_mips(d0, grid, 3)
-        rho = build_mips(r0, grid, 3)
+        delta = build_mips(d0, grid, ch)
+        rho = build_mips(r0, grid, ch)
     return Volumes(alpha, normal, delta, rho, count, data.real_voxels.union(virt).occupied)
 
 
@@ -562,7 +598,8 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
     """All cones of ``lanes`` (real lanes against ``V_Δ``, virtual against ``V_ρ``)."""
     n = lanes.width
     x, y, z = dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n)
-    cv_delta = ConeVolumes(vols.alpha, vols.normal, vols.delta)
+    cv_delta = ConeVolumes(vols.alpha, vols.normal, vols.delta,
+                           vols.rho if options.occluded_bounce else None)
     cv_rho = ConeVolumes(vols.alpha, vols.normal, vols.rho)
     count = 0
     knobs = {"shells": float(options.shells), "level_bias": float(options.level_bias)}
@@ -591,7 +628,8 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
             sidx = dr.compress(has)
             if dr.width(sidx):
                 ss = sub.subset(sidx)
-                res = specular_cone(cv, ss, dr.gather(mi.Float, rough, sidx),
+                res = specular_cone(replace(cv, occluded=None), ss,
+                                    dr.gather(mi.Float, rough, sidx),
                                     options.specular_min_aperture_deg, mi.Bool(True), **knobs)
                 dr.scatter(ys, res.radiance, sidx)
                 if role == ROLE_REAL:
@@ -615,7 +653,8 @@ def cone_error(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
     differ because ``V_µ`` is seen through the real scene's occlusion. Returns the three
     terms and ``E``."""
     grid = vols.alpha.grid
-    mu = build_mips(inject_regular(grid, pairs, 1), grid, 3)
+    ch = light_channels(options)
+    mu = build_mips(inject_regular(grid, pairs, 1, ch), grid, ch)
     out = {}
     for name, light, which in (("rho", vols.rho, 0), ("mu", mu, 1), ("delta", vols.delta, 0)):
         e, _, _ = diffuse_cones(ConeVolumes(vols.alpha, vols.normal, light), lanes,

@@ -115,6 +115,10 @@ RMSE 0.044 → 0.028 against ray tracing with the bias.)
 ALPHA_CHANNELS = 2
 """``V_η`` occupancy channels: ``α_all`` (real + virtual), ``α_real``."""
 
+ANISO_CHANNELS = 18
+"""Channels per cell of an anisotropic radiance volume: RGB intensity emitted towards each
+of the 6 axis directions ``+x, −x, +y, −y, +z, −z`` (slot ``2a + negative``), W/sr."""
+
 
 # --------------------------------------------------------------------------------------------
 # Triangles
@@ -380,14 +384,21 @@ def _downsample(src: mi.Float, n: int, channels: int) -> mi.Float:
     m = n // 2
     cell = dr.arange(mi.UInt32, m ** 3)
     x, y, z = (cell % m) * 2, ((cell // m) % m) * 2, (cell // (m * m)) * 2
-    kind = _PACKETS[channels]
-    acc = dr.zeros(kind, m ** 3)
-    for dz in (0, 1):
-        for dy in (0, 1):
-            for dx in (0, 1):
-                acc += dr.gather(kind, src, (x + dx) + n * ((y + dy) + n * (z + dz)))
+    # packets of up to 4 channels; more (anisotropic radiance: 6 directions × RGB) as
+    # ``channels / 3`` packets of 3
+    width, groups = (channels, 1) if channels in _PACKETS else (3, channels // 3)
+    if width * groups != channels:
+        raise ValueError(f"mip chains of {channels} channels: not a multiple of 3")
+    kind = _PACKETS[width]
     out = dr.zeros(mi.Float, m ** 3 * channels)
-    dr.scatter(out, acc * 0.125, cell)
+    for g in range(groups):
+        acc = dr.zeros(kind, m ** 3)
+        for dz in (0, 1):
+            for dy in (0, 1):
+                for dx in (0, 1):
+                    child = (x + dx) + n * ((y + dy) + n * (z + dz))
+                    acc += dr.gather(kind, src, child * groups + g)
+        dr.scatter(out, acc * 0.125, cell * groups + g)
     return out
 
 
@@ -450,6 +461,7 @@ class ConeVolumes:
     alpha: MipVolume
     normal: MipVolume | None = None
     light: MipVolume | None = None
+    occluded: MipVolume | None = None
 
 
 def box_interval(grid: Grid, o: mi.Point3f, d: mi.Vector3f) -> tuple[mi.Float, mi.Float]:
@@ -472,11 +484,23 @@ def _level_tables(vol: MipVolume) -> tuple[mi.UInt32, mi.UInt32]:
             mi.UInt32(np.array([vol.grid.n >> k for k in range(vol.levels)], np.uint32)))
 
 
+def aniso_lookup(direction: mi.Vector3f) -> list[tuple[mi.UInt32, mi.Float]]:
+    """Per axis ``a``, the slot of an anisotropic radiance volume
+    (:data:`ANISO_CHANNELS`) that a cone travelling along ``direction`` sees — the light
+    emitted towards ``ω = −direction``, slot ``2a + (ω_a < 0)`` — and its weight ``|ω_a|``
+    (module docstring)."""
+    return [(dr.select(direction[a] > 0.0, mi.UInt32(2 * a + 1), mi.UInt32(2 * a)),
+             dr.abs(direction[a])) for a in range(3)]
+
+
 def _sample_level(vols: list[MipVolume], tables: tuple[mi.UInt32, mi.UInt32], grid: Grid,
-                  p: mi.Point3f, lvl: mi.UInt32, active: mi.Bool) -> list:
+                  p: mi.Point3f, lvl: mi.UInt32, active: mi.Bool,
+                  aniso: list[tuple[mi.UInt32, mi.Float]] | None = None) -> list:
     """Trilinear samples (cell centres, zero outside) of level ``lvl`` of every volume in
     ``vols`` at world points ``p``: one value per volume, of ``C`` channels (``mi.Float``,
-    ``mi.Vector2f``, ``mi.Vector3f``)."""
+    ``mi.Vector2f``, ``mi.Vector3f``); an anisotropic radiance volume
+    (:data:`ANISO_CHANNELS`) gives the RGB ``Σ_a w_a c_slot(a)`` of ``aniso``
+    (:func:`aniso_lookup`)."""
     offsets, sizes = tables
     off = dr.gather(mi.UInt32, offsets, lvl, active)
     n_l = dr.gather(mi.UInt32, sizes, lvl, active)
@@ -498,7 +522,13 @@ def _sample_level(vols: list[MipVolume], tables: tuple[mi.UInt32, mi.UInt32], gr
             c[2] < ni)
         cell = off + mi.UInt32(c[0] + ni * (c[1] + ni * c[2]))
         for j, v in enumerate(vols):
-            val = dr.gather(types[v.channels], v.data, cell, ok)
+            if v.channels == ANISO_CHANNELS:
+                assert aniso is not None, "anisotropic radiance needs the cone's direction"
+                val = mi.Vector3f(0.0)
+                for slot, wa in aniso:
+                    val += dr.gather(mi.Vector3f, v.data, cell * 6 + slot, ok) * wa
+            else:
+                val = dr.gather(types[v.channels], v.data, cell, ok)
             out[j] = val * w if out[j] is None else out[j] + val * w
     return out
 
@@ -553,11 +583,18 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     keep = mi.Float(1.0)
     tables = _level_tables(alpha)
     light = vols.light
+    occ = vols.occluded if light is not None else None
+    if occ is not None and int(alpha_for_light) != 2:
+        raise ValueError("occluded bounce light needs alpha_for_light 2 (keep)")
     stop = float(stop_alpha)
     light_alpha = int(alpha_for_light)  # 0 α_all, 1 α_real, 2 keep (virtual occlusion only)
     max_lvl = float(levels - 1)
     quad = bool(quadrilinear)
     far_start = FAR_START * s0
+    aniso = aniso_lookup(direction) if light is not None and light.channels == \
+        ANISO_CHANNELS else None
+    if occ is not None and occ.channels != light.channels:
+        raise ValueError("the occluded volume must have the light volume's channels")
     # opaque: one compiled kernel for every value (benchmarks/tune_realtime.py sweeps them)
     bias = dr.opaque(mi.Float, float(level_bias))
     shell = dr.opaque(mi.Float, float(shells))
@@ -570,21 +607,22 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         lvl_f = dr.clip(dr.log2(diam * (1.0 / s0)) - bias, 0.0, max_lvl)
         p = origin + direction * t
         vs = [alpha] if light is None else (
-            [alpha, light] if vols.normal is None else [alpha, light, vols.normal])
+            [alpha, light] + ([] if occ is None else [occ])
+            + ([] if vols.normal is None else [vols.normal]))
         if quad:
             l0 = mi.UInt32(dr.floor(lvl_f))
             l1 = dr.minimum(l0 + 1, levels - 1)
             fr = lvl_f - mi.Float(l0)
             samples = []
             for lv in (l0, l1):
-                s = _sample_level(vs, tables, grid, p, lv, act)
+                s = _sample_level(vs, tables, grid, p, lv, act, aniso)
                 scale = dr.exp2(mi.Float(lv))  # 2^l: block coverage / face area (docstring)
                 samples.append((s, scale))
             (s_a, k_a), (s_b, k_b) = samples
         else:
             l0 = mi.UInt32(dr.floor(lvl_f + 0.5))
             fr = mi.Float(0.0)
-            s_a = s_b = _sample_level(vs, tables, grid, p, l0, act)
+            s_a = s_b = _sample_level(vs, tables, grid, p, l0, act, aniso)
             k_a = k_b = dr.exp2(mi.Float(l0))
 
         def mix(xa, xb):
@@ -596,13 +634,19 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         al_real = mix(dr.minimum(al_a[1] * ka, 1.0), dr.minimum(al_b[1] * kb, 1.0))
         if light is not None:
             rad = mi.Color3f(mix(s_a[1] * k_a, s_b[1] * k_b)) * (1.0 / (s0 * s0))
+            front = mi.Float(1.0)
             if vols.normal is not None:
-                nrm = mix(s_a[2], s_b[2])
-                rad *= dr.maximum(1.0 - BACK_FALLOFF * dr.maximum(dr.dot(nrm, direction), 0.0),
-                                  0.0)
+                nrm = mix(s_a[-1], s_b[-1])
+                front = dr.maximum(1.0 - BACK_FALLOFF * dr.maximum(dr.dot(nrm, direction),
+                                                                   0.0), 0.0)
+            rad *= front
             vis = (1.0 - a_all) if light_alpha == 0 else (
                 (1.0 - a_real) if light_alpha == 1 else keep)
-            c = dr.select(act, c + rad * vis, c)
+            if occ is None:
+                c = dr.select(act, c + rad * vis, c)
+            else:  # Δ·keep − (1 − keep)·µ with µ = ρ − Δ (module docstring)
+                rad_o = mi.Color3f(mix(s_a[2] * k_a, s_b[2] * k_b)) * (front / (s0 * s0))
+                c = dr.select(act, c + rad - rad_o * (1.0 - keep), c)
         a_all = dr.select(act, a_all + (1.0 - a_all) * al_all, a_all)
         a_real = dr.select(act, a_real + (1.0 - a_real) * al_real, a_real)
         free = 1.0 - al_real
