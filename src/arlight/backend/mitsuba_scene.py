@@ -45,6 +45,7 @@ Units: lengths in metres (scene units), angles in degrees where Mitsuba takes de
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -599,6 +600,10 @@ def mitsuba_sensor(camera: Camera, spp: int) -> mi.Sensor:
 # The µ and ρ views of the methods
 # --------------------------------------------------------------------------------------------
 
+_GENERATIONS = itertools.count(1)
+"""Source of :attr:`SceneView.generation` values (never repeated in a process)."""
+
+
 @dataclass
 class SceneView:
     """One Mitsuba scene plus lookup tables from Mitsuba shape ids to our shapes.
@@ -608,11 +613,35 @@ class SceneView:
         shape_index: ``UInt32``-indexable Dr.Jit table: registry id -> our shape index
             (``LIGHT_SHAPE_INDEX`` for area-light geometry).
         role: registry id -> ``ROLE_REAL`` / ``ROLE_VIRTUAL``.
+        generation: a number no other view or state of this view has had in the process:
+            a new one at construction and at every change of the scene in place
+            (:meth:`update`). Keys what is recorded from the scene (the frozen bounce probe,
+            :func:`arlight.realtime.ibl_shading.bounce_probe`).
     """
 
     scene: mi.Scene
     shape_index: mi.Int32
     role: mi.Int32
+    generation: int = field(default_factory=lambda: next(_GENERATIONS), compare=False)
+
+    @property
+    def params(self) -> mi.SceneParameters:
+        """The scene's parameters, traversed once (they are references to the scene's)."""
+        params = self.__dict__.get("_params")
+        if params is None:
+            params = self.__dict__["_params"] = mi.traverse(self.scene)
+        return params
+
+    def update(self, values: dict[str, Any]) -> None:
+        """Set scene parameters in place (``{key: value}``, keys of :attr:`params`) and
+        apply them (``params.update()``: plugins and the acceleration structure follow),
+        with a new :attr:`generation` — the one way the views' scenes change in place, so
+        nothing recorded from the old state is replayed on the new one."""
+        params = self.params
+        for key, value in values.items():
+            params[key] = value
+        params.update()
+        self.generation = next(_GENERATIONS)
 
     def hit_role(self, si: mi.SurfaceInteraction3f) -> mi.Int32:
         """Per-lane role of a surface interaction: miss -1, real 0, virtual 1."""
@@ -634,13 +663,8 @@ class SceneView:
         is recompiled, no second scene is built). Light samplers cached on the view are kept:
         only non-emitting shapes may be moved this way.
         """
-        params = self.__dict__.get("_params")
-        if params is None:  # traversing once is enough: the parameters are references
-            params = self.__dict__["_params"] = mi.traverse(self.scene)
-        for name, values in geometry.items():
-            for key, value in values.items():
-                params[f"{name}.{key}"] = value
-        params.update()
+        self.update({f"{name}.{key}": value for name, values in geometry.items()
+                     for key, value in values.items()})
 
 
 @dataclass
@@ -710,7 +734,7 @@ def load_view(view: Node, roles: dict[str, int]) -> SceneView:
     out = SceneView(scene, mi.Int32(0), mi.Int32(0))
     # every shape's to_world through the scene's parameters once, as SceneViews.place moves
     # shapes (transform_parameter): a shape moved in place is then bitwise one loaded there
-    params = mi.traverse(scene)
+    params = out.params
     objects = view["objects"]
     moved = {name: {"to_world": transform_parameter(params[f"{name}.to_world"])}
              for name, node in objects.items()
@@ -721,10 +745,8 @@ def load_view(view: Node, roles: dict[str, int]) -> SceneView:
     # (methods.base.relight_views) is then bitwise one loaded there
     turned = [f"{name}.to_world" for name, node in objects.items()
               if not is_shape_node(node) and f"{name}.to_world" in params]
-    for key in turned:
-        params[key] = transform_parameter(params[key])
     if turned:
-        params.update()
+        out.update({key: transform_parameter(params[key]) for key in turned})
     ids, idx, role = [], [], []
     for sh in scene.shapes():
         reg = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(sh))[0])

@@ -439,18 +439,11 @@ def relight_views(views: SceneViews, before: Sequence[Light], after: Sequence[Li
         return True
     fresh = mi.traverse(load_view({"objects": changed}, {}).scene)
     keys = [k for k in fresh.keys() if k.split(".", 1)[0] in changed]
-    targets = []
-    for view in {id(v): v for v in (views.real, views.mixed)}.values():
-        params = view.__dict__.get("_params")
-        if params is None:  # as SceneView.set_geometry keeps it (references)
-            params = view.__dict__["_params"] = mi.traverse(view.scene)
-        if any(k not in params for k in keys):
-            return False
-        targets.append((view, params))
-    for view, params in targets:
-        for k in keys:
-            params[k] = fresh[k]
-        params.update()
+    targets = list({id(v): v for v in (views.real, views.mixed)}.values())
+    if any(k not in view.params for view in targets for k in keys):
+        return False
+    for view in targets:
+        view.update({k: fresh[k] for k in keys})  # a new generation (SceneView.update)
         for key in [k for k in view.__dict__ if k.startswith("_") and k != "_params"]:
             del view.__dict__[key]  # caches made from the emitters (light samplers, env)
     return True

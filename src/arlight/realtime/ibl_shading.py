@@ -40,6 +40,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.backend.mitsuba_scene import SceneView
 from arlight.jit import aligned
 from arlight.realtime.gbuffer import GBuffer
 from arlight.scene.model import World
@@ -166,6 +167,9 @@ class MipEnvironment:
 PROBE_HEIGHT = 16
 """Rows of the bounce probe (:func:`bounce_probe`; width twice that)."""
 
+PROBE_RECORDINGS = 8
+"""Frozen recordings of the probe's path tracing kept (scene generations × spp × depth)."""
+
 
 PROBE_OPTIONS: dict[str, Field] = {
     "probe": Field("bool", True, "light probe at the virtual objects from the reconstructed "
@@ -201,7 +205,7 @@ def probe_for_world(world: World, views, env: np.ndarray | None, options,
     if b is None:
         return None
     thr = auto_threshold(env, 4.0) if env is not None and env_lights > 0 else math.inf
-    return bounce_probe(views.real.scene, (b[0] + b[1]) / 2.0, env, thr,
+    return bounce_probe(views.real, (b[0] + b[1]) / 2.0, env, thr,
                         spp=options.probe_spp)
 
 
@@ -222,10 +226,10 @@ class BounceProbe:
     diffuse: np.ndarray
 
 
-def bounce_probe(scene: mi.Scene, centre: np.ndarray, env: np.ndarray | None,
+def bounce_probe(view: SceneView | mi.Scene, centre: np.ndarray, env: np.ndarray | None,
                  threshold: float = math.inf, height: int = PROBE_HEIGHT, spp: int = 16,
                  max_depth: int = 6, seed: int = 0) -> BounceProbe:
-    """A light probe at ``centre`` (m) in the real-only ``scene``, as a change to the distant
+    """A light probe at ``centre`` (m) in the real-only scene, as a change to the distant
     light: per direction ``ω`` whose ray from ``centre`` hits a real surface, the radiance
     ``L_real(ω)`` that surface sends (path traced by Mitsuba's ``path`` integrator,
     ``max_depth`` bounces, its own emission removed: the local lights are shaded per pixel
@@ -236,27 +240,28 @@ def bounce_probe(scene: mi.Scene, centre: np.ndarray, env: np.ndarray | None,
     taken from the reconstructed real scene: indoors, the walls' and floor's bounce light
     that a world without an environment map would lack; outdoors, the lit ground instead of
     the map's own horizon. Computed at prepare and again for each pose of the object (the
-    diffuse SH only: the specular prefilter is of the environment map alone)."""
+    diffuse SH only: the specular prefilter is of the environment map alone).
+
+    ``view`` is the real view (:class:`~arlight.backend.mitsuba_scene.SceneView`): the path
+    tracing is then a frozen Dr.Jit function (:func:`_probe_radiance`, ``dr.freeze``)
+    recorded once per view :attr:`~arlight.backend.mitsuba_scene.SceneView.generation` and
+    replayed for every other centre — ~0.1 s of Python tracing of Mitsuba's integrator
+    becomes a few ms, bitwise the same probe (tests/methods/test_bounce_probe.py). A bare
+    ``mi.Scene`` (and a scene without shapes or without lights, which Dr.Jit cannot record:
+    no instance of the called classes among the inputs) is traced anew at each call."""
     w = 2 * height
     n = height * w * spp
-    lane = dr.arange(mi.UInt32, n)
-    tex = lane // spp
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, n)
-    jitter = sampler.next_2d()
-    phi = (mi.Float(tex % w) + jitter.x) * (2.0 * math.pi / w)
-    theta = (mi.Float(tex // w) + jitter.y) * (math.pi / height)
-    st = dr.sin(theta)
-    d = mi.Vector3f(st * dr.sin(phi), dr.cos(theta), -st * dr.cos(phi))
     # the centre opaque: one kernel for every pose of the object (the probe follows it)
-    ray = mi.Ray3f(mi.Point3f(*[dr.opaque(mi.Float, float(x)) for x in centre]), d)
-    si = scene.ray_intersect(ray)
-    hit = si.is_valid()
-    integrator = _path_integrator(int(max_depth))
-    radiance, _, _ = integrator.sample(scene, sampler, mi.RayDifferential3f(ray), None, hit)
-    emitter = si.emitter(scene, hit)
-    radiance -= dr.select(hit & (dr.reinterpret_array(mi.UInt32, emitter) != 0),
-                          emitter.eval(si, hit), mi.Color3f(0.0))
+    origin = mi.Point3f(*[dr.opaque(mi.Float, float(x)) for x in centre])
+    args = (origin, n, spp, w, height, int(max_depth), int(seed))
+    scene = view if isinstance(view, mi.Scene) else view.scene
+    # frozen where the scene holds the instances of every class the tracing calls into:
+    # Dr.Jit finds the members of called objects through the inputs (a scene without
+    # shapes or lights cannot be recorded; its probe is traced as it is)
+    if isinstance(view, mi.Scene) or not (scene.shapes() and scene.emitters()):
+        radiance, hit, d = _probe_radiance(scene, *args)
+    else:
+        radiance, hit, d = _frozen_probe_radiance(scene, *args, view.generation)
     if env is not None:
         l_env = MipEnvironment.build(env).lookup(d, mi.Float(0.0))
         lum = 0.2126 * l_env.x + 0.7152 * l_env.y + 0.0722 * l_env.z
@@ -270,6 +275,46 @@ def bounce_probe(scene: mi.Scene, centre: np.ndarray, env: np.ndarray | None,
                        -1) / spp
         maps.append(rgb.reshape(height, w, 3).astype(np.float32))
     return BounceProbe(maps[0], maps[1])
+
+
+def _probe_radiance(scene: mi.Scene, origin: mi.Point3f, n: int, spp: int, w: int,
+                    height: int, max_depth: int, seed: int, generation: int = 0
+                    ) -> tuple[mi.Color3f, mi.Bool, mi.Vector3f]:
+    """The path tracing of :func:`bounce_probe`: ``n = height · w · spp`` rays from
+    ``origin``, ``spp`` per texel of the ``height × w`` equirect map (jittered by Mitsuba's
+    ``independent`` sampler seeded with ``seed``); per ray ``L_real`` of the surface hit
+    (W/(sr·m²), its own emission removed), whether it hit, and its direction. ``generation``
+    is unused here: it keys the frozen recordings (:data:`_frozen_probe_radiance`)."""
+    lane = dr.arange(mi.UInt32, n)
+    tex = lane // spp
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, n)
+    jitter = sampler.next_2d()
+    phi = (mi.Float(tex % w) + jitter.x) * (2.0 * math.pi / w)
+    theta = (mi.Float(tex // w) + jitter.y) * (math.pi / height)
+    st = dr.sin(theta)
+    d = mi.Vector3f(st * dr.sin(phi), dr.cos(theta), -st * dr.cos(phi))
+    ray = mi.Ray3f(origin, d)
+    si = scene.ray_intersect(ray)
+    hit = si.is_valid()
+    integrator = _path_integrator(max_depth)
+    radiance, _, _ = integrator.sample(scene, sampler, mi.RayDifferential3f(ray), None, hit)
+    emitter = si.emitter(scene, hit)
+    radiance -= dr.select(hit & (dr.reinterpret_array(mi.UInt32, emitter) != 0),
+                          emitter.eval(si, hit), mi.Color3f(0.0))
+    return radiance, hit, d
+
+
+_frozen_probe_radiance = dr.freeze(_probe_radiance, limit=PROBE_RECORDINGS,
+                                   warn_after=1_000_000)
+""":func:`_probe_radiance` frozen (``dr.freeze``): a call with the same scene generation
+and sizes replays the recorded kernels (the scene's Dr.Jit members and the origin are its
+inputs, traversed at each call); another generation, spp or depth records anew. The
+generation is in the key although Dr.Jit's traversal saw every in-place change tried
+(lamps moved and recoloured by ``relight``, environment data of another size; the stale
+replay once seen was the relit probe bug fixed in 0ab400c): scalar plugin members compiled
+into the kernels as literals would not be seen. At most :data:`PROBE_RECORDINGS` kept
+(least recently used dropped); no warning for the re-recordings that generations cause."""
 
 
 @lru_cache(maxsize=4)
