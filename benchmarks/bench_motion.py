@@ -18,6 +18,10 @@ bitwise equality of moved and relit frames to a fresh preparation is tested in
 tests/methods/test_pose_incremental.py and tests/methods/test_relight.py, not here.
 
     .venv/bin/python benchmarks/bench_motion.py [--rounds 9] [--methods dlpv,dir] [--write]
+        [--merge]
+
+``--merge`` keeps the other methods' rows of the section in RESULTS.md (from an earlier run,
+its load line quoted) when ``--methods`` measures a few.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from results import cpu_pressure, publish
+from results import RESULTS, cpu_pressure, publish
 
 from arlight.demo import DEMO_DIR
 from arlight.methods import RenderSettings, get_method
@@ -147,6 +151,45 @@ def table(results: dict[str, dict[str, float]], rounds: int, load: str, psi: str
     return "\n".join(lines)
 
 
+def merged(text: str, old: str, measured: list[str]) -> str:
+    """``text`` (this run's section) with the table rows of the methods it did not measure
+    taken from ``old`` (the section as RESULTS.md holds it), in :data:`METHODS` order, and
+    the earlier run's load line kept beside this one's (``--merge``)."""
+    start = old.find(HEADING)
+    if start < 0:
+        return text
+    nxt = old.find("\n## ", start + len(HEADING))
+    section = old[start:] if nxt < 0 else old[start:nxt]
+    def rows(sec: str) -> dict[str, str]:
+        return {line.split("|")[1].strip().split(" ")[0]: line for line in sec.splitlines()
+                if line.startswith("| ") and not line.startswith(("| method", "|---"))}
+    kept = {n: r for n, r in rows(section).items() if n not in measured}
+    if not kept:
+        return text
+    now = rows(text)
+    order = [n for n in METHODS if n in now or n in kept]
+    lines = text.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("| ") and
+                 not line.startswith(("| method", "|---")))
+    last = max(i for i, line in enumerate(lines) if line.startswith("| "))
+    table_rows = [now.get(n) or kept[n] for n in order]
+    earlier = next((line for line in section.splitlines()
+                    if line.startswith("Load at the end of the run")), "")
+    note = (f"Rows of {', '.join(measured)} from this run; {', '.join(kept)} kept from an "
+            f"earlier run of this benchmark (`--merge`; target count over all rows: "
+            f"{sum(_met(r) for r in table_rows)} of {len(table_rows)} met)."
+            + (f" That run's {earlier[0].lower()}{earlier[1:]}" if earlier else ""))
+    return "\n".join(lines[:first] + table_rows + lines[last + 1:] + ["", note])
+
+
+def _met(row: str) -> bool:
+    """Whether a table row's ratio (5th column) meets the 1.3 target."""
+    try:
+        return float(row.split("|")[5]) <= 1.3
+    except (IndexError, ValueError):
+        return False
+
+
 def child(name: str, rounds: int, warmup: int) -> dict[str, float]:
     """:func:`measure` in a fresh process (no other method's scenes or kernels alive)."""
     out = subprocess.run([sys.executable, __file__, "--child", name, "--rounds", str(rounds),
@@ -162,6 +205,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--write", action="store_true", help="store the table in RESULTS.md")
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the rows of methods not measured now from RESULTS.md's section")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -173,7 +218,10 @@ def main() -> None:
         results[name] = child(name, args.rounds, args.warmup)
         print(f"{name}: {results[name]} ({time.perf_counter() - t0:.0f} s)", flush=True)
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    publish(table(results, args.rounds, load, cpu_pressure()), args.write)
+    text = table(results, args.rounds, load, cpu_pressure())
+    if args.merge:
+        text = merged(text, RESULTS.read_text(encoding="utf-8"), list(results))
+    publish(text, args.write)
 
 
 if __name__ == "__main__":
