@@ -33,6 +33,7 @@ Units: radiance W/(sr·m²), angles radians, lengths metres.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -262,7 +263,8 @@ def bounce_probe(view: SceneView | mi.Scene, centre: np.ndarray, env: np.ndarray
     if isinstance(view, mi.Scene) or not (scene.shapes() and scene.emitters()):
         radiance, hit, d = _probe_radiance(scene, *args)
     else:
-        radiance, hit, d = _frozen_probe_radiance(scene, *args, view.generation)
+        with _FROZEN_LOCK:  # the studio prepares and renders on several threads
+            radiance, hit, d = _frozen_probe_radiance(scene, *args, view.generation)
     if env is not None:
         l_env = MipEnvironment.build(env).lookup(d, mi.Float(0.0))
         lum = 0.2126 * l_env.x + 0.7152 * l_env.y + 0.0722 * l_env.z
@@ -305,6 +307,9 @@ def _probe_radiance(scene: mi.Scene, origin: mi.Point3f, n: int, spp: int, w: in
                           emitter.eval(si, hit), mi.Color3f(0.0))
     return radiance, hit, d
 
+
+_FROZEN_LOCK = threading.Lock()
+"""One call of :data:`_frozen_probe_radiance` at a time (its recordings are shared)."""
 
 _frozen_probe_radiance = dr.freeze(_probe_radiance, limit=PROBE_RECORDINGS,
                                    warn_after=1_000_000)
