@@ -175,11 +175,20 @@ def merged(text: str, old: str, measured: list[str]) -> str:
     table_rows = [now.get(n) or kept[n] for n in order]
     earlier = next((line for line in section.splitlines()
                     if line.startswith("Load at the end of the run")), "")
+    met = [n for n, r in zip(order, table_rows, strict=True) if _met(r)]
+    rest = []
+    for line in lines[last + 1:]:
+        if line.startswith("Target met by"):  # counted over every row of the table
+            line = (f"Target met by {len(met)} of {len(order)}: {', '.join(met) or 'none'}."
+                    + line[line.index(". Before") + 1:])
+        elif line.startswith("Lamp moving:"):
+            line = line.rstrip() + "".join(f" {n}: n/a — {NO_LIGHT_ROW[n]}." for n in kept
+                                           if n in NO_LIGHT_ROW)
+        rest.append(line)
     note = (f"Rows of {', '.join(measured)} from this run; {', '.join(kept)} kept from an "
-            f"earlier run of this benchmark (`--merge`; target count over all rows: "
-            f"{sum(_met(r) for r in table_rows)} of {len(table_rows)} met)."
+            f"earlier run of this benchmark (`--merge`)."
             + (f" That run's {earlier[0].lower()}{earlier[1:]}" if earlier else ""))
-    return "\n".join(lines[:first] + table_rows + lines[last + 1:] + ["", note])
+    return "\n".join(lines[:first] + table_rows + rest + ["", note])
 
 
 def _met(row: str) -> bool:
