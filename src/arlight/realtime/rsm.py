@@ -44,7 +44,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import ROLE_MISS, ROLE_VIRTUAL, SceneView, SceneViews
+from arlight.backend.mitsuba_scene import (
+    LIGHT_SHAPE_INDEX,
+    ROLE_MISS,
+    ROLE_VIRTUAL,
+    SceneView,
+    SceneViews,
+)
 from arlight.errors import InputError
 from arlight.jit import opaque, opaques
 from arlight.realtime.gbuffer import facing, surface_albedo
@@ -306,11 +312,23 @@ def concat_rays(parts: list[LightRays]) -> LightRays:
                      cat([p.flux for p in parts]), 0)
 
 
+SELF_HIT = 1e-4
+"""Hits on light geometry closer to a ray's origin than this × (1 + |origin|) (m) are the
+ray's own emitter (:func:`render_rsm`)."""
+
+
 def render_rsm(view: SceneView, rays: LightRays) -> RSM:
     """Cast ``rays`` into ``view``: the RSM of that view (``R_ρ`` for ``views.mixed``,
     ``R_µ`` for ``views.real``)."""
     ray = mi.Ray3f(rays.origin, rays.direction)
     si = view.scene.ray_intersect(ray)
+    # an area light's rays start on its own emitter: a hit on light geometry within
+    # SELF_HIT of the origin is the light itself, cast on from there (issue #33: every ray of
+    # an area light stopped there, so its RSMs and its shadows in dlpv/dvct were empty)
+    own = (view.hit_shape(si) == LIGHT_SHAPE_INDEX) & (si.t < SELF_HIT * (
+        1.0 + dr.norm(mi.Vector3f(ray.o))))
+    if dr.any(own):
+        si = dr.select(own, view.scene.ray_intersect(si.spawn_ray(ray.d), own), si)
     valid = si.is_valid()
     role = view.hit_role(si)
     shape = view.hit_shape(si)
