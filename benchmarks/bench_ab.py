@@ -108,7 +108,7 @@ def section(base: dict, head: dict, args, pressure: str) -> str:
     gain of changed-pixel PSNR, and head's wins against ``onepass`` at equal time."""
     methods = args.methods.split(",")
     scenes = sorted({s for s, _ in head})
-    lines = [HEADING, "",
+    lines = [args.heading or HEADING, "",
              f"`benchmarks/bench_ab.py --baseline {args.baseline} --worlds {args.worlds} "
              f"--width {args.width}`: each method of this tree against the same method at "
              f"commit {args.baseline} (the code before this issue's changes), on "
@@ -160,6 +160,8 @@ def section(base: dict, head: dict, args, pressure: str) -> str:
     if skipped:
         lines += ["", "Skipped (the method does not support the world): "
                   + "; ".join(skipped) + "."]
+    if args.note:
+        lines += ["", args.note.read_text(encoding="utf-8").strip()]
     return "\n".join(lines) + "\n"
 
 
@@ -180,6 +182,9 @@ def main() -> None:
     ap.add_argument("--separate-runs", action="store_true", help="say in the section that "
                     "the two sides' cells come from separate invocations (`--sides`)")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
+    ap.add_argument("--heading", help="the section's `## ` heading (default: the shared "
+                    "section of every method; give one to publish a method's run apart)")
+    ap.add_argument("--note", type=Path, help="a file whose text ends the section")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--world", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--cells", type=Path, help=argparse.SUPPRESS)
