@@ -11,13 +11,17 @@ from arlight.methods import get_method
 from arlight.methods.nearfield import prepare
 from arlight.nearfield.shading import frusta, shadow_maps
 from arlight.nearfield.state import NearFieldLight
+from arlight.realtime.oof import PosedOccluder, virtual_scene
 from tests.nearfield.conftest import room, vbox, world
 
 SLAB = [{"name": "slab", "role": "real", "type": "box", "size": [0.6, 0.05, 0.3],
          "transform": {"translate": [0.2, 0.8, 0.1]},
          "material": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}}]
-# long in x, short in z: a map with u and v (rows and columns) swapped differs
-BAR = vbox("bar", at=(0.1, 0.5, 0.0), size=(0.5, 0.08, 0.12))
+# long in x, short in z (a map with u and v swapped differs), scaled and turned (a
+# similarity: the occluder is traced in the bar's own frame)
+BAR = {**vbox("bar", size=(0.25, 0.04, 0.06)),
+       "transform": {"scale": 2.0, "rotate": [0.0, 1.0, 0.0, 20.0],
+                     "translate": [0.1, 0.5, 0.0]}}
 
 
 def _expected(light: NearFieldLight, scene, sphere, size: int) -> np.ndarray:
@@ -43,9 +47,11 @@ def _expected(light: NearFieldLight, scene, sphere, size: int) -> np.ndarray:
 
 def test_maps_match_a_per_texel_ray_cast():
     """Both maps of three VALs (one of them inside the bounding sphere: no frustum, all
-    ``inf``) equal a per-VAL NumPy ray cast to float32 precision. Wrong implementations it
-    rejects: rows and columns swapped (u ↔ v), a lane read with another VAL's frame, the
-    real and virtual scenes swapped."""
+    ``inf``) equal a per-VAL NumPy ray cast to float32 precision, the virtual map traced
+    through the object-space occluder against the bar loaded in world space. Wrong
+    implementations it rejects: rows and columns swapped (u ↔ v), a lane read with another
+    VAL's frame, the real and virtual scenes swapped, an object-space hit distance not in
+    the world ray's units (a renormalised local direction, on a scaled object)."""
     w = world(room(virtual=[BAR], extra=SLAB))
     opts = get_method("nearfield").spec.parse_options({"light": "x.json"})
     sh = np.zeros((1, 9, 3))
@@ -56,7 +62,9 @@ def test_maps_match_a_per_texel_ray_cast():
     size = 24
     maps = shadow_maps(light, data.proxy, data.occluder, data.sphere, size)
     assert maps.tan_half[2] == 0 and np.all(maps.tan_half[:2] > 0)
-    for got, scene in ((maps.real, data.proxy), (maps.virtual, data.occluder)):
+    assert isinstance(data.occluder, PosedOccluder)  # traced in the bar's own frame
+    # the references: the proxy, and the bar loaded in world space
+    for got, scene in ((maps.real, data.proxy), (maps.virtual, virtual_scene(w))):
         got = np.asarray(got, np.float64)
         want = _expected(light, scene, data.sphere, size)
         fin = np.isfinite(want)
@@ -65,3 +73,23 @@ def test_maps_match_a_per_texel_ray_cast():
         both = fin & np.isfinite(got)
         assert np.allclose(got[both], want[both], rtol=1e-4, atol=1e-5)
         assert np.all(np.isinf(got.reshape(3, -1)[2]))
+
+
+def test_object_space_sphere_holds_the_posed_object():
+    """The bounding sphere of an object-space occluder (``PosedOccluder.bounding_sphere``)
+    contains every vertex of the scaled, turned bar in world space and is no larger than
+    the sphere around its world-space bounding box. Wrong implementations it rejects: the
+    radius without the pose's scale (vertices outside), the centre left in object space,
+    the scale applied twice (larger than the world box's sphere)."""
+    from arlight.nearfield.pipeline import virtual_objects
+
+    w = world(room(virtual=[BAR]))
+    opts = get_method("nearfield").spec.parse_options({"light": "x.json"})
+    data = prepare(w, opts, NearFieldLight(np.zeros((0, 3)), np.zeros((0, 3)),
+                                           np.zeros((0, 3)), np.zeros(0), np.zeros((1, 9, 3))))
+    c, r = data.sphere
+    v = virtual_objects(w)[0].vertices
+    assert np.all(np.linalg.norm(v - c, axis=1) <= r * (1 + 1e-6))
+    b = virtual_scene(w).bbox()
+    lo, hi = np.array([b.min.x, b.min.y, b.min.z]), np.array([b.max.x, b.max.y, b.max.z])
+    assert r <= np.linalg.norm(hi - lo) / 2 * (1 + 1e-6)

@@ -52,6 +52,7 @@ from arlight.nearfield.shading import (
 from arlight.nearfield.split import DEFAULT_TAU
 from arlight.nearfield.state import MAX_VALS, NearFieldLight
 from arlight.realtime.gbuffer import assemble, render_gbuffer
+from arlight.realtime.oof import Occluder
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
@@ -106,7 +107,10 @@ class NearFieldData:
     world: World
     views: SceneViews
     proxy: mi.Scene
-    occluder: mi.Scene | None
+    occluder: Occluder | None
+    """The virtual objects alone (:func:`~arlight.realtime.oof.make_occluder`): one object
+    under a similarity is its object-space scene looked up through its pose (a pose moves
+    no Mitsuba scene), several a world-space scene moved in place."""
     prt: PerObjectSH | None
     materials: MaterialTable
     sphere: tuple[np.ndarray, float] | None
@@ -149,13 +153,13 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
     from arlight.cache import default_cache_dir
     from arlight.nearfield.atlas import proxy_mesh
     from arlight.nearfield.raytrace import mesh_scene
-    from arlight.realtime.oof import virtual_scene
+    from arlight.realtime.oof import make_occluder
     from arlight.realtime.prt_shading import prt_meshes
 
     views = build_views(world)
     mesh = proxy_mesh(world)
     proxy = mesh_scene([(mesh.vertices, mesh.faces)])
-    occluder = virtual_scene(world)
+    occluder = make_occluder(world)
     stats: dict = {}
     if light is None:
         light, stats, server = _light_from_options(world, options)
@@ -173,8 +177,14 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
                          stats, server)
 
 
-def _bounding_sphere(occluder: mi.Scene) -> tuple[np.ndarray, float]:
-    """Centre (m) and radius (m) of the sphere around the occluder's bounding box."""
+def _bounding_sphere(occluder) -> tuple[np.ndarray, float]:
+    """Centre (m) and radius (m) of the sphere around the occluder's bounding box (an
+    object-space occluder's: its box's circumsphere through the pose,
+    :meth:`~arlight.realtime.oof.PosedOccluder.bounding_sphere`)."""
+    from arlight.realtime.oof import PosedOccluder
+
+    if isinstance(occluder, PosedOccluder):
+        return occluder.bounding_sphere()
     b = occluder.bbox()
     lo, hi = np.array([b.min.x, b.min.y, b.min.z]), np.array([b.max.x, b.max.y, b.max.z])
     return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0
@@ -291,16 +301,18 @@ class NearFieldMethod(BaseMethod):
     def move(self, data: NearFieldData, world: World, transforms: dict[str, np.ndarray],
              options: Options) -> NearFieldData | None:
         """``data`` (prepared for ``world`` in any pose) moved in place to
-        ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views and in
-        the virtual occluder scene, each object keeps its object-space PRT transfer and takes
-        its new rotation, the bounding sphere is measured again and the shadow maps dropped
-        (they see the occluder); the proxy, the material table and the VALs are kept. Where
-        this state's own server made the light, the SH probes are re-traced at the moved
-        objects (as a server does when it is told the new poses); a given light is kept as
-        it is. Bitwise the data :func:`prepare` makes of the posed world with that light;
-        None when a real shape moves (the proxy and the light would change) or a virtual
-        primitive does (its object mesh is read back from the loaded mesh)."""
-        from arlight.realtime.oof import move_virtual_scene
+        ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views, the
+        virtual occluder takes the new pose (:func:`~arlight.realtime.oof.move_occluder`:
+        an object-space one only its frame, no acceleration structure rebuilt), each object
+        keeps its object-space PRT transfer and takes its new rotation, the bounding sphere
+        is measured again and the shadow maps dropped (they see the occluder); the proxy,
+        the material table and the VALs are kept. Where this state's own server made the
+        light, the SH probes are re-traced at the moved objects (as a server does when it
+        is told the new poses); a given light is kept as it is. Bitwise the data
+        :func:`prepare` makes of the posed world with that light; None when a real shape
+        moves (the proxy and the light would change), a virtual primitive does (its object
+        mesh is read back from the loaded mesh) or the occluder's kind would change."""
+        from arlight.realtime.oof import move_occluder
         from arlight.realtime.prt_transfer import rotation_part
 
         if data.prt is not None and any(world.shapes[o.shape].mesh is None
@@ -311,14 +323,16 @@ class NearFieldMethod(BaseMethod):
         if posed is None:
             return None
         sphere, prt = data.sphere, data.prt
-        if data.occluder is not None:
-            move_virtual_scene(data.occluder, before, posed)
-            sphere = _bounding_sphere(data.occluder)
+        ok, occluder = move_occluder(data.occluder, before, posed)
+        if not ok:  # the occluder's kind would change (a pose that is no similarity)
+            return None
+        if occluder is not None:
+            sphere = _bounding_sphere(occluder)
         if prt is not None:
             prt = PerObjectSH(**{**vars(prt), "objects": [
                 replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
                 for o in prt.objects]})
-        return replace(data, world=posed, prt=prt, sphere=sphere,
+        return replace(data, world=posed, occluder=occluder, prt=prt, sphere=sphere,
                        light=_server_light(data.server, posed, data.light), map_cache={})
 
     def relit(self, data: NearFieldData, world: World, options: Options

@@ -36,6 +36,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.jit import aligned
 from arlight.nearfield.materials import eta_for_f0, phong_exponent, schlick_complex
 from arlight.nearfield.state import NearFieldLight
 from arlight.scene.model import World
@@ -169,7 +170,7 @@ def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
     ``normalize(a_j + tan_half_j (g_c u_j + g_r v_j))``, ``g_i = (i + ½)/S · 2 − 1``
     (``inf``: no hit, or a VAL without frustum). Traced in one Dr.Jit pass of ``M·S²``
     lanes (no NumPy ray set-up: a moving object redraws the maps every frame, issue #32)."""
-    from arlight.jit import aligned, columns
+    from arlight.jit import columns
 
     fr = frusta(light, sphere)
     M, S = light.count, int(size)
@@ -276,8 +277,9 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
 
 
 def _table(a: np.ndarray) -> mi.Vector3f:
-    a = np.asarray(a, np.float32).reshape(-1, 3)
-    return mi.Vector3f(*[mi.Float(np.ascontiguousarray(a[:, i])) for i in range(3)])
+    from arlight.jit import columns
+
+    return mi.Vector3f(*columns(np.asarray(a).reshape(-1, 3), np.float32))
 
 
 @dataclass
@@ -299,11 +301,11 @@ class _Tables:
 def _tables(light: NearFieldLight, maps: ShadowMaps | None, disc: bool) -> _Tables:
     r2 = light.area / math.pi if disc else np.zeros(light.count)
     t = _Tables(_table(light.positions + EPS * light.normals), _table(light.normals),
-                _table(light.intensity), mi.Float(r2.astype(np.float32)))
+                _table(light.intensity), mi.Float(aligned(r2, np.float32)))
     if maps is not None:
         t.origin, t.axis = _table(maps.origin), _table(maps.axis)
         t.u, t.v = _table(maps.u), _table(maps.v)
-        t.tan = mi.Float(maps.tan_half.astype(np.float32))
+        t.tan = mi.Float(aligned(maps.tan_half, np.float32))
     return t
 
 
@@ -434,7 +436,9 @@ def direct_light(light: NearFieldLight, p: mi.Point3f, n: mi.Vector3f, albedo: m
         else:
             if len(lanes_per_val[j]) == 0:
                 continue
-            idx = mi.UInt32(lanes_per_val[j])
+            # aligned: Dr.Jit compiles a NumPy buffer's alignment into the kernel, and
+            # these lanes are new every frame (tests/methods/test_kernel_reuse.py)
+            idx = mi.UInt32(aligned(lanes_per_val[j], np.uint32))
             a, b = _shade_one(lanes.take(idx), tab, jj, m, proxy, occluder, bias_texels)
             # a VAL's lanes are distinct: plain read-modify-write, no atomics or the
             # full-size per-thread buffers of the default (Local/Expand) reduction

@@ -111,10 +111,10 @@ class PosedOccluder:
         """The same object in another pose (nothing loaded or rebuilt)."""
         return PosedOccluder(self.scene, frame)
 
-    def ray_test(self, ray: mi.Ray3f, active: mi.Bool | bool = True) -> mi.Bool:
-        """Whether each ray hits the object before ``ray.maxt``: origin and direction are
-        taken into the object's frame (the direction not renormalised, so the parameter
-        ``t`` and ``maxt`` keep their meaning)."""
+    def _local(self, ray: mi.Ray3f) -> mi.Ray3f:
+        """``ray`` in the object's frame: origin and direction taken through the inverse
+        pose, the direction not renormalised, so the parameter ``t`` and ``maxt`` keep their
+        meaning."""
         m = self._inv
         o = mi.Point3f(*[m[r][0] * ray.o.x + m[r][1] * ray.o.y + m[r][2] * ray.o.z + m[r][3]
                          for r in range(3)])
@@ -122,7 +122,26 @@ class PosedOccluder:
                           for r in range(3)])
         local = mi.Ray3f(o, d)
         local.maxt = ray.maxt
-        return self.scene.ray_test(local, active)
+        return local
+
+    def ray_test(self, ray: mi.Ray3f, active: mi.Bool | bool = True) -> mi.Bool:
+        """Whether each ray hits the object before ``ray.maxt`` (:meth:`_local`)."""
+        return self.scene.ray_test(self._local(ray), active)
+
+    def ray_intersect_preliminary(self, ray: mi.Ray3f, active: mi.Bool | bool = True
+                                  ) -> mi.PreliminaryIntersection3f:
+        """The first hit of each ray (:meth:`_local`): ``t`` is the world ray's parameter
+        (the nearfield client's shadow maps, issue #32); the primitive fields are the
+        object-space scene's."""
+        return self.scene.ray_intersect_preliminary(self._local(ray), active=active)
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """A sphere around the posed object (centre m, radius m): the object-space bounding
+        box's circumsphere taken through the pose (a similarity: radius × its scale), so it
+        does not grow as the object turns."""
+        c, r = _bounding_sphere(self.scene)
+        scale = float(np.cbrt(abs(np.linalg.det(self.frame[:3, :3]))))
+        return self.frame[:3, :3] @ c + self.frame[:3, 3], r * scale
 
 
 Occluder: TypeAlias = "mi.Scene | PosedOccluder"
