@@ -112,3 +112,81 @@ def test_octahedral_nodes_map_to_themselves():
     rows = np.asarray(octahedral_index(mi.Vector3f(axes[:, 0], axes[:, 1], axes[:, 2]),
                                        NORMAL_GRID))
     np.testing.assert_allclose(d[rows], axes, atol=1e-12)
+
+
+def test_per_node_table_agrees_with_the_per_lane_sum(sphere_field, monkeypatch):
+    """On a plane's few normals the field tabulates the blocked irradiance per shell sample
+    and normal node in one Dr.Jit kernel (``_per_node``); the same points looked up through
+    the per-lane sum (``FEW_NORMALS`` = 0) and through a NumPy float64 evaluation of the
+    table (``light_table`` rows dotted with the trilinear weights of the lanes' eight
+    samples, done here independently) give the same irradiance within float32 rounding.
+    Rejects a ``_per_node`` that mixes up its sample and node strides, drops the ``kf``
+    stride of the stored coefficients (a lookup below the field's order) or sums over fewer
+    SH coefficients."""
+    import arlight.realtime.oof as oof
+    from arlight.sphere.sh import directional_light_coeffs
+
+    rng = np.random.default_rng(4)
+    p = plane_points(40, 2.0)
+    normals = np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.8, -0.6]])
+    n = normals[rng.integers(0, 3, len(p))]
+    light = directional_light_coeffs(np.array([0.3, 0.9, 0.3]) / np.linalg.norm(
+        [0.3, 0.9, 0.3]), np.array([1.0, 0.5, 0.25]), 4) + rng.normal(0, 0.05, (25, 3))
+    field = sphere_field.posed(np.eye(4))
+    field.frame = None
+    order, k = 3, 16  # below the field's order 4: the stored stride is 25, not k
+    few = field.occluded_irradiance_np(light, p, n, order)
+    assert len(field._cache["used"]) <= oof.FEW_NORMALS and "per" in field._cache
+    monkeypatch.setattr(oof, "FEW_NORMALS", 0)
+    lanes = sphere_field.posed(np.eye(4))
+    lanes.frame = None
+    per_lane = lanes.occluded_irradiance_np(light, p, n, order)
+    assert "rows" in lanes._cache
+    # independent: float64 trilinear interpolation of the stored SH, dotted with the rows
+    s_, h_, w1, _ = field.coeffs.shape
+    rel = p - field.centre
+    r = np.linalg.norm(rel, axis=1)
+    fs = np.clip(np.log(np.maximum(r, field.radii[0]) / field.radii[0])
+                 / np.log(field.radii[1] / field.radii[0]), 0, s_ - 1)
+    fi = np.arccos(np.clip(rel[:, 1] / r, -1, 1)) * (h_ - 1) / np.pi
+    ph = np.arctan2(rel[:, 0], -rel[:, 2]) / (2 * np.pi)
+    fj = (ph - np.floor(ph)) * (w1 - 1)
+    o = np.zeros((len(p), k))
+    i0 = [np.minimum(np.floor(f).astype(int), top - 1)
+          for f, top in ((fs, s_ - 1), (fi, h_ - 1), (fj, w1 - 1))]
+    t = [f - i for f, i in zip((fs, fi, fj), i0, strict=True)]
+    for ds in (0, 1):
+        for di in (0, 1):
+            for dj in (0, 1):
+                w = ((t[0] if ds else 1 - t[0]) * (t[1] if di else 1 - t[1])
+                     * (t[2] if dj else 1 - t[2]))
+                o += w[:, None] * field.coeffs[i0[0] + ds, i0[1] + di, i0[2] + dj, :k]
+    node = np.asarray(oof.octahedral_index(mi.Vector3f(*[n[:, c].astype(np.float32)
+                                                          for c in range(3)]), NORMAL_GRID))
+    rows = field.light_table(light, order, node)  # (N, k, 3)
+    fade = np.clip((field.r_max - r) / (0.25 * field.r_max), 0, 1)
+    ref = np.einsum("nj,njc->nc", o, rows) * fade[:, None] * (r < field.r_max)[:, None]
+    assert np.abs(ref).max() > 0.05  # the points see the sphere
+    np.testing.assert_allclose(few, ref, atol=2e-4 * np.abs(ref).max())
+    np.testing.assert_allclose(per_lane, ref, atol=2e-4 * np.abs(ref).max())
+
+
+def test_light_table_is_the_projected_product_of_light_and_clamped_cosine(sphere_field):
+    """Row ``b`` of ``light_table`` is ``W_j(n_b) = ∫ y_j L T(n_b) dω``, the SH projection of
+    the light times the (band-limited) clamped cosine about the node's normal (Franke Eq.
+    5.8 with the triple-product tensor): checked against that integral by a spherical
+    quadrature exact for the degree, not through the tensor. Rejects a scaled or transposed
+    fold, a light truncated to fewer coefficients and a table of the wrong nodes."""
+    from arlight.realtime.oof import cosine_transfer
+    from arlight.sphere.sh import sh_basis, sphere_quadrature
+
+    rng = np.random.default_rng(7)
+    light = rng.normal(0.0, 1.0, (9, 3))
+    nodes = np.array([0, 17, 2112, 4000, NORMAL_GRID ** 2 - 1])
+    rows = sphere_field.light_table(light, 3, nodes)
+    dirs, w = sphere_quadrature(9)
+    y = sh_basis(dirs, 3)  # (D, 16)
+    t = cosine_transfer(octahedral_normals(NORMAL_GRID)[nodes], 3)  # (B, 16)
+    radiance = y[:, :9] @ light  # (D, 3)
+    ref = np.einsum("d,dj,dc,bd->bjc", w, y, radiance, t @ y.T)
+    np.testing.assert_allclose(rows, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
