@@ -65,7 +65,7 @@ def worker(args) -> None:
     from arlight.evaluate.harness import EvalConfig, run_evaluation
 
     cfg = EvalConfig(methods=args.methods.split(","), scenes=[], quick=False, spp=16,
-                     gt_spp=256, repeats=args.repeats, worlds=[args.world],
+                     gt_spp=args.gt_spp, repeats=args.repeats, worlds=[args.world],
                      world_width=args.width, equal_time=args.equal_time)
     res = run_evaluation(cfg, log=lambda s: print(s, flush=True))
     classes = res.world_classes()
@@ -94,7 +94,8 @@ def run_side(src: Path, seed: int, args, cells: Path, equal_time: bool) -> None:
     env = dict(os.environ, PYTHONPATH=str(src))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--world", str(seed),
            "--methods", args.methods, "--width", str(args.width),
-           "--repeats", str(args.repeats), "--cells", str(cells)]
+           "--repeats", str(args.repeats), "--gt-spp", str(args.gt_spp),
+           "--cells", str(cells)]
     subprocess.run(cmd + (["--equal-time"] if equal_time else []), env=env, check=True)
 
 
@@ -110,11 +111,13 @@ def section(base: dict, head: dict, args, pressure: str) -> str:
     scenes = sorted({s for s, _ in head})
     lines = [args.heading or HEADING, "",
              f"`benchmarks/bench_ab.py --baseline {args.baseline} --worlds {args.worlds} "
-             f"--width {args.width}`: each method of this tree against the same method at "
+             f"--width {args.width} --repeats {args.repeats} --gt-spp {args.gt_spp}`: each "
+             "method of this tree against the same method at "
              f"commit {args.baseline} (the code before this issue's changes), on "
              f"{len(scenes)} held-out worlds, both sides world by world. "
-             "Ground truth 256 spp (Mitsuba, shared cache), methods at 16 spp where they "
-             "sample. PSNR on display values; *changed* = the pixels the insertion changes "
+             f"Ground truth {args.gt_spp} spp (Mitsuba, shared cache), methods at 16 spp "
+             "where they sample. PSNR on display values; *changed* = the pixels the insertion "
+             "changes "
              "(`arlight.evaluate.metrics.changed_region`). Wins vs onepass: the method's "
              "PSNR above the best `onepass` frame that took at most the method's frame time "
              "(or `onepass` had no frame that fast). CPU pressure (PSI some avg60) at the "
@@ -174,6 +177,9 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=160, help="image width, px (4:3)")
     ap.add_argument("--methods", default=METHODS, help=f"comma-separated (default {METHODS})")
     ap.add_argument("--repeats", type=int, default=1, help="timed frames per cell")
+    ap.add_argument("--gt-spp", type=int, default=256, help="samples per pixel of the ground "
+                    "truth (its noise adds the same expected squared error to every method, "
+                    "so which of two methods is closer is unbiased at any spp)")
     ap.add_argument("--out", type=Path, default=Path("ab-results"),
                     help="folder for base.jsonl / head.jsonl (resumed when present)")
     ap.add_argument("--sides", default="base,head", help="which sides to run now (default "
