@@ -190,3 +190,28 @@ def test_light_table_is_the_projected_product_of_light_and_clamped_cosine(sphere
     radiance = y[:, :9] @ light  # (D, 3)
     ref = np.einsum("d,dj,dc,bd->bjc", w, y, radiance, t @ y.T)
     np.testing.assert_allclose(rows, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+def test_a_moving_field_reuses_its_kernels_on_few_normals(sphere_field):
+    """Poses of an object-space field (its light rotates, its per-node table is made again
+    each frame, for two or three plane normals) launch no kernel the first pose did not;
+    rejects per-pose values (node count, table sizes, the pose) compiled in as literals."""
+    from tests.kernels import traced_kernels
+
+    p = plane_points(40, 2.0)
+    normals = np.array([[0.0, 1.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.8, -0.6]])
+    light = np.zeros((9, 3))
+    light[0], light[2] = 1.0, 0.5
+    seen: set[str] = set()
+    for k in range(4):
+        turn = np.eye(4)
+        a = 0.2 * k
+        turn[[0, 0, 2, 2], [0, 2, 0, 2]] = [np.cos(a), np.sin(a), -np.sin(a), np.cos(a)]
+        turn[:3, 3] = [0.01 * k, 0.0, 0.0]
+        field = sphere_field.posed(turn)
+        n = normals[np.arange(len(p)) % (2 + k % 2)]
+        kernels = traced_kernels(lambda f=field, n=n: f.occluded_irradiance_np(light, p, n))
+        assert "per" in field._cache
+        if k >= 1:
+            assert kernels <= seen, f"{len(kernels - seen)} kernels new in pose {k}"
+        seen |= kernels

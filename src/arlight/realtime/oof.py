@@ -57,7 +57,7 @@ from arlight.backend.mitsuba_scene import (
     load_view,
 )
 from arlight.backend.rays import np3
-from arlight.jit import aligned
+from arlight.jit import aligned, columns
 from arlight.layers import Layers
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import LightSet
@@ -415,10 +415,8 @@ class OcclusionField:
     def occluded_irradiance_np(self, light_sh: np.ndarray, p: np.ndarray, n: np.ndarray,
                                order: int | None = None) -> np.ndarray:
         """:meth:`occluded_irradiance` for NumPy points and normals ``(N, 3)`` → ``(N, 3)``."""
-        p = np.asarray(p, np.float32)
-        n = np.asarray(n, np.float32)
-        e = self.occluded_irradiance(light_sh, mi.Point3f(p[:, 0], p[:, 1], p[:, 2]),
-                                     mi.Vector3f(n[:, 0], n[:, 1], n[:, 2]), order)
+        e = self.occluded_irradiance(light_sh, mi.Point3f(*columns(p, np.float32)),
+                                     mi.Vector3f(*columns(n, np.float32)), order)
         return np3(e)
 
 
