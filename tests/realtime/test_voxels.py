@@ -309,3 +309,56 @@ def test_occluded_bounce_subtracts_what_the_virtual_objects_hide():
     assert float(r.radiance.x[0]) == pytest.approx(0.0, abs=1e-6)
     with pytest.raises(ValueError, match="alpha_for_light 2"):
         trace_cones(ConeVolumes(av, None, zero, rv), o, d, 0.0, dr.inf, mi.Bool(True))
+
+
+def test_cover_is_the_largest_normal_component_per_axis():
+    """``Voxels.cover`` of a tilted plane (unit normal (0, 0.6, 0.8), two triangles) is
+    (0, 0.6, 0.8) in every cell, also where both triangles touch the cell; a union keeps
+    the larger per axis. Rejects summing the triangles' components (1.2, 1.6 → clipped to
+    1 in the cells along the shared diagonal)."""
+    g = Grid(np.zeros(3), 1.0, 16)
+    n = np.array([0.0, 0.6, 0.8])
+    u = np.array([1.0, 0.0, 0.0])
+    v = np.cross(n, u)
+    c = np.array([8.0, 8.0, 8.0])
+    q = [c + 6 * (a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    vox = voxelize(np.array([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]), g)
+    assert vox.occupied > 100
+    np.testing.assert_allclose(vox.cover, np.broadcast_to(n, vox.cover.shape), atol=1e-6)
+    other = Voxels.from_hits(g, vox.index[:1], np.array([[1.0, 0.0, 0.0]]))
+    both = vox.union(other)
+    first = np.searchsorted(both.index, vox.index[0])
+    np.testing.assert_allclose(both.cover[first], [1.0, 0.6, 0.8], atol=1e-6)
+
+
+def test_directional_occupancy_is_the_projected_cover():
+    """A radiance cone given ``ConeVolumes.cover`` sees a cell's occupancy along its
+    direction, ``Σ_a |d_a| cover_a``: one sample at the centre of an x-sheet cell
+    (cover (1, 0, 0)) along (0.8, 0.6, 0) gives α 0.8 and premultiplied radiance
+    ``I · |d_x|`` from the anisotropic light; isotropic α gives 1. Rejects the cover ignored
+    and ``Σ_a d_a² cover_a`` (0.64)."""
+    vols, g = _aniso_layer(8, np.array([-1.0, 0.0, 0.0]), 2.0)
+    cov = np.zeros((8, 8, 8, 6), np.float32)
+    cov[:, :, 4, 0] = 1.0
+    cov[:, :, 4, 3] = 1.0
+    cv = ConeVolumes(vols.alpha, None, vols.light, None,
+                     build_mips(pack(cov.reshape(-1, 6)), g, 6))
+    o, d = mi.Point3f(4.5, 4.5, 4.5), mi.Vector3f(0.8, 0.6, 0.0)
+    r = trace_cones(cv, o, d, 0.0, 0.5, mi.Bool(True))
+    assert float(r.a_all[0]) == pytest.approx(0.8, abs=1e-6)
+    assert float(r.a_real[0]) == pytest.approx(0.8, abs=1e-6)
+    assert float(r.radiance.x[0]) == pytest.approx(2.0 * 0.8, abs=1e-5)
+    iso = trace_cones(ConeVolumes(vols.alpha, None, vols.light), o, d, 0.0, 0.5, mi.Bool(True))
+    assert float(iso.a_all[0]) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_lane_without_direction_gathers_nothing():
+    """A lane whose direction is zero (a G-buffer sample of no surface: zero normal) is
+    inactive: no occlusion, no radiance. Rejects marching it in place — it accumulated the
+    occupancy of its start cell, and with directional occupancy (zero for a zero direction)
+    it never stopped (the box exit is 10¹² away)."""
+    vols, g = _aniso_layer(8, np.array([-1.0, 0.0, 0.0]), 2.0)
+    r = trace_cones(ConeVolumes(vols.alpha, None, vols.light), mi.Point3f(4.5, 4.5, 4.5),
+                    mi.Vector3f(*(mi.Float(np.zeros(1, np.float32)) for _ in range(3))), 0.5,
+                    dr.inf, mi.Bool(True))
+    assert float(r.a_all[0]) == 0.0 and float(r.radiance.x[0]) == 0.0

@@ -115,6 +115,9 @@ RMSE 0.044 → 0.028 against ray tracing with the bias.)
 ALPHA_CHANNELS = 2
 """``V_η`` occupancy channels: ``α_all`` (real + virtual), ``α_real``."""
 
+COVER_CHANNELS = 6
+"""Channels per cell of a directional occupancy volume: ``cover`` (:class:`Voxels`) of all
+geometry (x, y, z) and of the real geometry (x, y, z)."""
 ANISO_CHANNELS = 18
 """Channels per cell of an anisotropic radiance volume: RGB intensity emitted towards each
 of the 6 axis directions ``+x, −x, +y, −y, +z, −z`` (slot ``2a + negative``), W/sr."""
@@ -178,10 +181,12 @@ def shape_triangles(shape: Shape) -> np.ndarray:
 # Conservative voxelisation
 # --------------------------------------------------------------------------------------------
 
-def check_memory(n: int) -> None:
+def check_memory(n: int, extra_channels: int = 0) -> None:
     """InputError (field ``options.volume_size``) when the volumes of ``n³`` cells would not
-    fit in the available memory (``MemAvailable`` of ``/proc/meminfo``)."""
-    need = BYTES_PER_VOXEL * n ** 3 * 8 / 7
+    fit in the available memory (``MemAvailable`` of ``/proc/meminfo``); ``extra_channels``
+    float32 channels per cell beyond :data:`BYTES_PER_VOXEL`'s 11 (anisotropic radiance,
+    directional occupancy)."""
+    need = (BYTES_PER_VOXEL + 4 * 3 * extra_channels) * n ** 3 * 8 / 7
     try:
         with open("/proc/meminfo") as f:
             avail = next(int(x.split()[1]) * 1024 for x in f if x.startswith("MemAvailable:"))
@@ -229,23 +234,36 @@ class Voxels:
     grid: Grid
     index: np.ndarray
     normal_sum: np.ndarray
+    cover: np.ndarray
 
     @staticmethod
     def empty(grid: Grid) -> Voxels:
-        return Voxels(grid, np.zeros(0, np.int64), np.zeros((0, 3)))
+        return Voxels(grid, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
 
     @staticmethod
-    def from_hits(grid: Grid, flat: np.ndarray, normals: np.ndarray) -> Voxels:
-        """Cells of ``flat`` (with repeats), their ``normals (m, 3)`` summed."""
+    def from_hits(grid: Grid, flat: np.ndarray, normals: np.ndarray,
+                  covers: np.ndarray | None = None) -> Voxels:
+        """Cells of ``flat`` (with repeats), their ``normals (m, 3)`` summed, and the
+        directional occupancy ``cover`` (k, 3): per axis ``a`` the largest ``|n_a|`` of the
+        unit normals of the surfaces touching the cell (``covers (m, 3)``, by default from
+        ``normals``) — the coverage of the cell's face ``⊥ e_a`` by a sheet crossing it;
+        a ray along ``ω`` sees ``Σ_a |ω_a| cover_a``, exactly ``|<n, ω>|`` for an
+        axis-aligned sheet, 1 along either axis of a cell holding two faces of a box."""
+        if covers is None:
+            length = np.linalg.norm(normals, axis=1, keepdims=True)
+            covers = np.where(length > 0, np.abs(normals) / np.maximum(length, 1e-30), 0.0)
         idx, inv = np.unique(flat, return_inverse=True)
         ns = np.stack([np.bincount(inv, weights=normals[:, c], minlength=len(idx))
                        for c in range(3)], 1) if len(idx) else np.zeros((0, 3))
-        return Voxels(grid, idx.astype(np.int64), ns)
+        cov = np.zeros((len(idx), 3))
+        np.maximum.at(cov, inv, covers)
+        return Voxels(grid, idx.astype(np.int64), ns, cov)
 
     def union(self, other: Voxels) -> Voxels:
-        """Cells occupied by either; normals summed."""
+        """Cells occupied by either; normals summed, covers the larger."""
         return Voxels.from_hits(self.grid, np.concatenate([self.index, other.index]),
-                                np.concatenate([self.normal_sum, other.normal_sum]))
+                                np.concatenate([self.normal_sum, other.normal_sum]),
+                                np.concatenate([self.cover, other.cover]))
 
     @property
     def alpha(self) -> np.ndarray:
@@ -433,6 +451,16 @@ def pack(*arrays: np.ndarray) -> np.ndarray:
 # Cone tracing
 # --------------------------------------------------------------------------------------------
 
+def cover_level0(real: Voxels, virtual: Voxels) -> mi.Float:
+    """Packed finest level of the directional occupancy (:data:`COVER_CHANNELS`): per cell
+    the ``cover`` of real ∪ virtual geometry and of the real geometry alone."""
+    both = real.union(virtual)
+    out = np.zeros((real.grid.n ** 3, 6), np.float32)
+    out[both.index, :3] = both.cover
+    out[real.index, 3:] = real.cover
+    return mi.Float(aligned(out.ravel(), np.float32))
+
+
 def eta_level0(real: Voxels, virtual: Voxels) -> tuple[mi.Float, mi.Float]:
     """Packed finest levels of ``V_η`` as Dr.Jit buffers: occupancy (2 channels,
     ``α_all = max(α_real, α_virtual)`` and ``α_real``) and the unit mean normal (3)."""
@@ -462,6 +490,7 @@ class ConeVolumes:
     normal: MipVolume | None = None
     light: MipVolume | None = None
     occluded: MipVolume | None = None
+    cover: MipVolume | None = None
 
 
 def box_interval(grid: Grid, o: mi.Point3f, d: mi.Vector3f) -> tuple[mi.Float, mi.Float]:
@@ -522,7 +551,13 @@ def _sample_level(vols: list[MipVolume], tables: tuple[mi.UInt32, mi.UInt32], gr
             c[2] < ni)
         cell = off + mi.UInt32(c[0] + ni * (c[1] + ni * c[2]))
         for j, v in enumerate(vols):
-            if v.channels == ANISO_CHANNELS:
+            if v.channels == COVER_CHANNELS:  # projected: (Σ|ω_a| cover_all,a, … real)
+                assert aniso is not None, "directional occupancy needs the cone's direction"
+                w3 = mi.Vector3f(*(wa for _, wa in aniso))
+                ca = dr.gather(mi.Vector3f, v.data, cell * 2, ok)
+                cr = dr.gather(mi.Vector3f, v.data, cell * 2 + 1, ok)
+                val = mi.Vector2f(dr.dot(ca, w3), dr.dot(cr, w3))
+            elif v.channels == ANISO_CHANNELS:
                 assert aniso is not None, "anisotropic radiance needs the cone's direction"
                 val = mi.Vector3f(0.0)
                 for slot, wa in aniso:
@@ -576,7 +611,8 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     t = dr.maximum(t_in, t_start)
     t_end = dr.minimum(t_out, t_max)
     tan_h = mi.Float(tan_half)
-    act = mi.Bool(active) & (t < t_end)
+    # lanes without a direction (G-buffer samples of no surface) never leave their start
+    act = mi.Bool(active) & (t < t_end) & (dr.squared_norm(direction) > 0.0)
     c = mi.Color3f(0.0)
     a_all = mi.Float(0.0)
     a_real = mi.Float(0.0)
@@ -591,8 +627,9 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     max_lvl = float(levels - 1)
     quad = bool(quadrilinear)
     far_start = FAR_START * s0
-    aniso = aniso_lookup(direction) if light is not None and light.channels == \
-        ANISO_CHANNELS else None
+    cover = vols.cover if light is not None else None
+    aniso = aniso_lookup(direction) if light is not None and (
+        light.channels == ANISO_CHANNELS or cover is not None) else None
     if occ is not None and occ.channels != light.channels:
         raise ValueError("the occluded volume must have the light volume's channels")
     # opaque: one compiled kernel for every value (benchmarks/tune_realtime.py sweeps them)
@@ -607,7 +644,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         lvl_f = dr.clip(dr.log2(diam * (1.0 / s0)) - bias, 0.0, max_lvl)
         p = origin + direction * t
         vs = [alpha] if light is None else (
-            [alpha, light] + ([] if occ is None else [occ])
+            [alpha if cover is None else cover, light] + ([] if occ is None else [occ])
             + ([] if vols.normal is None else [vols.normal]))
         if quad:
             l0 = mi.UInt32(dr.floor(lvl_f))
@@ -669,7 +706,8 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     return ConeResult(*state[1:5])
 
 
-__all__ = ["ALPHA_CHANNELS", "BLOCKING_SUB", "BYTES_PER_VOXEL", "ConeResult", "ConeVolumes",
+__all__ = ["ALPHA_CHANNELS", "ANISO_CHANNELS", "BLOCKING_SUB", "BYTES_PER_VOXEL",
+           "COVER_CHANNELS", "ConeResult", "ConeVolumes", "aniso_lookup", "cover_level0",
            "MipVolume", "Voxels", "blocking_potential", "box_interval", "build_mips",
            "check_memory", "eta_level0", "pack", "shape_triangles", "trace_cones", "voxelize",
            "voxelize_shapes"]
