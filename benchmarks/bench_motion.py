@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import subprocess
 import sys
@@ -201,9 +202,11 @@ def _met(row: str) -> bool:
 
 def child(name: str, rounds: int, warmup: int) -> dict[str, float]:
     """:func:`measure` in a fresh process (no other method's scenes or kernels alive)."""
+    # OpenBLAS as the arlight command loads it (this script imports NumPy before arlight)
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
     out = subprocess.run([sys.executable, __file__, "--child", name, "--rounds", str(rounds),
                           "--warmup", str(warmup)], capture_output=True, text=True,
-                         check=True, cwd=str(HERE)).stdout
+                         check=True, cwd=str(HERE), env=env).stdout
     line = next(x for x in out.splitlines() if x.startswith("RESULT"))
     return json.loads(line[len("RESULT"):])
 

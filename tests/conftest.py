@@ -14,7 +14,8 @@ def _single_threaded_blas() -> None:
     thin SVD of 6912 × 9 per step): ``tests/realtime/test_sog.py`` took 120 s of CPU with
     it and 16 s without, with the same results. OpenBLAS reads ``OPENBLAS_NUM_THREADS``
     once, when the library loads; the variable is restored afterwards, so the subprocesses
-    the tests start (the CLI, the interruption tests) get the default pool like a user."""
+    the tests start (the CLI, the interruption tests) get what a user gets (``import
+    arlight`` before NumPy: one thread unless the variable is set; tests/test_blas_threads.py)."""
     previous = os.environ.get("OPENBLAS_NUM_THREADS")
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     try:
