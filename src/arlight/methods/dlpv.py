@@ -16,7 +16,8 @@ Per frame and per reduced light (:mod:`arlight.realtime.light_reduction`):
 4. the regular LPV ``V_ρ`` injected with ``R_ρ``'s VPLs (indirect light on the virtual
    object);
 5. [KD10] propagation of both volumes (32 steps), with the directional-derivative dampening
-   of §4.4 (option);
+   of §4.4 (option); ``V_Δ``'s ``+R_ρ`` VPLs, the objects' own bounce, in a volume of their
+   own, undamped (issue #33, :func:`delta_dampening`);
 6. composition (Alg. 1, thesis §5.3.4): virtual pixels ``ρ/π (E_direct + E_{V_ρ} +
    E_ambient)`` with shadow rays to the reduced lights; real pixels ``B + ρ/π E_{V_Δ}``,
    the volume evaluated with the inverse normal (cosine-convolved, :func:`~arlight.realtime.
