@@ -322,10 +322,10 @@ def test_cover_is_the_largest_normal_component_per_axis():
     v = np.cross(n, u)
     c = np.array([8.0, 8.0, 8.0])
     q = [c + 6 * (a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    vox = voxelize(np.array([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]), g)
+    vox = voxelize(np.array([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]), g, with_cover=True)
     assert vox.occupied > 100
     np.testing.assert_allclose(vox.cover, np.broadcast_to(n, vox.cover.shape), atol=1e-6)
-    other = Voxels.from_hits(g, vox.index[:1], np.array([[1.0, 0.0, 0.0]]))
+    other = Voxels.from_hits(g, vox.index[:1], np.array([[1.0, 0.0, 0.0]]), with_cover=True)
     both = vox.union(other)
     first = np.searchsorted(both.index, vox.index[0])
     np.testing.assert_allclose(both.cover[first], [1.0, 0.6, 0.8], atol=1e-6)

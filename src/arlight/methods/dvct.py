@@ -312,7 +312,7 @@ def prepare(world: World, options: Options) -> DVCTData:
     grid = real = tris = maps = None
     if bounds is not None:
         grid = volume_grid(bounds, options)
-        real = voxelize_shapes(world.real_shapes, grid)
+        real = voxelize_shapes(world.real_shapes, grid, options.directional_occupancy)
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
         maps = real_maps(views, lights, grid, options.rsm_size, bounds)
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
@@ -335,7 +335,7 @@ def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], option
     if grid is None or data.real_maps is None:
         return replace(data, world=posed)
     real = data.real_voxels if same_grid(data.grid, grid) else voxelize_shapes(
-        posed.real_shapes, grid)
+        posed.real_shapes, grid, options.directional_occupancy)
     tris = np.concatenate([shape_triangles(s) for s in posed.virtual_shapes])
     return replace(data, world=posed, grid=grid, real_voxels=real, virtual_triangles=tris,
                    real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds))
@@ -437,7 +437,8 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
     with timer.stage("rsm"):
         pairs = rsm_pair(data)
     with timer.stage("voxelize"):
-        virt = voxelize(data.virtual_triangles, grid)
+        virt = voxelize(data.virtual_triangles, grid,
+                        with_cover=bool(options.directional_occupancy))
         alpha0, normal0 = eta_level0(data.real_voxels, virt)
     ch = light_channels(options)
     with timer.stage("inject"):

@@ -234,36 +234,49 @@ class Voxels:
     grid: Grid
     index: np.ndarray
     normal_sum: np.ndarray
-    cover: np.ndarray
+    cover: np.ndarray | None = None
 
     @staticmethod
-    def empty(grid: Grid) -> Voxels:
-        return Voxels(grid, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    def empty(grid: Grid, with_cover: bool = False) -> Voxels:
+        return Voxels(grid, np.zeros(0, np.int64), np.zeros((0, 3)),
+                      np.zeros((0, 3)) if with_cover else None)
 
     @staticmethod
     def from_hits(grid: Grid, flat: np.ndarray, normals: np.ndarray,
-                  covers: np.ndarray | None = None) -> Voxels:
-        """Cells of ``flat`` (with repeats), their ``normals (m, 3)`` summed, and the
-        directional occupancy ``cover`` (k, 3): per axis ``a`` the largest ``|n_a|`` of the
-        unit normals of the surfaces touching the cell (``covers (m, 3)``, by default from
-        ``normals``) — the coverage of the cell's face ``⊥ e_a`` by a sheet crossing it;
-        a ray along ``ω`` sees ``Σ_a |ω_a| cover_a``, exactly ``|<n, ω>|`` for an
-        axis-aligned sheet, 1 along either axis of a cell holding two faces of a box."""
-        if covers is None:
-            length = np.linalg.norm(normals, axis=1, keepdims=True)
-            covers = np.where(length > 0, np.abs(normals) / np.maximum(length, 1e-30), 0.0)
+                  covers: np.ndarray | None = None, with_cover: bool = False) -> Voxels:
+        """Cells of ``flat`` (with repeats), their ``normals (m, 3)`` summed; with
+        ``with_cover`` also the directional occupancy ``cover`` (k, 3): per axis ``a`` the
+        largest ``|n_a|`` of the unit normals of the surfaces touching the cell
+        (``covers (m, 3)``, by default from ``normals``) — the coverage of the cell's face
+        ``⊥ e_a`` by a sheet crossing it; a ray along ``ω`` sees ``Σ_a |ω_a| cover_a``,
+        exactly ``|<n, ω>|`` for an axis-aligned sheet, 1 along either axis of a cell
+        holding two faces of a box. (Optional: it costs a sort of the hits.)"""
         idx, inv = np.unique(flat, return_inverse=True)
         ns = np.stack([np.bincount(inv, weights=normals[:, c], minlength=len(idx))
                        for c in range(3)], 1) if len(idx) else np.zeros((0, 3))
-        cov = np.zeros((len(idx), 3))
-        np.maximum.at(cov, inv, covers)
+        cov = None
+        if with_cover:
+            if covers is None:
+                length = np.linalg.norm(normals, axis=1, keepdims=True)
+                covers = np.where(length > 0, np.abs(normals) / np.maximum(length, 1e-30),
+                                  0.0)
+            cov = np.zeros((len(idx), 3))
+            if len(idx):
+                order = np.argsort(inv, kind="stable")
+                starts = np.concatenate([[0], np.cumsum(np.bincount(inv))[:-1]])
+                for c in range(3):
+                    cov[:, c] = np.maximum.reduceat(np.asarray(covers, np.float64)[order, c],
+                                                    starts)
         return Voxels(grid, idx.astype(np.int64), ns, cov)
 
     def union(self, other: Voxels) -> Voxels:
-        """Cells occupied by either; normals summed, covers the larger."""
+        """Cells occupied by either; normals summed, covers the larger (kept only when
+        both have them)."""
+        both = self.cover is not None and other.cover is not None
         return Voxels.from_hits(self.grid, np.concatenate([self.index, other.index]),
                                 np.concatenate([self.normal_sum, other.normal_sum]),
-                                np.concatenate([self.cover, other.cover]))
+                                np.concatenate([self.cover, other.cover]) if both else None,
+                                with_cover=both)
 
     @property
     def alpha(self) -> np.ndarray:
@@ -282,17 +295,18 @@ class Voxels:
         return len(self.index)
 
 
-def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20) -> Voxels:
+def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20,
+             with_cover: bool = False) -> Voxels:
     """Conservative voxelisation of world-space triangles ``(F, 3, 3)`` into ``grid`` (thesis
     §5.4.2; [SS10]): every cell whose closed box the triangle touches is occupied (``α = 1``),
     and gets the triangle's area-weighted normal added (orientation from the winding).
     Triangles outside the grid are clipped away; degenerate ones mark the cells they touch
     with no normal. Candidates are the cells of each triangle's bounding box (NumPy),
     tested ``chunk`` at a time in one Dr.Jit kernel (float32 in cell units relative to
-    the cell centre)."""
+    the cell centre). ``with_cover``: also :attr:`Voxels.cover`."""
     tri = np.asarray(triangles, np.float64)
     if len(tri) == 0:
-        return Voxels.empty(grid)
+        return Voxels.empty(grid, with_cover)
     n, s = grid.n, grid.cell
     local = (tri - grid.origin) / s  # cell units
     lo = np.clip(np.floor(local.min(1) - 1e-6).astype(np.int64), 0, n - 1)
@@ -322,15 +336,17 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20) -> Voxels:
         flats.append((ix + n * (iy + n * iz))[hit])
         norms.append(area_n[t[hit]])
     if not flats:
-        return Voxels.empty(grid)
-    return Voxels.from_hits(grid, np.concatenate(flats), np.concatenate(norms))
+        return Voxels.empty(grid, with_cover)
+    return Voxels.from_hits(grid, np.concatenate(flats), np.concatenate(norms),
+                            with_cover=with_cover)
 
 
-def voxelize_shapes(shapes: list[Shape], grid: Grid) -> Voxels:
+def voxelize_shapes(shapes: list[Shape], grid: Grid, with_cover: bool = False) -> Voxels:
     """:func:`voxelize` of the triangles of several shapes."""
     if not shapes:
-        return Voxels.empty(grid)
-    return voxelize(np.concatenate([shape_triangles(s) for s in shapes]), grid)
+        return Voxels.empty(grid, with_cover)
+    return voxelize(np.concatenate([shape_triangles(s) for s in shapes]), grid,
+                    with_cover=with_cover)
 
 
 BLOCKING_SUB = 2
@@ -455,6 +471,8 @@ def cover_level0(real: Voxels, virtual: Voxels) -> mi.Float:
     """Packed finest level of the directional occupancy (:data:`COVER_CHANNELS`): per cell
     the ``cover`` of real ∪ virtual geometry and of the real geometry alone."""
     both = real.union(virtual)
+    if both.cover is None or real.cover is None:
+        raise ValueError("cover_level0 needs voxels made with_cover")
     out = np.zeros((real.grid.n ** 3, 6), np.float32)
     out[both.index, :3] = both.cover
     out[real.index, 3:] = real.cover
