@@ -137,15 +137,16 @@ OPTIONS: dict[str, Field] = {
     "anisotropic": Field("bool", False, "V_Δ/V_ρ hold the Lambertian intensity towards "
                          "the 6 axis directions (issue #33: isotropic cells show a cube's lit "
                          "top to the floor beside it, its red bounce 4.1× a path tracer's, "
-                         "0.67× anisotropic); off (chosen on training worlds: anisotropic "
-                         "lost 0.43 dB median changed_psnr on 5, the bounce then too dark, "
+                         "0.66× anisotropic); off (chosen on training worlds: anisotropic "
+                         "lost 0.26 dB median changed_psnr on 6, the bounce then too dark, "
                          "tests/methods/test_dvct_reference.py): one isotropic Φ/π per cell, "
                          "as Franke"),
     "occluded_bounce": Field("bool", False, "real receivers also lose the first bounce the "
                              "virtual objects hide from them: diffuse cones on real pixels "
                              "gather Δ·k − (1 − k)·µ = Δ − (1 − k)·ρ per sample (Eq. 5.27's "
                              "C_ρ − C_µ − C_Δ; issue #33); off: Δ·k as Franke (chosen on "
-                             "training worlds: +0.004 dB median on 4, neutral)"),
+                             "training worlds: with anisotropic, no change of the median "
+                             "on 6)"),
     "directional_occupancy": Field("bool", False, "radiance cones see a cell's occupancy "
                                    "along their direction, Σ_a |ω_a| cover_a (a sheet "
                                    "seen at θ covers cos θ; issue #33); shadow cones keep the "
