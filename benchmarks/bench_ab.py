@@ -104,6 +104,31 @@ def _median(xs: list[float]) -> float:
     return statistics.median(xs) if xs else math.nan
 
 
+def equal_time_table(head: dict, methods: list[str], scenes: list[str]) -> str:
+    """Per world and method: PSNR (whole frame, dB) and frame time (ms) of the method, and
+    of the best ``onepass`` frame at most that slow (its spp; ``none`` when no onepass
+    frame was that fast: the method wins)."""
+    lines = ["Per world: method PSNR / frame time → onepass at that time (PSNR, spp); "
+             "**bold**: the method wins.", "",
+             "| world | class | " + " | ".join(methods) + " |",
+             "|---|---|" + "---|" * len(methods)]
+    for s in scenes:
+        cls = next((c["class"] for (sc, _), c in head.items() if sc == s), "")
+        row = []
+        for m in methods:
+            c = head.get((s, m), {})
+            if not c.get("ok"):
+                row.append("—")
+                continue
+            op = c["onepass_at_time_psnr"]
+            one = ("none" if math.isnan(op) else
+                   f"{op:.1f} dB, {c['onepass_at_time_spp']:.0f} spp")
+            cell = f"{c['psnr']:.1f} dB / {c['seconds'] * 1e3:.0f} ms → {one}"
+            row.append(f"**{cell}**" if not c["psnr"] <= op else cell)
+        lines.append(f"| {s} | {cls} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
 def section(base: dict, head: dict, args, pressure: str) -> str:
     """The RESULTS.md section: per method, the worlds both sides ran, the median and worst
     gain of changed-pixel PSNR, and head's wins against ``onepass`` at equal time."""
@@ -111,10 +136,13 @@ def section(base: dict, head: dict, args, pressure: str) -> str:
     scenes = sorted({s for s, _ in head})
     lines = [args.heading or HEADING, "",
              f"`benchmarks/bench_ab.py --baseline {args.baseline} --worlds {args.worlds} "
-             f"--width {args.width} --repeats {args.repeats} --gt-spp {args.gt_spp}`: each "
-             "method of this tree against the same method at "
-             f"commit {args.baseline} (the code before this issue's changes), on "
-             f"{len(scenes)} held-out worlds, both sides world by world. "
+             f"--width {args.width} --repeats {args.repeats} --gt-spp {args.gt_spp}`: "
+             + ("each method of this tree against the same method at "
+                f"commit {args.baseline} (the code before this issue's changes), on "
+                f"{len(scenes)} held-out worlds, both sides world by world. " if base else
+                f"each method of this tree on {len(scenes)} held-out worlds against onepass "
+                "at equal time (no baseline side in this run). ")
+             +
              f"Ground truth {args.gt_spp} spp (Mitsuba, shared cache), methods at 16 spp "
              "where they sample. PSNR on display values; *changed* = the pixels the insertion "
              "changes "
@@ -148,9 +176,13 @@ def section(base: dict, head: dict, args, pressure: str) -> str:
             f"{_median([base[(s, m)]['changed_psnr'] for s in both]):.2f} → "
             f"{_median([head[(s, m)]['changed_psnr'] for s in both]):.2f} | "
             f"{_median(ratio):.2f} | {wins}/{len(ran)} |")
-    lines += ["", "Per world (Δ changed-pixel PSNR, dB; `—`: not run on both sides):", "",
-              "| world | class | " + " | ".join(methods) + " |",
-              "|---|---|" + "---|" * len(methods)]
+    if not base:  # a head-only run (`--sides head` into a fresh --out): equal time only
+        lines += ["", equal_time_table(head, methods, scenes)]
+        scenes = []
+    else:
+        lines += ["", "Per world (Δ changed-pixel PSNR, dB; `—`: not run on both sides):", "",
+                  "| world | class | " + " | ".join(methods) + " |",
+                  "|---|---|" + "---|" * len(methods)]
     for s in scenes:
         cls = next((c["class"] for (sc, _), c in head.items() if sc == s), "")
         row = []
