@@ -20,9 +20,10 @@ OPTIONS: dict[str, Field] = {
                      "rendered (I_m, and I_r or the delta), composited onto the untouched "
                      "photograph (docs/methods/denoising.md); `none`: the raw Monte Carlo "
                      "estimate", choices=("none", "oidn")),
-    "denoise_quality": Field("choice", "fast", "OIDN's quality level (`fast`, chosen on "
-                             "training worlds: about half the time of `high` at 640x480 for "
-                             "~0.7 dB; docs/methods/denoising.md)",
+    "denoise_quality": Field("choice", "fast", "OIDN's quality level (`fast`: the best "
+                             "equal-time PSNR on training worlds among settings whose added "
+                             "bias stays small; rarely a small image's dark region comes out "
+                             "too bright — docs/methods/denoising.md)",
                              choices=("fast", "balanced", "high")),
     "denoise_aux": Field("bool", True, "clean first-hit albedo and normal buffers (the first "
                          "non-specular hit behind mirrors and glass) guide the denoiser"),
