@@ -44,3 +44,39 @@ def test_moving_frames_reuse_the_compiled_kernels(demo, name):
         if k >= 2:  # frame 1 is the first moved one (its pose path); then nothing is new
             assert kernels <= seen, f"{len(kernels - seen)} kernels new in moving frame {k}"
         seen |= kernels
+
+
+def _lamp_moved(lights, k: int):
+    """The demo's lights with the area lamp ``k`` cm along +x and ``k`` % warmer."""
+    out = []
+    for lt in lights:
+        if lt.type == "area":
+            m = np.array(lt.params["to_world"], np.float64)
+            m[0, 3] += 0.01 * k
+            lt = dataclasses.replace(lt, params={
+                **lt.params, "to_world": m,
+                "radiance": [c * (1.0 + 0.01 * k) for c in lt.params["radiance"]]})
+        out.append(lt)
+    return out
+
+
+@pytest.mark.parametrize("name", ["dir", "dlpv", "dvct", "ibl", "prt", "onepass"])
+def test_relit_frames_reuse_the_compiled_kernels(demo, name):
+    """A lamp moved and recoloured every frame (``BaseMethod.relight``, issue #32: light
+    changes update what depends on the light) launches no kernel the earlier relit frames
+    did not: rejects the lamp's position, axis or intensity compiled into a kernel as
+    literals — before this test, dlpv (the RSM's rays took them as Python floats), dvct
+    (its light direction, likewise) and onepass (Mitsuba's rectangle rebuilt its to_world
+    as a literal from its scalar copy on update) each compiled kernels per lamp value."""
+    method = get_method(name)
+    settings = RenderSettings(spp=1, seed=0)
+    state = method.prepare(demo.world, settings)
+    seen: set[str] = set()
+    for k in range(1, 5):
+        def frame(k=k):
+            method.relight(state, _lamp_moved(demo.world.lights, k), settings)
+            method.render(state, demo.view, settings)
+        kernels = traced_kernels(frame)
+        if k >= 3:
+            assert kernels <= seen, f"{len(kernels - seen)} kernels new in relit frame {k}"
+        seen |= kernels

@@ -641,6 +641,8 @@ class SceneView:
         for key, value in values.items():
             params[key] = value
         params.update()
+        for key in values:  # the plugins' copies read from memory: no kernel per lamp value
+            dr.make_opaque(params[key])
         self.generation = next(_GENERATIONS)
 
     def hit_role(self, si: mi.SurfaceInteraction3f) -> mi.Int32:

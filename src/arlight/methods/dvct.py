@@ -66,7 +66,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
-from arlight.jit import aligned
+from arlight.jit import aligned, opaques
 from arlight.methods.base import (
     BaseMethod,
     Layers,
@@ -573,8 +573,8 @@ def specular_cone(vols: ConeVolumes, lanes: Lanes, rough: mi.Float, min_aperture
 def light_direction(lt: ReducedLight, p: mi.Point3f) -> tuple[mi.Vector3f, mi.Float]:
     """Unit direction from ``p`` towards the light and its distance (inf: directional)."""
     if lt.kind == "directional":
-        return -mi.Vector3f(*[float(x) for x in lt.axis]) + 0.0 * p.x, mi.Float(dr.inf)
-    to = mi.Point3f(*[float(x) for x in lt.position]) - p
+        return -mi.Vector3f(*opaques(lt.axis)) + 0.0 * p.x, mi.Float(dr.inf)
+    to = mi.Point3f(*opaques(lt.position)) - p
     dist = dr.norm(to)
     return to / dr.maximum(dist, 1e-12), dist
 

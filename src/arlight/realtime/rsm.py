@@ -196,12 +196,12 @@ def _aimed_cones(light: ReducedLight, res: int, aims: list[Aim], dirs: mi.Vector
         frame = mi.Frame3f(axis)
         all_dirs.append(frame.to_world(mi.warp.square_to_uniform_cone(_texel_uv(m), cos_a)))
     d = _cat(all_dirs)
-    lax = mi.Vector3f(*[float(x) for x in light.axis])
+    lax = mi.Vector3f(*opaques(light.axis))
     cos_axis = dr.dot(d, lax)
     den = _base_pdf(light, cos_axis) * float(n_base)
     for axis, cos_a, density, _ in cones:
         den += dr.select(dr.dot(d, axis) >= cos_a, density, 0.0)
-    i0 = mi.Color3f(*[float(x) for x in light.intensity])
+    i0 = mi.Color3f(*opaques(light.intensity))
     flux = i0 * dr.select(den > 0.0, _emission(light, cos_axis) / dr.maximum(den, 1e-30), 0.0)
     return d, flux
 
@@ -215,7 +215,7 @@ def _aimed_parallel(light: ReducedLight, res: int, bounds: tuple[np.ndarray, flo
     ``Φ = ∫ E dA``: ``E / (n_0 p_0(x) + Σ_k n_k p_k(x))`` (W)."""
     centre, radius = bounds
     axis = np.asarray(light.axis, np.float64)
-    frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
+    frame = mi.Frame3f(mi.Vector3f(*opaques(axis)))
     r = float(radius)
     squares = [(0.0, 0.0, r, res)]
     tangents = np.array([np.array(frame.s, np.float64).ravel(),
@@ -240,8 +240,8 @@ def _aimed_parallel(light: ReducedLight, res: int, bounds: tuple[np.ndarray, flo
         den += dr.select(inside, density, 0.0)
     start = np.asarray(centre, np.float64) - axis * (4.0 * r + 1.0)
     origin = mi.Point3f(mi.Point3f(*opaques(start)) + frame.to_world(mi.Vector3f(x, y, 0.0)))
-    d = dr.zeros(mi.Vector3f, dr.width(x)) + mi.Vector3f(*[float(v) for v in axis])
-    i0 = mi.Color3f(*[float(v) for v in light.intensity])
+    d = dr.zeros(mi.Vector3f, dr.width(x)) + mi.Vector3f(*opaques(axis))
+    i0 = mi.Color3f(*opaques(light.intensity))
     return origin, d, i0 * (1.0 / dr.maximum(den, 1e-30))
 
 
@@ -262,14 +262,14 @@ def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float],
         dr.eval(origin, d, flux)
         return LightRays(origin, d, flux, 0)
     uv = _texel_uv(res)
-    i0 = mi.Color3f(*[float(x) for x in light.intensity])
-    pos = mi.Point3f(*[float(x) for x in light.position])
+    i0 = mi.Color3f(*opaques(light.intensity))
+    pos = mi.Point3f(*opaques(light.position))
     if light.kind == "point":
         d = mi.warp.square_to_uniform_sphere(uv)
         flux = i0 * (4.0 * math.pi / res**2)
         origin = dr.zeros(mi.Point3f, res * res) + pos
     elif light.kind in ("cosine", "spot"):
-        frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in light.axis]))
+        frame = mi.Frame3f(mi.Vector3f(*opaques(light.axis)))
         if light.kind == "cosine":
             local = mi.warp.square_to_cosine_hemisphere(uv)
             flux = i0 * (math.pi / res**2)
@@ -282,12 +282,12 @@ def light_rays(light: ReducedLight, res: int, bounds: tuple[np.ndarray, float],
     else:
         centre, radius = bounds
         axis = np.asarray(light.axis, np.float64)
-        frame = mi.Frame3f(mi.Vector3f(*[float(x) for x in axis]))
+        frame = mi.Frame3f(mi.Vector3f(*opaques(axis)))
         r = float(radius)
         local = mi.Vector3f((2.0 * uv.x - 1.0) * r, (2.0 * uv.y - 1.0) * r, 0.0)
         start = np.asarray(centre, np.float64) - axis * (4.0 * r + 1.0)
-        origin = mi.Point3f(mi.Point3f(*[float(x) for x in start]) + frame.to_world(local))
-        d = dr.zeros(mi.Vector3f, res * res) + mi.Vector3f(*[float(x) for x in axis])
+        origin = mi.Point3f(mi.Point3f(*opaques(start)) + frame.to_world(local))
+        d = dr.zeros(mi.Vector3f, res * res) + mi.Vector3f(*opaques(axis))
         flux = i0 * ((2.0 * r / res) ** 2)
     if aims:
         d, flux = _aimed_cones(light, res, aims, mi.Vector3f(d), res * res)
