@@ -7,61 +7,36 @@ from __future__ import annotations
 
 import math
 
-import mitsuba as mi
 import numpy as np
 import pytest
-from scipy.ndimage import binary_dilation, binary_erosion
 
-from arlight.backend.mitsuba_scene import mitsuba_sensor
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.dir import SPEC, frame_aims, gather, make_vpls
-from arlight.realtime.gbuffer import render_gbuffer
+from tests.methods.one_bounce import OneBounce
 from tests.methods.test_dlpv import box_scene, make
 
 W, H = 40, 30
-PASSES, SPP = 8, 64
 XIS = np.arange(8) / 8 + 1 / 16
 """Eight selection offsets ξ: the test holds per frame, not only on average."""
-
-
-def one_bounce(view, camera) -> np.ndarray:
-    """``PASSES`` independent estimates ``(P, H, W, 3)`` of the one-bounce radiance:
-    Mitsuba ``path`` at max_depth 3 minus max_depth 2 (same seed per pass)."""
-    out = []
-    for k in range(PASSES):
-        img = [np.array(mi.render(view.scene, sensor=mitsuba_sensor(camera, SPP), seed=k,
-                                  spp=SPP, integrator=mi.load_dict(
-                                      {"type": "path", "max_depth": depth})))[..., :3]
-               for depth in (2, 3)]
-        out.append(img[1] - img[0])
-    return np.array(out, np.float64)
 
 
 @pytest.fixture(scope="module")
 def reference():
     """The box scene (red cube on a white floor, point light), dir's prepared data and
-    G-buffer, Mitsuba's one-bounce images of the mixed and real scenes, and the regions:
-    the cube's pixels (eroded by one pixel) and the floor ring 2–6 px around it."""
+    Mitsuba's one-bounce reference (:class:`~tests.methods.one_bounce.OneBounce`)."""
     scene = make(box_scene(w=W, h=H))
     data = get_method("dir").prepare(scene.world, RenderSettings()).data
-    gb = render_gbuffer(data.views.mixed, scene.camera, 1, 0)
-    role = np.array(gb.role).reshape(H, W)
-    virt = binary_erosion(role == 1, iterations=1)
-    ring = (binary_dilation(role == 1, iterations=6) & ~binary_dilation(role == 1, iterations=1)
-            & (role == 0))
-    mixed = one_bounce(data.views.mixed, scene.camera)
-    real = one_bounce(data.views.real, scene.camera)
-    return data, gb, virt, ring, mixed, mixed - real
+    return data, OneBounce.of(data.views, scene.camera)
 
 
 def _ratios(ref, opts: dict) -> np.ndarray:
     """Per ξ: dir / Mitsuba for (cube's one-bounce, red; the floor ring's delta, green —
     the cube's shadow on bounce light; ring red − green — the cube's red bounce)."""
-    data, gb, virt, ring, mixed, delta = ref
+    data, one = ref
+    gb, virt, ring = one.gb, one.virt, one.ring
     o = SPEC.parse_options(opts)
     alb = np.array(gb.albedo, np.float64).reshape(3, -1).T.reshape(H, W, 3) / math.pi
-    rv = mixed[:, virt].mean(axis=1).mean(axis=0)
-    rr = delta[:, ring].mean(axis=1).mean(axis=0)
+    rv, rr = one.means()
     out = []
     for xi in XIS:
         vp = make_vpls(data, o.vpls, o.rsm_size, frame_aims(data, gb, o), o.vpl_importance,
@@ -75,13 +50,8 @@ def _ratios(ref, opts: dict) -> np.ndarray:
 
 
 def test_reference_standard_errors_are_small(reference):
-    """The reference's standard errors (over its 8 passes) are ≤ 3 % of the three means, so
-    the tolerances below are dir's error, not the reference's."""
-    _, _, virt, ring, mixed, delta = reference
-    for img, reg, ch in ((mixed, virt, [0]), (delta, ring, [1]), (delta, ring, [0, 1])):
-        per = img[:, reg].mean(axis=1)
-        x = per[:, ch[0]] - (per[:, ch[1]] if len(ch) == 2 else 0.0)
-        assert x.std(ddof=1) / math.sqrt(PASSES) <= 0.03 * abs(x.mean())
+    """The reference's standard errors are ≤ 3 % of the three means the checks read."""
+    reference[1].assert_precise()
 
 
 def test_one_bounce_matches_path_traced_reference(reference):

@@ -14,12 +14,10 @@ import math
 
 import numpy as np
 import pytest
-from scipy.ndimage import binary_dilation, binary_erosion
 
 from arlight.methods.dlpv import SPEC, build_volumes, prepare, shade
-from arlight.realtime.gbuffer import render_gbuffer
 from arlight.realtime.sh_volume import query_irradiance
-from tests.methods.test_dir_reference import one_bounce
+from tests.methods.one_bounce import OneBounce
 from tests.methods.test_dlpv import box_scene, make
 
 W, H = 40, 30
@@ -36,19 +34,11 @@ def _image(c) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def reference():
-    """The box scene, its G-buffer, the regions (cube's pixels eroded by one pixel; the
-    floor ring 2–6 px around the cube) and Mitsuba's one-bounce images of the mixed scene
-    and of the change (mixed − real)."""
+    """The box scene and Mitsuba's one-bounce reference
+    (:class:`~tests.methods.one_bounce.OneBounce`) of dlpv's views at ``VOLUME_SCALE``."""
     scene = make(box_scene(w=W, h=H))
     data = prepare(scene.world, SPEC.parse_options({"volume_scale": VOLUME_SCALE}))
-    gb = render_gbuffer(data.views.mixed, scene.camera, 1, 0)
-    role = np.array(gb.role).reshape(H, W)
-    virt = binary_erosion(role == 1, iterations=1)
-    ring = (binary_dilation(role == 1, iterations=6) & ~binary_dilation(role == 1, iterations=1)
-            & (role == 0))
-    mixed = one_bounce(data.views.mixed, scene.camera)
-    real = one_bounce(data.views.real, scene.camera)
-    return scene, gb, virt, ring, mixed, mixed - real
+    return scene, OneBounce.of(data.views, scene.camera)
 
 
 def _ratios(ref, opts: dict) -> dict[str, float]:
@@ -63,9 +53,9 @@ def _ratios(ref, opts: dict) -> dict[str, float]:
     it holds only the texels the insertion changes, the occluded wall light is unchanged
     light. dlpv's ``loss`` (0.45×) is the floor's own subtracted ``R_µ`` VPLs lighting the
     floor, an LPV artefact (without the floor's VPLs it is −0.03×)."""
-    scene, gb, virt, ring, mixed, delta = ref
-    rv = mixed[:, virt].mean(axis=1).mean(axis=0)
-    rr = delta[:, ring].mean(axis=1).mean(axis=0)
+    scene, one = ref
+    gb, virt, ring = one.gb, one.virt, one.ring
+    rv, rr = one.means()
     alb = _image(gb.albedo) / math.pi
     out = {}
     for direct in (True, False):
@@ -94,13 +84,8 @@ def _within(r: dict[str, float]) -> bool:
 
 
 def test_reference_standard_errors_are_small(reference):
-    """The reference's standard errors (over its 8 passes) are ≤ 3 % of the four means."""
-    _, _, virt, ring, mixed, delta = reference
-    for img, reg, ch in ((mixed, virt, [0]), (mixed, virt, [1]), (delta, ring, [1]),
-                         (delta, ring, [0, 1])):
-        per = img[:, reg].mean(axis=1)
-        x = per[:, ch[0]] - (per[:, ch[1]] if len(ch) == 2 else 0.0)
-        assert x.std(ddof=1) / math.sqrt(len(per)) <= 0.03 * abs(x.mean())
+    """The reference's standard errors are ≤ 3 % of the four means the checks read."""
+    reference[1].assert_precise(cube_channels=(0, 1))
 
 
 def test_one_bounce_matches_path_traced_reference(reference):

@@ -28,7 +28,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.ndimage import binary_dilation, binary_erosion
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL
 from arlight.methods.dvct import (
@@ -40,28 +39,18 @@ from arlight.methods.dvct import (
     diffuse_visibility,
     prepare,
 )
-from arlight.realtime.gbuffer import render_gbuffer
-from tests.methods.test_dir_reference import one_bounce
+from tests.methods.one_bounce import OneBounce
 from tests.methods.test_dlpv import box_scene, make
 
 W, H = 40, 30
-PASSES = 8
 
 
 def reference_data():
-    """The box scene, its G-buffer, the regions (the cube eroded by one pixel, the floor
-    ring 2–6 px around it) and Mitsuba's one-bounce images of the mixed scene and of the
-    difference mixed − real (``PASSES`` independent estimates each)."""
+    """The box scene and Mitsuba's one-bounce reference
+    (:class:`~tests.methods.one_bounce.OneBounce`) of dvct's views."""
     scene = make(box_scene(w=W, h=H))
     data = prepare(scene.world, SPEC.parse_options({}))
-    gb = render_gbuffer(data.views.mixed, scene.camera, 1, 0)
-    role = np.array(gb.role).reshape(H, W)
-    virt = binary_erosion(role == 1, iterations=1)
-    ring = (binary_dilation(role == 1, iterations=6) & ~binary_dilation(role == 1, iterations=1)
-            & (role == 0))
-    mixed = one_bounce(data.views.mixed, scene.camera)
-    real = one_bounce(data.views.real, scene.camera)
-    return scene, gb, virt, ring, mixed, mixed - real
+    return scene, OneBounce.of(data.views, scene.camera)
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +63,8 @@ def ratios(ref, **opts) -> np.ndarray:
     """dvct / Mitsuba for (the cube's one-bounce light, red; the floor ring's delta, green —
     the cube's shadow on bounce light; ring red − green — the cube's red bounce), from the
     diffuse cones of every G-buffer lane (``V_ρ`` on the cube, ``V_Δ`` on the floor)."""
-    scene, gb, virt, ring, mixed, delta = ref
+    scene, one = ref
+    gb, virt, ring = one.gb, one.virt, one.ring
     o = SPEC.parse_options({"cone_scale": 1, **opts})
     data = prepare(scene.world, o)
     vols = build_volumes(data, o)
@@ -88,19 +78,14 @@ def ratios(ref, **opts) -> np.ndarray:
     alb = np.array(gb.albedo, np.float64).T.reshape(H, W, 3) / math.pi
     gv = (np.array(e_rho, np.float64).T.reshape(H, W, 3) * alb)[virt].mean(axis=0)
     gr = (np.array(e_delta, np.float64).T.reshape(H, W, 3) * alb)[ring].mean(axis=0)
-    rv = mixed[:, virt].mean(axis=1).mean(axis=0)
-    rr = delta[:, ring].mean(axis=1).mean(axis=0)
+    rv, rr = one.means()
     return np.array([gv[0] / rv[0], gr[1] / rr[1], (gr[0] - gr[1]) / (rr[0] - rr[1])])
 
 
 def test_reference_standard_errors_are_small(reference):
-    """The reference's standard errors (over its passes) are ≤ 3 % of the three means, so
-    the tolerances below are dvct's error, not the reference's."""
-    _, _, virt, ring, mixed, delta = reference
-    for img, reg, ch in ((mixed, virt, [0]), (delta, ring, [1]), (delta, ring, [0, 1])):
-        per = img[:, reg].mean(axis=1)
-        x = per[:, ch[0]] - (per[:, ch[1]] if len(ch) == 2 else 0.0)
-        assert x.std(ddof=1) / math.sqrt(PASSES) <= 0.03 * abs(x.mean())
+    """The reference's standard errors are ≤ 3 % of the three means, so the tolerances
+    below are dvct's error, not the reference's."""
+    reference[1].assert_precise()
 
 
 def test_anisotropic_cells_keep_the_lit_top_off_the_floor(reference):
