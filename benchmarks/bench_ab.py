@@ -30,6 +30,7 @@ import os
 import statistics
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 HEADING = "## Real-time methods against the previous code on held-out worlds (issue #33)"
@@ -104,29 +105,28 @@ def _median(xs: list[float]) -> float:
     return statistics.median(xs) if xs else math.nan
 
 
-def equal_time_table(head: dict, methods: list[str], scenes: list[str]) -> str:
-    """Per world and method: PSNR (whole frame, dB) and frame time (ms) of the method, and
-    of the best ``onepass`` frame at most that slow (its spp; ``none`` when no onepass
-    frame was that fast: the method wins)."""
-    lines = ["Per world: method PSNR / frame time → onepass at that time (PSNR, spp); "
-             "**bold**: the method wins.", "",
-             "| world | class | " + " | ".join(methods) + " |",
+def per_world_table(caption: str, head: dict, methods: list[str], scenes: list[str],
+                    cell: Callable[[str, str], str]) -> str:
+    """A Markdown table: ``caption``, then per world its class and ``cell(world, method)``
+    per method."""
+    lines = [caption, "", "| world | class | " + " | ".join(methods) + " |",
              "|---|---|" + "---|" * len(methods)]
     for s in scenes:
         cls = next((c["class"] for (sc, _), c in head.items() if sc == s), "")
-        row = []
-        for m in methods:
-            c = head.get((s, m), {})
-            if not c.get("ok"):
-                row.append("—")
-                continue
-            op = c["onepass_at_time_psnr"]
-            one = ("none" if math.isnan(op) else
-                   f"{op:.1f} dB, {c['onepass_at_time_spp']:.0f} spp")
-            cell = f"{c['psnr']:.1f} dB / {c['seconds'] * 1e3:.0f} ms → {one}"
-            row.append(f"**{cell}**" if not c["psnr"] <= op else cell)
-        lines.append(f"| {s} | {cls} | " + " | ".join(row) + " |")
+        lines.append(f"| {s} | {cls} | " + " | ".join(cell(s, m) for m in methods) + " |")
     return "\n".join(lines)
+
+
+def equal_time_cell(c: dict) -> str:
+    """A head cell's PSNR (whole frame, dB) and frame time (ms), and the best ``onepass``
+    frame at most that slow (its PSNR and spp; ``none`` when no onepass frame was that
+    fast); bold when the method wins."""
+    if not c.get("ok"):
+        return "—"
+    op = c["onepass_at_time_psnr"]
+    one = "none" if math.isnan(op) else f"{op:.1f} dB, {c['onepass_at_time_spp']:.0f} spp"
+    text = f"{c['psnr']:.1f} dB / {c['seconds'] * 1e3:.0f} ms → {one}"
+    return f"**{text}**" if not c["psnr"] <= op else text
 
 
 def section(base: dict, head: dict, args, pressure: str) -> str:
@@ -177,20 +177,17 @@ def section(base: dict, head: dict, args, pressure: str) -> str:
             f"{_median([head[(s, m)]['changed_psnr'] for s in both]):.2f} | "
             f"{_median(ratio):.2f} | {wins}/{len(ran)} |")
     if not base:  # a head-only run (`--sides head` into a fresh --out): equal time only
-        lines += ["", equal_time_table(head, methods, scenes)]
-        scenes = []
+        lines += ["", per_world_table(
+            "Per world: method PSNR / frame time → onepass at that time (PSNR, spp); "
+            "**bold**: the method wins.", head, methods, scenes,
+            lambda s, m: equal_time_cell(head.get((s, m), {})))]
     else:
-        lines += ["", "Per world (Δ changed-pixel PSNR, dB; `—`: not run on both sides):", "",
-                  "| world | class | " + " | ".join(methods) + " |",
-                  "|---|---|" + "---|" * len(methods)]
-    for s in scenes:
-        cls = next((c["class"] for (sc, _), c in head.items() if sc == s), "")
-        row = []
-        for m in methods:
+        def delta(s: str, m: str) -> str:
             h, b = head.get((s, m), {}), base.get((s, m), {})
-            row.append(f"{h['changed_psnr'] - b['changed_psnr']:+.2f}"
-                       if h.get("ok") and b.get("ok") else "—")
-        lines.append(f"| {s} | {cls} | " + " | ".join(row) + " |")
+            return (f"{h['changed_psnr'] - b['changed_psnr']:+.2f}"
+                    if h.get("ok") and b.get("ok") else "—")
+        lines += ["", per_world_table("Per world (Δ changed-pixel PSNR, dB; `—`: not run on "
+                                      "both sides):", head, methods, scenes, delta)]
     skipped = sorted({f"{m}: {c['skipped']}" for (s, m), c in head.items() if c["skipped"]})
     if skipped:
         lines += ["", "Skipped (the method does not support the world): "

@@ -78,19 +78,28 @@ INTRO = ("`benchmarks/bench_denoise_quality.py`: the default `denoise_quality` (
          "without choosing again; docs/methods/denoising.md states the decision.")
 
 
-def run_world(seed: int, width: int, spps: list[int], converged_spp: int) -> dict:
-    """Every configuration of :data:`CONFIGS` at every spp on world ``seed``: rows
-    ``(config, spp, seconds, psnr_gt, psnr_conv, bias_object, bias_shadow,
-    denoise_seconds)`` (the last: stages ``denoise`` + ``denoise_aux``)."""
+def onepass_world(seed: int, width: int, converged_spp: int, seed_offset: int):
+    """World ``seed`` at ``width`` px as the evaluation harness makes it, ``onepass``
+    prepared on it, and its converged composite (``converged_spp``, the harness's seed +
+    ``seed_offset``): ``(cfg, scene, photo, ar, method, state, converged)``."""
     cfg = EvalConfig(methods=["onepass"], scenes=[], worlds=[seed], world_width=width)
     scene = eval_scene(f"world-{seed}", cfg)
     photo = scene_photo(scene, cfg)
     ar = scene.ar_scene(photo)
     method = get_method("onepass")
     state = method.prepare(ar.world, RenderSettings(spp=1, max_depth=cfg.max_depth))
-    tr = scene.world.camera.transfer
     conv = method.render(state, ar.view, RenderSettings(
-        spp=converged_spp, max_depth=cfg.max_depth, seed=cfg.seed + 1)).composite
+        spp=converged_spp, max_depth=cfg.max_depth, seed=cfg.seed + seed_offset)).composite
+    return cfg, scene, photo, ar, method, state, conv
+
+
+def run_world(seed: int, width: int, spps: list[int], converged_spp: int) -> dict:
+    """Every configuration of :data:`CONFIGS` at every spp on world ``seed``: rows
+    ``(config, spp, seconds, psnr_gt, psnr_conv, bias_object, bias_shadow,
+    denoise_seconds)`` (the last: stages ``denoise`` + ``denoise_aux``)."""
+    cfg, scene, photo, ar, method, state, conv = onepass_world(
+        seed, width, converged_spp, 1)
+    tr = scene.world.camera.transfer
     rows = []
     for name, opts in CONFIGS.items():
         for i, spp in enumerate(spps):
@@ -126,14 +135,8 @@ def seed_sweep(seed: int, width: int, spp: int, seeds: int, converged_spp: int) 
     median."""
     from arlight.denoise.options import DenoiseSettings
 
-    cfg = EvalConfig(methods=["onepass"], scenes=[], worlds=[seed], world_width=width)
-    scene = eval_scene(f"world-{seed}", cfg)
-    photo = scene_photo(scene, cfg)
-    ar = scene.ar_scene(photo)
-    method = get_method("onepass")
-    state = method.prepare(ar.world, RenderSettings(spp=1, max_depth=cfg.max_depth))
-    conv = method.render(state, ar.view, RenderSettings(
-        spp=converged_spp, max_depth=cfg.max_depth, seed=cfg.seed + 1000)).composite
+    cfg, _, photo, ar, method, state, conv = onepass_world(
+        seed, width, converged_spp, 1000)
     out: dict[str, list[float]] = {n: [] for n in CONFIGS if n != "raw"}
     for k in range(seeds):
         raw = method.render(state, ar.view, RenderSettings(spp=spp, max_depth=cfg.max_depth,
