@@ -101,6 +101,7 @@ from arlight.realtime.voxels import (
     ConeVolumes,
     MipVolume,
     Voxels,
+    aniso_lookup,
     build_mips,
     check_memory,
     cover_level0,
@@ -376,9 +377,8 @@ def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f
     cells = grid.n ** 3
     if dr.width(buf) == cells * 3:
         parts = [(mi.UInt32(0), mi.Float(1.0), 1)]
-    else:  # per axis, the emission goes to the slot of the normal's sign on that axis
-        parts = [(dr.select(normal[a] < 0.0, mi.UInt32(2 * a + 1), mi.UInt32(2 * a)),
-                  dr.abs(normal[a]), 6) for a in range(3)]
+    else:  # emission towards n: the slots a cone travelling along −n reads
+        parts = [(slot, w, 6) for slot, w in aniso_lookup(-normal)]
     for slot, w, stride in parts:
         # order-independent sums, one per cell and slot
         sums = scatter_sum_exact([val[0] * w, val[1] * w, val[2] * w], idx * stride + slot,

@@ -52,7 +52,7 @@ from arlight.nearfield.shading import (
 from arlight.nearfield.split import DEFAULT_TAU
 from arlight.nearfield.state import MAX_VALS, NearFieldLight
 from arlight.realtime.gbuffer import assemble, render_gbuffer
-from arlight.realtime.oof import Occluder
+from arlight.realtime.oof import Occluder, occluder_sphere
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
@@ -171,23 +171,10 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
                        directions=options.directions, bounces=0, shadowed=True)
         pdata = PerObjectSH(views=views, objects=d.objects, face_offset=d.face_offset,
                             faces=d.faces, sog=None, env=None, sh=np.zeros((len(names), 9, 3)))
-        sphere = _bounding_sphere(occluder)
+        sphere = occluder_sphere(occluder)
     return NearFieldData(world, views, proxy, occluder, pdata,
                          material_table(world, list(options.metal_k)), sphere, light, names,
                          stats, server)
-
-
-def _bounding_sphere(occluder) -> tuple[np.ndarray, float]:
-    """Centre (m) and radius (m) of the sphere around the occluder's bounding box (an
-    object-space occluder's: its box's circumsphere through the pose,
-    :meth:`~arlight.realtime.oof.PosedOccluder.bounding_sphere`)."""
-    from arlight.realtime.oof import PosedOccluder
-
-    if isinstance(occluder, PosedOccluder):
-        return occluder.bounding_sphere()
-    b = occluder.bbox()
-    lo, hi = np.array([b.min.x, b.min.y, b.min.z]), np.array([b.max.x, b.max.y, b.max.z])
-    return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo)) / 2.0
 
 
 def _server_light(server, world: World, light: NearFieldLight) -> NearFieldLight:
@@ -327,7 +314,7 @@ class NearFieldMethod(BaseMethod):
         if not ok:  # the occluder's kind would change (a pose that is no similarity)
             return None
         if occluder is not None:
-            sphere = _bounding_sphere(occluder)
+            sphere = occluder_sphere(occluder)
         if prt is not None:
             prt = PerObjectSH(**{**vars(prt), "objects": [
                 replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))

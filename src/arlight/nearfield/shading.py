@@ -36,7 +36,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.jit import aligned
+from arlight.jit import aligned, columns
 from arlight.nearfield.materials import eta_for_f0, phong_exponent, schlick_complex
 from arlight.nearfield.state import NearFieldLight
 from arlight.scene.model import World
@@ -170,8 +170,6 @@ def shadow_maps(light: NearFieldLight, proxy: mi.Scene, virtual: mi.Scene,
     ``normalize(a_j + tan_half_j (g_c u_j + g_r v_j))``, ``g_i = (i + ½)/S · 2 − 1``
     (``inf``: no hit, or a VAL without frustum). Traced in one Dr.Jit pass of ``M·S²``
     lanes (no NumPy ray set-up: a moving object redraws the maps every frame, issue #32)."""
-    from arlight.jit import columns
-
     fr = frusta(light, sphere)
     M, S = light.count, int(size)
     if not np.any(fr.tan_half > 0):
@@ -277,8 +275,6 @@ def tile_lanes(light: NearFieldLight, position: np.ndarray, valid: np.ndarray,
 
 
 def _table(a: np.ndarray) -> mi.Vector3f:
-    from arlight.jit import columns
-
     return mi.Vector3f(*columns(np.asarray(a).reshape(-1, 3), np.float32))
 
 

@@ -42,7 +42,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView
-from arlight.jit import aligned
+from arlight.jit import aligned, opaques
 from arlight.realtime.gbuffer import GBuffer
 from arlight.scene.model import World
 from arlight.scene.schema import Field
@@ -254,7 +254,7 @@ def bounce_probe(view: SceneView | mi.Scene, centre: np.ndarray, env: np.ndarray
     w = 2 * height
     n = height * w * spp
     # the centre opaque: one kernel for every pose of the object (the probe follows it)
-    origin = mi.Point3f(*[dr.opaque(mi.Float, float(x)) for x in centre])
+    origin = mi.Point3f(*opaques(centre))
     args = (origin, n, spp, w, height, int(max_depth), int(seed))
     scene = view if isinstance(view, mi.Scene) else view.scene
     # frozen where the scene holds the instances of every class the tracing calls into:

@@ -539,6 +539,15 @@ def object_frame(world: World) -> np.ndarray | None:
     return np.asarray(virtual[0].to_world, np.float64)
 
 
+def occluder_sphere(occluder: Occluder) -> tuple[np.ndarray, float]:
+    """Centre (m) and radius (m) of a sphere around an occluder (:func:`make_occluder`):
+    a world-space scene's bounding-box circumsphere, an object-space one's through its pose
+    (:meth:`PosedOccluder.bounding_sphere`)."""
+    if isinstance(occluder, PosedOccluder):
+        return occluder.bounding_sphere()
+    return _bounding_sphere(occluder)
+
+
 def _bounding_sphere(scene: mi.Scene) -> tuple[np.ndarray, float]:
     b = scene.bbox()
     lo = np.array([b.min.x, b.min.y, b.min.z], np.float64)
@@ -718,6 +727,7 @@ def render_layers(data: RelitState, view: FrameView, options: GBufferOptions, se
 
 
 __all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "Occluder", "PosedOccluder",
+           "occluder_sphere",
            "RAY_CHUNK", "RelitState", "ShadeVirtual", "build_field", "cosine_transfer",
            "field_for_world", "field_from_options", "make_occluder", "move_occluder",
            "move_virtual_scene",
