@@ -21,7 +21,8 @@ tests/methods/test_pose_incremental.py and tests/methods/test_relight.py, not he
         [--merge]
 
 ``--merge`` keeps the other methods' rows of the section in RESULTS.md (from an earlier run,
-its load line quoted) when ``--methods`` measures a few.
+its load line quoted) when ``--methods`` measures a few. ``--write`` keeps the notes written
+below the section's generated part (after its load line) by earlier runs.
 """
 
 from __future__ import annotations
@@ -156,11 +157,10 @@ def merged(text: str, old: str, measured: list[str]) -> str:
     """``text`` (this run's section) with the table rows of the methods it did not measure
     taken from ``old`` (the section as RESULTS.md holds it), in :data:`METHODS` order, and
     the earlier run's load line kept beside this one's (``--merge``)."""
-    start = old.find(HEADING)
-    if start < 0:
+    section = section_of(old)
+    if not section:
         return text
-    nxt = old.find("\n## ", start + len(HEADING))
-    section = old[start:] if nxt < 0 else old[start:nxt]
+
     def rows(sec: str) -> dict[str, str]:
         return {line.split("|")[1].strip().split(" ")[0]: line for line in sec.splitlines()
                 if line.startswith("| ") and not line.startswith(("| method", "|---"))}
@@ -190,6 +190,33 @@ def merged(text: str, old: str, measured: list[str]) -> str:
             f"earlier run of this benchmark (`--merge`)."
             + (f" That run's {earlier[0].lower()}{earlier[1:]}" if earlier else ""))
     return "\n".join(lines[:first] + table_rows + rest + ["", note])
+
+
+NOTES_HEAD = "Notes from earlier runs (kept by `--write`):"
+"""The line that opens the kept notes (:func:`earlier_notes`)."""
+
+
+def section_of(results_md: str) -> str:
+    """This benchmark's section of RESULTS.md's text ('' where there is none)."""
+    start = results_md.find(HEADING)
+    if start < 0:
+        return ""
+    nxt = results_md.find("\n## ", start + len(HEADING))
+    return results_md[start:] if nxt < 0 else results_md[start:nxt]
+
+
+def earlier_notes(section: str) -> str:
+    """The free-text notes of ``section`` (RESULTS.md's section as an earlier run left it):
+    its paragraphs after the generated load line, without the generated ``--merge`` note,
+    opened by :data:`NOTES_HEAD` ('' where there are none)."""
+    paras = [p.strip() for p in section.split("\n\n") if p.strip()]
+    at = next((i for i, p in enumerate(paras) if p.startswith("Load at the end of the run")),
+              None)
+    if at is None:
+        return ""
+    notes = [p for p in paras[at + 1:]
+             if not p.startswith(("Rows of ", "Load at the end of the run", NOTES_HEAD))]
+    return "\n\n".join([NOTES_HEAD, *notes]) if notes else ""
 
 
 def _met(row: str) -> bool:
@@ -231,9 +258,11 @@ def main() -> None:
         print(f"{name}: {results[name]} ({time.perf_counter() - t0:.0f} s)", flush=True)
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     text = table(results, args.rounds, load, cpu_pressure())
+    old = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else ""
     if args.merge:
-        text = merged(text, RESULTS.read_text(encoding="utf-8"), list(results))
-    publish(text, args.write)
+        text = merged(text, old, list(results))
+    notes = earlier_notes(section_of(old))
+    publish(text + (f"\n\n{notes}" if notes else ""), args.write)
 
 
 if __name__ == "__main__":
