@@ -68,18 +68,32 @@ def _taps(n: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return i0, np.minimum(i0 + 1, m - 1), (x - i0).astype(np.float32)
 
 
-def upsample(image: np.ndarray, height: int, width: int) -> np.ndarray:
+def touching(n: int, m: int, lo: int, hi: int) -> slice:
+    """The output positions of a bilinear upsampling of ``m`` samples to ``n``
+    (:func:`upsample`) whose taps read any input sample in ``lo … hi`` (inclusive): one
+    contiguous slice (the taps increase with the position); outside it the output is
+    computed from other samples only (zero where they are zero)."""
+    i0, i1, _ = _taps(n, m)
+    idx = np.flatnonzero((i1 >= lo) & (i0 <= hi))
+    return slice(int(idx[0]), int(idx[-1]) + 1) if idx.size else slice(0, 0)
+
+
+def upsample(image: np.ndarray, height: int, width: int, rows: slice = slice(None),
+             cols: slice = slice(None)) -> np.ndarray:
     """Bilinear upsampling of ``(h, w[, c])`` to ``(height, width[, c])`` float32, pixel
     centres aligned (``x_src = (x + 0.5)·w/width − 0.5``) and edges clamped: a constant
     image stays constant, a linear ramp stays linear. Separable, in place where it can
-    (no BLAS: its threads fight for the cores of a loaded machine)."""
+    (no BLAS: its threads fight for the cores of a loaded machine). ``rows``/``cols``
+    (slices of the output, step 1): only that window of the output, bit for bit the same
+    pixels as the window cut from the whole output (the studio upsamples only the
+    insertion's footprint, issue #32)."""
     a = np.asarray(image, np.float32)
-    for axis, n in ((0, height), (1, width)):
-        if a.shape[axis] == n:
+    for axis, n, win in ((0, height, rows), (1, width, cols)):
+        if a.shape[axis] == n and win == slice(None):
             continue
-        i0, i1, w = _taps(n, a.shape[axis])
+        i0, i1, w = (t[win] for t in _taps(n, a.shape[axis]))
         shape = [1] * a.ndim
-        shape[axis] = n
+        shape[axis] = i0.size
         lo, hi = np.take(a, i0, axis=axis), np.take(a, i1, axis=axis)
         hi -= lo
         hi *= w.reshape(shape)

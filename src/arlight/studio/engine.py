@@ -48,7 +48,7 @@ import copy
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -65,6 +65,7 @@ from arlight.scene.load import PATH_KEYS
 from arlight.scene.model import ARScene
 from arlight.studio import imaging
 from arlight.studio.adaptive import ScaleController, at_rest, drag_factors, until_rest
+from arlight.studio.footprint import DragImages, PhotoCodes, Window, footprint, footprint_window
 from arlight.studio.pose import ObjectPose
 from arlight.studio.protocol import Message, ProtocolError
 
@@ -164,7 +165,8 @@ class Session:
     display_version: int = 1  # bumped by exposure/layer changes
     rendered_version: int = 0
     displayed_version: int = 0
-    images: dict[str, np.ndarray] | None = None  # the current (accumulated) layers
+    images: Mapping[str, np.ndarray] | None = None  # the current (accumulated) layers
+    window: Window | None = None  # a drag frame's: outside it the composite is the photo
     shown: dict[str, Any] = field(default_factory=dict)  # seq, version, method, poses of them
     stats: dict[str, float] = field(default_factory=dict)
     accumulators: dict[str, Accumulator] = field(default_factory=dict)
@@ -331,6 +333,7 @@ class Engine:
         self.views = {k: self.scene.resized(self.width // k, self.height // k).view
                       for k in self.factors}  # the camera resized, photo box-filtered
         self.rest_s = config.rest_ms / 1e3
+        self._photo = PhotoCodes(self.view.frame)  # its display codes per exposure
         self._scales: dict[str, ScaleController] = {}  # per method; worker thread only
         self._wake_at = float("inf")  # the earliest rest of a session shown downscaled
         self.save_dir = Path(config.save_dir or self.source.parent).resolve()
@@ -797,16 +800,20 @@ class Engine:
             return 1
         return self.scale_controller(method).choose()
 
-    def _full_size(self, layers: Layers, factor: int) -> Layers:
-        """``layers`` rendered at 1/``factor`` of the size as full-size layers
-        (:meth:`arlight.layers.Layers.upsampled` over the full-size photo)."""
-        return layers if factor == 1 else layers.upsampled(self.view.frame)
+    def _drag_images(self, layers: Layers) -> DragImages:
+        """The full-size images of a drag frame rendered smaller: bit for bit those of
+        ``layers.upsampled(photo)`` (:meth:`arlight.layers.Layers.upsampled`), the
+        composite computed in the insertion's footprint only
+        (:mod:`arlight.studio.footprint`, issue #32)."""
+        window = footprint_window(footprint(layers), self.height, self.width)
+        return DragImages(layers, self.view.frame, window)
 
     def _render(self, s: Session, refine: bool, settle: bool = False) -> None:
         """Render the session's newest state and send it: a new version (at the adaptive
         scale if a motion message made it), ``settle`` (the same version at full size once
         the pointer rests) or ``refine`` (the next progressive frame, full size)."""
         t0 = time.perf_counter()
+        started = time.monotonic()
         with s.lock:
             version, seq = s.version, s.seq
             if s.method not in self._states:  # switched since the worker chose this work
@@ -848,7 +855,7 @@ class Engine:
         else:
             ctl.seed(factor, t_render)
         t2 = time.perf_counter()
-        layers = self._full_size(layers, factor)
+        drag_images = self._drag_images(layers) if factor > 1 else None
         t_upsample = time.perf_counter() - t2
         with s.lock:
             if s.closed:
@@ -861,7 +868,12 @@ class Engine:
             else:
                 s.rendered_version = version
             # a downscaled frame is shown as it is; refinement starts from the full-size one
-            s.images, s.refine = self._fold(s, layers, n, progressive and factor == 1)
+            if drag_images is not None:
+                s.images, s.refine, s.accumulators = drag_images, 0, {}
+                s.window = drag_images.window
+            else:
+                s.images, s.refine = self._fold(s, layers, n, progressive)
+                s.window = None
             s.factor = factor
             s.shown = {"seq": seq, "version": version, "method": method,
                        "objects": {k: p.to_json() for k, p in poses.items()},
@@ -869,9 +881,13 @@ class Engine:
                        "factor": factor}
             s.stats = {**{k: float(v) for k, v in layers.stats.items()
                           if k.startswith("time_")},
-                       "time_place": t_place, "render_s": t_render}
-            if factor > 1:
+                       "time_place": t_place, "render_s": t_render,
+                       "wait_s": max(started - changed_at, 0.0)}
+            if drag_images is not None:
                 s.stats["upsample_s"] = t_upsample
+                rows, cols = drag_images.window
+                s.stats["footprint"] = ((rows.stop - rows.start) * (cols.stop - cols.start)
+                                        / (self.width * self.height))
         self._send_frame(s, superseded=stale, changed_at=changed_at)
 
     def _denoised_mean(self, s: Session, fn: Method, state: Prepared, view, settings,
@@ -928,14 +944,21 @@ class Engine:
             if s.images is None or s.closed:
                 s.displayed_version = s.display_version
                 return
-            images, layer, ev = s.images, s.layer, s.exposure
+            images, layer, ev, window = s.images, s.layer, s.exposure, s.window
             header: dict[str, Any] = {
                 "type": "frame", **s.shown, "layer": layer, "exposure": ev,
                 "refine": s.refine, "superseded": superseded, "stats": dict(s.stats)}
             s.displayed_version = s.display_version
-        codes = imaging.display(layer, images, self.scene.camera.transfer, ev,
-                                self.ground_truth)
+        t_display = time.perf_counter()
+        if layer == "composite" and window is not None:  # the photo's codes outside it
+            codes = self._photo.display(images, window, self.scene.camera.transfer, ev)
+        else:
+            codes = imaging.display(layer, images, self.scene.camera.transfer, ev,
+                                    self.ground_truth)
+        t_encode = time.perf_counter()
         data = imaging.encode(codes, self.config.image_format, self.config.quality)
+        header["stats"]["display_s"] = t_encode - t_display
+        header["stats"]["jpeg_s"] = time.perf_counter() - t_encode
         if self.ground_truth is not None:
             header["rmse"] = rmse(images["composite"], self.ground_truth)
         header["stats"]["encode_s"] = time.perf_counter() - t0
