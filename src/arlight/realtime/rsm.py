@@ -420,8 +420,8 @@ def render_rsm_pair_reusing(views: SceneViews, rays: LightRays, mu: RSM,
     ``R_µ``'s in ``R_ρ``. Bit for bit the same maps as :func:`render_rsm_pair`."""
     lo, hi = (np.asarray(b, np.float64) for b in box)
     pad = 1e-4 * max(float(np.max(hi - lo)), 1e-3)  # rays grazing the box stay candidates
-    bbox = mi.BoundingBox3f(mi.Point3f(*[float(x) for x in lo - pad]),
-                            mi.Point3f(*[float(x) for x in hi + pad]))
+    # opaque: the box follows the objects; as literals it compiled a kernel every frame
+    bbox = mi.BoundingBox3f(mi.Point3f(*opaques(lo - pad)), mi.Point3f(*opaques(hi + pad)))
     crosses, _, _ = bbox.ray_intersect(mi.Ray3f(rays.origin, rays.direction))
     cand = dr.compress(crosses)
     if dr.width(cand) == 0:
