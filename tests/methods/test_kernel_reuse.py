@@ -80,3 +80,24 @@ def test_relit_frames_reuse_the_compiled_kernels(demo, name):
         if k >= 3:
             assert kernels <= seen, f"{len(kernels - seen)} kernels new in relit frame {k}"
         seen |= kernels
+
+
+def test_nearfield_turning_stretching_object_reuses_the_kernels(demo):
+    """nearfield's virtual objects are traced in object space through opaque pose entries
+    (``backend.object_space``): frames that turn and non-uniformly stretch the bunny launch
+    no kernel the earlier moved frames did not. Rejects the pose's matrix entries compiled
+    into the G-buffer or shadow kernels as literals (one kernel per pose)."""
+    method = get_method("nearfield")
+    state = method.prepare(demo.world)
+    seen: set[str] = set()
+    for k in range(1, 5):
+        a = np.radians(10.0 * k)
+        t = np.diag([1.0 + 0.05 * k, 1.0 - 0.03 * k, 1.0 + 0.02 * k, 1.0])
+        t[[0, 0, 2, 2], [0, 2, 0, 2]] *= [np.cos(a), np.sin(a), -np.sin(a), np.cos(a)]
+        t[0, 3] = 0.01 * k
+        frame = dataclasses.replace(demo.view, object_transforms={"bunny": t})
+        kernels = traced_kernels(lambda f=frame, k=k: method.render(
+            state, f, RenderSettings(spp=1, seed=k)))
+        if k >= 3:
+            assert kernels <= seen, f"{len(kernels - seen)} kernels new in moving frame {k}"
+        seen |= kernels

@@ -7,11 +7,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from arlight.backend.object_space import ObjectSpaceScene
 from arlight.methods import get_method
 from arlight.methods.nearfield import prepare
 from arlight.nearfield.shading import frusta, shadow_maps
 from arlight.nearfield.state import NearFieldLight
-from arlight.realtime.oof import PosedOccluder, virtual_scene
+from arlight.realtime.oof import virtual_scene
 from tests.nearfield.conftest import room, vbox, world
 
 SLAB = [{"name": "slab", "role": "real", "type": "box", "size": [0.6, 0.05, 0.3],
@@ -62,7 +63,7 @@ def test_maps_match_a_per_texel_ray_cast():
     size = 24
     maps = shadow_maps(light, data.proxy, data.occluder, data.sphere, size)
     assert maps.tan_half[2] == 0 and np.all(maps.tan_half[:2] > 0)
-    assert isinstance(data.occluder, PosedOccluder)  # traced in the bar's own frame
+    assert isinstance(data.occluder, ObjectSpaceScene)  # traced in the bar's own frame
     # the references: the proxy, and the bar loaded in world space
     for got, scene in ((maps.real, data.proxy), (maps.virtual, virtual_scene(w))):
         got = np.asarray(got, np.float64)
@@ -76,7 +77,7 @@ def test_maps_match_a_per_texel_ray_cast():
 
 
 def test_object_space_sphere_holds_the_posed_object():
-    """The bounding sphere of an object-space occluder (``PosedOccluder.bounding_sphere``)
+    """The bounding sphere of an object-space occluder (``ObjectSpaceScene.bounding_sphere``)
     contains every vertex of the scaled, turned bar in world space and is no larger than
     the sphere around its world-space bounding box. Wrong implementations it rejects: the
     radius without the pose's scale (vertices outside), the centre left in object space,

@@ -625,6 +625,12 @@ class SceneView:
     generation: int = field(default_factory=lambda: next(_GENERATIONS), compare=False)
 
     @property
+    def base(self) -> SceneView:
+        """The loaded view whose parameters a change goes through: this one (a
+        :class:`~arlight.backend.object_space.SplitView` names the real view it shares)."""
+        return self
+
+    @property
     def params(self) -> mi.SceneParameters:
         """The scene's parameters, traversed once (they are references to the scene's)."""
         params = self.__dict__.get("_params")
@@ -675,7 +681,9 @@ class SceneViews:
 
     Attributes:
         real: the real-only view (µ).
-        mixed: the mixed view (ρ); the same object as ``real`` without virtual shapes.
+        mixed: the mixed view (ρ); the same object as ``real`` without virtual shapes; a
+            :class:`~arlight.backend.object_space.SplitView` where the virtual shapes are
+            traced in object space.
         shapes: the shapes as the views hold them now (index = shape name in the views);
             :meth:`place` moves them.
     """
@@ -709,18 +717,25 @@ class SceneViews:
         moved (:meth:`moved`): ``shapes`` is this world posed (:meth:`World.posed`: the same
         shapes, other ``to_world``). Each view then traces bitwise what
         :func:`build_views` of the posed world would build
-        (tests/methods/test_pose_incremental.py)."""
+        (tests/methods/test_pose_incremental.py); a split mixed view
+        (:func:`arlight.backend.object_space.build_split_views`) only swaps its objects'
+        frames, no acceleration structure rebuilt."""
         moved = self.moved(shapes)
         if not moved:
             self.shapes = list(shapes)
             return moved
-        geometry = {str(i): geometry_params(describe_geometry(shapes[i])) for i in moved}
+        split = not isinstance(self.mixed, SceneView)  # backend.object_space.SplitView
         views = [self.mixed] if self.mixed is self.real else [self.real, self.mixed]
-        for view in views:
-            here = {name for name in geometry if view is self.mixed
-                    or not self.shapes[int(name)].is_virtual}
+        held = [(view, {str(i) for i in moved if (view is self.mixed and not split)
+                        or not self.shapes[i].is_virtual})
+                for view in views if isinstance(view, SceneView)]
+        geometry = {name: geometry_params(describe_geometry(shapes[int(name)]))
+                    for name in set().union(*[here for _, here in held])}
+        for view, here in held:
             if here:
                 view.set_geometry({name: geometry[name] for name in here})
+        if split:  # objects re-posed by their frames; real shapes moved in the real view
+            self.mixed.place(shapes, moved)
         self.shapes = list(shapes)
         return moved
 

@@ -439,7 +439,8 @@ def relight_views(views: SceneViews, before: Sequence[Light], after: Sequence[Li
         return True
     fresh = mi.traverse(load_view({"objects": changed}, {}).scene)
     keys = [k for k in fresh.keys() if k.split(".", 1)[0] in changed]
-    targets = list({id(v): v for v in (views.real, views.mixed)}.values())
+    targets = list({id(v.base): v.base for v in (views.real, views.mixed)}.values())
+    # (a split mixed view shares the real view's scene: SceneView.base)
     if any(k not in view.params for view in targets for k in keys):
         return False
     for view in targets:

@@ -30,6 +30,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneViews
+from arlight.backend.object_space import ObjectSpaceScene
 from arlight.methods.base import (
     BaseMethod,
     Layers,
@@ -52,7 +53,6 @@ from arlight.nearfield.shading import (
 from arlight.nearfield.split import DEFAULT_TAU
 from arlight.nearfield.state import MAX_VALS, NearFieldLight
 from arlight.realtime.gbuffer import assemble, render_gbuffer
-from arlight.realtime.oof import Occluder, occluder_sphere
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
 
@@ -107,10 +107,10 @@ class NearFieldData:
     world: World
     views: SceneViews
     proxy: mi.Scene
-    occluder: Occluder | None
-    """The virtual objects alone (:func:`~arlight.realtime.oof.make_occluder`): one object
-    under a similarity is its object-space scene looked up through its pose (a pose moves
-    no Mitsuba scene), several a world-space scene moved in place."""
+    occluder: ObjectSpaceScene | None
+    """The virtual objects alone, each traced in object space through its pose
+    (:mod:`arlight.backend.object_space`; the same loaded objects as the mixed view's): a
+    pose moves no Mitsuba scene, for any number of objects and any affine pose."""
     prt: PerObjectSH | None
     materials: MaterialTable
     sphere: tuple[np.ndarray, float] | None
@@ -145,21 +145,29 @@ def _light_from_options(world: World, options: Options
     return light, dict(server.stats), server
 
 
+def _occluder(views: SceneViews) -> ObjectSpaceScene | None:
+    """The virtual objects of split views (:func:`~arlight.backend.object_space.
+    build_split_views`) alone, as the shadow rays and maps test them (None without any)."""
+    if not isinstance(views.mixed.scene, ObjectSpaceScene):
+        return None
+    return ObjectSpaceScene(None, views.mixed.scene.objects)
+
+
 def prepare(world: World, options: Options, light: NearFieldLight | None = None,
             server=None) -> NearFieldData:
     """Everything but the frame (module docstring); ``light`` overrides the options
     (``server``: the server that made it, kept for ``pose``)."""
-    from arlight.backend.mitsuba_scene import build_views
+    from arlight.backend.object_space import build_split_views
     from arlight.cache import default_cache_dir
     from arlight.nearfield.atlas import proxy_mesh
     from arlight.nearfield.raytrace import mesh_scene
-    from arlight.realtime.oof import make_occluder
     from arlight.realtime.prt_shading import prt_meshes
+    from arlight.realtime.prt_transfer import rotation_part
 
-    views = build_views(world)
+    views = build_split_views(world)  # the virtual objects in object space (issue #32)
     mesh = proxy_mesh(world)
     proxy = mesh_scene([(mesh.vertices, mesh.faces)])
-    occluder = make_occluder(world)
+    occluder = _occluder(views)
     stats: dict = {}
     if light is None:
         light, stats, server = _light_from_options(world, options)
@@ -167,11 +175,17 @@ def prepare(world: World, options: Options, light: NearFieldLight | None = None,
     pdata = None
     sphere = None
     if occluder is not None:
-        d = prt_meshes(world, views, default_cache_dir(), order=2,
+        # the objects are loaded at the identity pose: their object meshes are read there,
+        # then each takes the rotation of its pose
+        rest = replace(world, shapes=[replace(s, to_world=np.eye(4)) if s.is_virtual else s
+                                      for s in world.shapes])
+        d = prt_meshes(rest, views, default_cache_dir(), order=2,
                        directions=options.directions, bounces=0, shadowed=True)
-        pdata = PerObjectSH(views=views, objects=d.objects, face_offset=d.face_offset,
+        objects = [replace(o, rotation=rotation_part(world.shapes[o.shape].to_world))
+                   for o in d.objects]
+        pdata = PerObjectSH(views=views, objects=objects, face_offset=d.face_offset,
                             faces=d.faces, sog=None, env=None, sh=np.zeros((len(names), 9, 3)))
-        sphere = occluder_sphere(occluder)
+        sphere = occluder.bounding_sphere()
     return NearFieldData(world, views, proxy, occluder, pdata,
                          material_table(world, list(options.metal_k)), sphere, light, names,
                          stats, server)
@@ -288,33 +302,24 @@ class NearFieldMethod(BaseMethod):
     def move(self, data: NearFieldData, world: World, transforms: dict[str, np.ndarray],
              options: Options) -> NearFieldData | None:
         """``data`` (prepared for ``world`` in any pose) moved in place to
-        ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views, the
-        virtual occluder takes the new pose (:func:`~arlight.realtime.oof.move_occluder`:
-        an object-space one only its frame, no acceleration structure rebuilt), each object
-        keeps its object-space PRT transfer and takes its new rotation, the bounding sphere
-        is measured again and the shadow maps dropped (they see the occluder); the proxy,
-        the material table and the VALs are kept. Where this state's own server made the
-        light, the SH probes are re-traced at the moved objects (as a server does when it
-        is told the new poses); a given light is kept as it is. Bitwise the data
-        :func:`prepare` makes of the posed world with that light; None when a real shape
-        moves (the proxy and the light would change), a virtual primitive does (its object
-        mesh is read back from the loaded mesh) or the occluder's kind would change."""
-        from arlight.realtime.oof import move_occluder
+        ``world.posed(transforms)`` (issue #32): the mixed view's objects and the virtual
+        occluder, both traced in object space (:mod:`arlight.backend.object_space`), take
+        the new frames — no Mitsuba scene is updated, no acceleration structure rebuilt;
+        each object keeps its object-space PRT transfer and takes its new rotation, the
+        bounding sphere is measured again and the shadow maps dropped (they see the
+        occluder); the proxy, the material table and the VALs are kept. Where this state's
+        own server made the light, the SH probes are re-traced at the moved objects (as a
+        server does when it is told the new poses); a given light is kept as it is. Bitwise
+        the data :func:`prepare` makes of the posed world with that light; None when a real
+        shape moves (the proxy and the light would change)."""
         from arlight.realtime.prt_transfer import rotation_part
 
-        if data.prt is not None and any(world.shapes[o.shape].mesh is None
-                                        for o in data.prt.objects):
-            return None
-        before = replace(world, shapes=list(data.views.shapes))  # where views and occluder are
         posed = place_views(data.views, world, transforms)
         if posed is None:
             return None
-        sphere, prt = data.sphere, data.prt
-        ok, occluder = move_occluder(data.occluder, before, posed)
-        if not ok:  # the occluder's kind would change (a pose that is no similarity)
-            return None
-        if occluder is not None:
-            sphere = occluder_sphere(occluder)
+        occluder = _occluder(data.views)
+        sphere = None if occluder is None else occluder.bounding_sphere()
+        prt = data.prt
         if prt is not None:
             prt = PerObjectSH(**{**vars(prt), "objects": [
                 replace(o, rotation=rotation_part(posed.shapes[o.shape].to_world))
