@@ -38,10 +38,10 @@ def _opts(**kw):
 
 def test_posed_view_reuses_the_real_voxels_and_equals_the_composed_scene():
     """Moving the virtual cube renders bitwise what preparing the posed world from scratch
-    renders; by 1 cm (less than half a cell: the snapped volume stays) the real voxels of the
-    rest pose are reused and only the cube is voxelised again; by 20 cm the volume moves and
-    the real proxy is voxelised anew. Rejects a pose that keeps the old virtual voxels or
-    reuses real voxels of another grid."""
+    renders; by 1 cm the real voxels are cut from the window voxelised at preparation and
+    only the cube is voxelised again; by 60 cm (past the window's margin of half the
+    volume) the real proxy is voxelised anew. Rejects a pose that keeps the old virtual
+    voxels or reuses real voxels of another grid."""
     from dataclasses import replace as dc_replace
 
     from arlight.scene.model import ARScene
@@ -51,11 +51,11 @@ def test_posed_view_reuses_the_real_voxels_and_equals_the_composed_scene():
     s = RenderSettings(options={**SMALL, "cone_scale": 1})
     state = m.prepare(scene.world, s)
     rest = m.render(state, scene.view, s)
-    for dz, reused in ((0.01, True), (0.2, False)):
+    for dz, reused in ((0.01, True), (0.6, False)):
         move = np.eye(4)
         move[:3, 3] = [0.0, 0.0, dz]
         data = m.pose(state, {"cube": move}, s)
-        assert (data.real_voxels is state.data.real_voxels) == reused
+        assert (data.real_window is state.data.real_window) == reused
         view = dc_replace(scene.view, object_transforms={"cube": move})
         posed = m.render(state, view, s)
         composed = m(ARScene.compose(scene.world, view), s)

@@ -71,11 +71,11 @@ from arlight.methods.base import (
     BaseMethod,
     Layers,
     RenderSettings,
+    place_views,
 )
 from arlight.methods.fragments import (
     GBUFFER_OPTIONS,
     REDUCTION_OPTIONS,
-    follow_volume,
     volume_grid,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -99,6 +99,7 @@ from arlight.realtime.voxels import (
     SHELLS,
     ConeResult,
     ConeVolumes,
+    LatticeVoxels,
     MipVolume,
     Voxels,
     aniso_lookup,
@@ -106,10 +107,10 @@ from arlight.realtime.voxels import (
     check_memory,
     cover_level0,
     eta_level0,
+    frame_box,
     shape_triangles,
     trace_cones,
     voxelize,
-    voxelize_shapes,
 )
 from arlight.scene.model import FrameView, World
 from arlight.timing import StageTimer
@@ -182,9 +183,24 @@ OPTIONS: dict[str, Field] = {
                            "in steps of a quarter of its edge, keeps the real voxels and "
                            "RSMs while it stays; issue #32); off: centred on the object as "
                            "Franke (chosen on training worlds, docs/methods/dvct.md)"),
+    "volume_extent": Field("choice", "frame", "the extent the volume's edge is "
+                           "volume_scale × (issue #32): `frame`, with one virtual object the "
+                           "largest edge of its bounding box in its own frame (a turn keeps "
+                           "the cells; with several objects as `box`: on 8 training worlds "
+                           "the union of their own-frame cubes made cells up to 30 % larger "
+                           "and cost two of them 1.3–1.4 dB); `box`, the largest edge of the "
+                           "world-axis bounding box as Franke (changes as the object turns)",
+                           choices=("frame", "box")),
     **REDUCTION_OPTIONS,
     **GBUFFER_OPTIONS,
 }
+
+
+COVERAGE_BLOCKS = 8
+"""Directional RSMs cover a sphere whose centre is the volume's centre snapped to a lattice
+of ``edge / COVERAGE_BLOCKS`` and whose radius covers the volume from any snapped centre,
+``√3/2 · edge · (1 + 1/COVERAGE_BLOCKS)``: a volume that moves less than an eighth of its
+edge keeps the proxy's directional maps (issue #32; their texels 0.79× as dense)."""
 
 
 def _check(opts: Options) -> None:
@@ -268,7 +284,8 @@ class DVCTData:
     """What ``prepare_world`` keeps: world, Mitsuba views, reduced lights, the volume grid
     (None without virtual objects), the real proxy's voxels, the virtual objects' triangles
     (re-voxelised every frame), per-shape materials, the light radii (m) of the shadow
-    cones (directional lights: ``tan(γ/2)``) and the real proxy's RSMs (cast once)."""
+    cones (directional lights: ``tan(γ/2)``), the real proxy's RSMs (cast once) and the
+    window the proxy's voxels are cut from (:func:`proxy_voxels`)."""
 
     world: World
     views: SceneViews
@@ -279,6 +296,7 @@ class DVCTData:
     materials: Materials
     light_size: list[float]
     real_maps: RealMaps | None = None
+    real_window: LatticeVoxels | None = None
 
 
 def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float]:
@@ -302,8 +320,56 @@ def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float
     return out
 
 
+def place_volume(world: World, bounds: tuple[np.ndarray, np.ndarray], options: Options
+                 ) -> Grid:
+    """The volume around the virtual objects (world-axis bounding box ``bounds``, m): with
+    ``fixed_lattice`` the world lattice of ``dlpv`` (:func:`~arlight.methods.fragments.
+    volume_grid`); otherwise Franke's cube of edge ``volume_scale`` × the extent of
+    ``volume_extent`` (``frame`` and one virtual object: the cell rounded to float32
+    precision — the extent is invariant under rigid motion only up to float64 rounding,
+    which the coarser rounding absorbs, so a turn keeps the cell bitwise; several objects:
+    ``box``),
+    centred on ``bounds``' centre snapped to the cell lattice: origin ``k · cell`` for an
+    integer ``k``, so that every placement with that cell lies on one world lattice
+    (:class:`~arlight.realtime.voxels.LatticeVoxels`). Depends on the posed world alone
+    (preparing it places the same volume)."""
+    if options.fixed_lattice:
+        return volume_grid(bounds, options)
+    lo, hi = (np.asarray(b, np.float64) for b in bounds)
+    n = int(options.volume_size)
+    shapes = world.virtual_shapes
+    if options.volume_extent == "box" or len(shapes) != 1:
+        cell = max(float(np.max(hi - lo)), 1e-6) * options.volume_scale / n
+    else:
+        extent = max(frame_box(shapes[0])[1], 1e-6)
+        cell = float(np.float32(extent * options.volume_scale / n))
+    k = np.round((lo + hi) / 2.0 / cell) - n // 2
+    return Grid(origin=k * cell, cell=cell, n=n)
+
+
+def directional_coverage(grid: Grid) -> tuple[np.ndarray, float]:
+    """(centre, radius) of the sphere directional RSMs cover (:data:`COVERAGE_BLOCKS`), m:
+    it holds the volume for every centre within half a lattice step of the snapped one."""
+    step = grid.size / COVERAGE_BLOCKS
+    centre = np.round(grid.centre / step) * step
+    return centre, math.sqrt(3.0) / 2.0 * (grid.size + step)
+
+
+def proxy_voxels(world: World, grid: Grid, options: Options,
+                 window: LatticeVoxels | None = None) -> tuple[Voxels, LatticeVoxels]:
+    """The real proxy's voxels on ``grid`` cut from ``window`` — or, when it does not hold
+    the grid, from a new window voxelised around it (:meth:`LatticeVoxels.around`) — and
+    the window used: bitwise the voxels of the grid wherever the window lies."""
+    cut = None if window is None else window.cut(grid)
+    if cut is None:
+        window = LatticeVoxels.around(world.real_shapes, grid, options.directional_occupancy)
+        cut = window.cut(grid)
+    assert cut is not None and window is not None
+    return cut, window
+
+
 def prepare(world: World, options: Options) -> DVCTData:
-    """Mitsuba views, reduced lights, volume placement and the real proxy's voxels."""
+    """Mitsuba views, reduced lights, volume placement, the real proxy's voxels and RSMs."""
     check_rsm_memory(options.rsm_size)
     check_memory(options.volume_size,
                  2 * (light_channels(options) - 3)
@@ -311,36 +377,49 @@ def prepare(world: World, options: Options) -> DVCTData:
     views = build_views(world)
     lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
     bounds = virtual_bounds(world, views.mixed) if world.has_virtual else None
-    grid = real = tris = maps = None
+    grid = real = tris = maps = window = None
     if bounds is not None:
-        grid = volume_grid(bounds, options)
-        real = voxelize_shapes(world.real_shapes, grid, options.directional_occupancy)
+        grid = place_volume(world, bounds, options)
+        real, window = proxy_voxels(world, grid, options)
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
-        maps = real_maps(views, lights, grid, options.rsm_size, bounds)
+        maps = real_maps(views, lights, grid, options.rsm_size, bounds,
+                         directional_coverage(grid))
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
-                    _light_sizes(world, lights, options), maps)
+                    _light_sizes(world, lights, options), maps, window)
 
 
 def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], options: Options
          ) -> DVCTData | None:
     """``data`` (prepared for ``world`` in any pose) moved in place to
-    ``world.posed(transforms)`` (issue #32): the shapes move in the Mitsuba views, the volume
-    follows the virtual objects' bounds (its centre snapped to the cell lattice, so small
-    motions keep it), the real proxy's voxels are kept while the volume stays, its RSMs as
-    :func:`~arlight.realtime.rsm.moved_maps` says; only the virtual objects' triangles are
-    transformed (they are voxelised every frame anyway). Bitwise the data :func:`prepare`
-    makes of the posed world; None (nothing changed) when a real shape moves."""
-    moved = follow_volume(data.views, data.grid, world, transforms, options)
-    if moved is None:
+    ``world.posed(transforms)`` (issue #32). What a pose recomputes: the shapes move in the
+    Mitsuba views (their BVH is updated); the volume is placed again (:func:`place_volume`:
+    with ``volume_extent`` ``frame`` a turn keeps the cell size, a move shifts the origin by
+    whole cells); the real proxy's voxels are cut from the window voxelised at preparation
+    (voxelised again only when the volume leaves it or its cell changes); the proxy's
+    ``R_µ`` are kept — a point, spot or area light's rays do not depend on the volume, a
+    directional light's cover :func:`directional_coverage`, which moves only every eighth
+    of the volume's edge — and only the virtual objects' triangles are transformed. The
+    rest is per frame anyway: the RSM pair casts only the rays that cross the objects' box
+    into the mixed view (:func:`~arlight.realtime.rsm.render_rsm_pair_reusing`), the
+    virtual objects are voxelised and every volume injected and filtered. Bitwise the data
+    :func:`prepare` makes of the posed world; None (nothing changed) when a real shape
+    moves."""
+    posed = place_views(data.views, world, transforms)
+    if posed is None:
         return None
-    posed, grid, bounds = moved
-    if grid is None or data.real_maps is None:
+    if data.grid is None or data.real_maps is None:
         return replace(data, world=posed)
-    real = data.real_voxels if same_grid(data.grid, grid) else voxelize_shapes(
-        posed.real_shapes, grid, options.directional_occupancy)
+    bounds = virtual_bounds(posed, data.views.mixed)
+    grid = place_volume(posed, bounds, options)
+    if same_grid(data.grid, grid):
+        real, window = data.real_voxels, data.real_window
+    else:
+        real, window = proxy_voxels(posed, grid, options, data.real_window)
     tris = np.concatenate([shape_triangles(s) for s in posed.virtual_shapes])
-    return replace(data, world=posed, grid=grid, real_voxels=real, virtual_triangles=tris,
-                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds))
+    return replace(data, world=posed, grid=grid, real_voxels=real, real_window=window,
+                   virtual_triangles=tris,
+                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds,
+                                        directional_coverage(grid)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -885,7 +964,8 @@ class DVCTMethod(BaseMethod):
             return None
         lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
         maps = None if data.real_maps is None else real_maps(
-            data.views, lights, data.grid, options.rsm_size, data.real_maps.box)
+            data.views, lights, data.grid, options.rsm_size, data.real_maps.box,
+            data.real_maps.coverage)
         return replace(data, world=world, lights=lights, real_maps=maps,
                        light_size=_light_sizes(world, lights, options))
 
@@ -899,6 +979,7 @@ class DVCTMethod(BaseMethod):
 
 
 __all__ = ["DVCTData", "DVCTMethod", "OPTIONS", "SPEC", "Volumes", "build_volumes",
+           "directional_coverage", "place_volume", "proxy_voxels",
            "compose", "cone_error", "cone_terms", "cone_volumes", "diffuse_cone_set",
            "diffuse_cones", "diffuse_visibility", "light_channels",
            "ggx_specular", "inject_regular", "inject_split", "prepare", "shade",

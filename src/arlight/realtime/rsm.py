@@ -452,6 +452,9 @@ class RealMaps:
     rays: list[LightRays]
     mu: list[RSM]
     box: tuple[np.ndarray, np.ndarray]  # the virtual objects' world bounding box (m)
+    coverage: tuple[np.ndarray, float] | None = None
+    """(centre, radius) directional maps cover, m, when the method chose it
+    (:func:`real_maps`' ``coverage``); None: the volume's bounding sphere."""
 
 
 class RSMState(Protocol):
@@ -475,29 +478,44 @@ def same_grid(a: Grid | None, b: Grid | None) -> bool:
 
 
 def real_maps(views: SceneViews, lights: LightSet, grid: Grid, res: int,
-              box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
-    """Every reduced light's RSM rays (directional maps cover the volume's bounding sphere)
-    and ``R_µ`` cast into the real-only view."""
-    rays = [light_rays(lt, res, _coverage(grid)) for lt in lights.lights]
-    return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box)
+              box: tuple[np.ndarray, np.ndarray],
+              coverage: tuple[np.ndarray, float] | None = None) -> RealMaps:
+    """Every reduced light's RSM rays (directional maps cover ``coverage``, (centre,
+    radius) in m, by default the volume's bounding sphere) and ``R_µ`` cast into the
+    real-only view."""
+    rays = [light_rays(lt, res, coverage or _coverage(grid)) for lt in lights.lights]
+    return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box,
+                    coverage)
+
+
+def same_coverage(a: tuple[np.ndarray, float] | None,
+                  b: tuple[np.ndarray, float] | None) -> bool:
+    """Whether two (centre, radius) coverages are bitwise the same sphere."""
+    return (a is not None and b is not None and a[1] == b[1]
+            and np.array_equal(a[0], b[0]))
 
 
 def moved_maps(maps: RealMaps, views: SceneViews, old: Grid, grid: Grid,
-               box: tuple[np.ndarray, np.ndarray]) -> RealMaps:
+               box: tuple[np.ndarray, np.ndarray],
+               coverage: tuple[np.ndarray, float] | None = None) -> RealMaps:
     """``real_maps(views, maps.lights, grid, maps.res, box)`` after the virtual objects
     moved and the proxy did not (incremental pose, issue #32): a light's rays and ``R_µ`` are
     kept unless they depend on the grid — a directional light's map covers the volume — and
-    the grid moved from ``old`` to ``grid``; those are cast again. Bit for bit the maps
-    :func:`real_maps` casts (the same rays into the same real-only view)."""
-    moved = not same_grid(old, grid)
+    the grid moved from ``old`` to ``grid`` — or, with ``coverage`` (the sphere the maps
+    were cast for is ``maps.coverage``), the coverage changed; those are cast again. Bit
+    for bit the maps :func:`real_maps` casts (the same rays into the same real-only view)."""
+    if coverage is None:
+        moved = not same_grid(old, grid)
+    else:
+        moved = not same_coverage(maps.coverage, coverage)
     rays, mu = [], []
     for lt, r, m in zip(maps.lights.lights, maps.rays, maps.mu, strict=True):
         if moved and lt.kind == "directional":
-            r = light_rays(lt, maps.res, _coverage(grid))
+            r = light_rays(lt, maps.res, coverage or _coverage(grid))
             m = render_rsm(views.real, r)
         rays.append(r)
         mu.append(m)
-    return RealMaps(maps.lights, maps.res, rays, mu, box)
+    return RealMaps(maps.lights, maps.res, rays, mu, box, coverage)
 
 
 def rsm_pair(data: RSMState) -> list[RSMPair]:
@@ -509,12 +527,14 @@ def rsm_pair(data: RSMState) -> list[RSMPair]:
     if maps is None:
         return []
     if maps.lights is not data.lights:
-        maps = real_maps(data.views, data.lights, data.grid, maps.res, maps.box)
+        maps = real_maps(data.views, data.lights, data.grid, maps.res, maps.box,
+                         maps.coverage)
     return [render_rsm_pair_reusing(data.views, r, mu, maps.box)
             for r, mu in zip(maps.rays, maps.mu, strict=True)]
 
 
 __all__ = ["Aim", "LightRays", "RSM", "RSMPair", "RSMState", "RealMaps", "check_memory",
            "concat_rays", "light_rays", "moved_maps", "real_maps", "render_rsm", "render_rsm_pair",
-           "render_rsm_pair_reusing", "replace_texels", "rsm_pair", "rsm_subset", "same_grid",
+           "render_rsm_pair_reusing", "replace_texels", "rsm_pair", "rsm_subset", "same_coverage",
+           "same_grid",
            "shared_texels", "subset_rays"]

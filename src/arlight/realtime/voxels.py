@@ -162,19 +162,38 @@ def _unit_triangles(kind: str, segments: int = 32) -> np.ndarray:
     raise ValueError(f"no tessellation for shape type {kind!r}")
 
 
-def shape_triangles(shape: Shape) -> np.ndarray:
-    """World-space triangles ``(F, 3, 3)`` float64 of ``shape`` (metres)."""
+def _local_frame(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    """``(points, m)``: the shape's points in its own frame — a mesh's vertices ``(V, 3)``, a
+    primitive's canonical triangles ``(F, 3, 3)`` — and the 4×4 ``m`` that takes them to
+    world space (metres)."""
     m = np.asarray(shape.to_world, np.float64)
     if shape.type == "mesh":
         assert shape.mesh is not None
-        tri = np.asarray(shape.mesh.vertices, np.float64)[np.asarray(shape.mesh.faces,
-                                                                     np.int64)]
-    else:
-        from arlight.backend.mitsuba_scene import _PRIMITIVE_CANONICAL
+        return np.asarray(shape.mesh.vertices, np.float64), m
+    from arlight.backend.mitsuba_scene import _PRIMITIVE_CANONICAL
 
-        m = m @ _PRIMITIVE_CANONICAL[shape.type](shape.params)
-        tri = _unit_triangles(shape.type)
+    return _unit_triangles(shape.type), m @ _PRIMITIVE_CANONICAL[shape.type](shape.params)
+
+
+def shape_triangles(shape: Shape) -> np.ndarray:
+    """World-space triangles ``(F, 3, 3)`` float64 of ``shape`` (metres)."""
+    pts, m = _local_frame(shape)
+    tri = pts[np.asarray(shape.mesh.faces, np.int64)] if shape.type == "mesh" else pts
     return tri @ m[:3, :3].T + m[:3, 3]
+
+
+def frame_box(shape: Shape) -> tuple[np.ndarray, float]:
+    """``(centre, edge)`` of ``shape``'s bounding box in its own frame (metres): the centre
+    of the box of its points (mesh vertices, canonical primitive) taken to world space, and
+    the box's largest edge as the world sees it, ``max_k |m e_k| (hi_k − lo_k)`` (``m`` the
+    shape's linear map). A rigid motion moves the centre with the shape and leaves the edge
+    unchanged (up to rounding), unlike the edge of the world-axis bounding box, which
+    changes as the shape turns (issue #32)."""
+    pts, m = _local_frame(shape)
+    pts = pts.reshape(-1, 3)
+    lo, hi = pts.min(0), pts.max(0)
+    centre = m[:3, :3] @ ((lo + hi) / 2.0) + m[:3, 3]
+    return centre, float(np.max(np.linalg.norm(m[:3, :3], axis=0) * (hi - lo)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -295,23 +314,48 @@ class Voxels:
         return len(self.index)
 
 
+def lattice_index(grid: Grid) -> np.ndarray:
+    """The integer index ``k`` (3,) of a grid whose origin lies on its own cell lattice,
+    ``origin = k · cell`` (ValueError otherwise)."""
+    k = np.rint(np.asarray(grid.origin, np.float64) / grid.cell)
+    if not np.allclose(k * grid.cell, grid.origin, rtol=0.0, atol=1e-9 * grid.cell):
+        raise ValueError(f"grid origin {grid.origin} is not a multiple of its cell {grid.cell}")
+    return k.astype(np.int64)
+
+
 def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20,
-             with_cover: bool = False) -> Voxels:
+             with_cover: bool = False, lattice: bool = False) -> Voxels:
     """Conservative voxelisation of world-space triangles ``(F, 3, 3)`` into ``grid`` (thesis
     §5.4.2; [SS10]): every cell whose closed box the triangle touches is occupied (``α = 1``),
     and gets the triangle's area-weighted normal added (orientation from the winding).
     Triangles outside the grid are clipped away; degenerate ones mark the cells they touch
     with no normal. Candidates are the cells of each triangle's bounding box (NumPy),
     tested ``chunk`` at a time in one Dr.Jit kernel (float32 in cell units relative to
-    the cell centre). ``with_cover``: also :attr:`Voxels.cover`."""
+    the cell centre). ``with_cover``: also :attr:`Voxels.cover`.
+
+    ``lattice`` (a grid whose origin is ``k · cell``, :func:`lattice_index`): positions in
+    world cell units ``x / cell`` relative to the world cell's centre ``g + ½`` (``g = k + i``
+    the world lattice index), so a cell's result does not depend on where the grid starts:
+    a grid cut out of a larger one on the same lattice (:class:`LatticeVoxels`) holds
+    bitwise what voxelising it directly gives (issue #32)."""
     tri = np.asarray(triangles, np.float64)
     if len(tri) == 0:
         return Voxels.empty(grid, with_cover)
     n, s = grid.n, grid.cell
-    local = (tri - grid.origin) / s  # cell units
-    lo = np.clip(np.floor(local.min(1) - 1e-6).astype(np.int64), 0, n - 1)
-    hi = np.clip(np.floor(local.max(1) + 1e-6).astype(np.int64), 0, n - 1)
-    inside = np.all(local.max(1) >= -1e-6, 1) & np.all(local.min(1) <= n + 1e-6, 1)
+    if lattice:
+        base = lattice_index(grid)
+        world = tri / s  # world cell units
+        lo = np.clip(np.floor(world.min(1) - 1e-6).astype(np.int64) - base, 0, n - 1)
+        hi = np.clip(np.floor(world.max(1) + 1e-6).astype(np.int64) - base, 0, n - 1)
+        inside = np.all(world.max(1) >= base - 1e-6, 1) & np.all(
+            world.min(1) <= base + n + 1e-6, 1)
+        local, offset = world, base.astype(np.float64)
+    else:
+        local = (tri - grid.origin) / s  # cell units
+        lo = np.clip(np.floor(local.min(1) - 1e-6).astype(np.int64), 0, n - 1)
+        hi = np.clip(np.floor(local.max(1) + 1e-6).astype(np.int64), 0, n - 1)
+        inside = np.all(local.max(1) >= -1e-6, 1) & np.all(local.min(1) <= n + 1e-6, 1)
+        offset = np.zeros(3)
     tri, local, lo, hi = tri[inside], local[inside], lo[inside], hi[inside]
     ext = hi - lo + 1
     count = ext.prod(1)
@@ -328,7 +372,7 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20,
         ix = lo[t, 0] + k % ex[:, 0]
         iy = lo[t, 1] + (k // ex[:, 0]) % ex[:, 1]
         iz = lo[t, 2] + k // (ex[:, 0] * ex[:, 1])
-        centre = np.stack([ix, iy, iz], 1) + 0.5
+        centre = (np.stack([ix, iy, iz], 1) + offset) + 0.5  # exact: integers and ½
         v = (local[t] - centre[:, None, :]).astype(np.float32)
         hit = np.array(_overlaps(*(mi.Vector3f(*(aligned(v[:, k, c], np.float32)
                                                    for c in range(3))) for k in range(3)),
@@ -341,12 +385,57 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20,
                             with_cover=with_cover)
 
 
-def voxelize_shapes(shapes: list[Shape], grid: Grid, with_cover: bool = False) -> Voxels:
+def voxelize_shapes(shapes: list[Shape], grid: Grid, with_cover: bool = False,
+                    lattice: bool = False) -> Voxels:
     """:func:`voxelize` of the triangles of several shapes."""
     if not shapes:
         return Voxels.empty(grid, with_cover)
     return voxelize(np.concatenate([shape_triangles(s) for s in shapes]), grid,
-                    with_cover=with_cover)
+                    with_cover=with_cover, lattice=lattice)
+
+
+@dataclass
+class LatticeVoxels:
+    """Shapes voxelised once over a window of a world cell lattice (:func:`voxelize` with
+    ``lattice``), from which every grid on the same lattice inside the window is cut
+    (issue #32: a volume that follows a moving object keeps the real proxy's voxels while
+    it stays in the window). ``voxels`` live on ``window``."""
+
+    window: Grid
+    voxels: Voxels
+
+    @staticmethod
+    def around(shapes: list[Shape], grid: Grid, with_cover: bool = False,
+               margin: int | None = None) -> LatticeVoxels:
+        """``shapes`` voxelised over the window of ``grid.n + 2·margin`` cells per edge
+        centred on ``grid`` (``margin`` default ``grid.n / 2``: the grid can move half its
+        edge each way)."""
+        pad = grid.n // 2 if margin is None else int(margin)
+        k = lattice_index(grid) - pad
+        window = Grid(origin=k * grid.cell, cell=grid.cell, n=grid.n + 2 * pad)
+        return LatticeVoxels(window, voxelize_shapes(shapes, window, with_cover, lattice=True))
+
+    def cut(self, grid: Grid) -> Voxels | None:
+        """The voxels of ``grid`` (same cell, inside the window; None otherwise): bitwise
+        ``voxelize_shapes(shapes, grid, lattice=True)``, since a cell's result depends only
+        on its world lattice index and the triangles' order."""
+        if grid.cell != self.window.cell:
+            return None
+        off = lattice_index(grid) - lattice_index(self.window)
+        n, m = grid.n, self.window.n
+        if np.any(off < 0) or np.any(off + n > m):
+            return None
+        v = self.voxels
+        # the grid's layers of z are one run of the sorted window indices
+        a, b = np.searchsorted(v.index, [off[2] * m * m, (off[2] + n) * m * m])
+        i = v.index[a:b]
+        ijk = np.stack([i % m, (i // m) % m, i // (m * m)], 1) - off
+        keep = np.all((ijk >= 0) & (ijk < n), 1)
+        ijk = ijk[keep]
+        sel = np.flatnonzero(keep) + a
+        # a box cut keeps the z, y, x order: the flat indices stay sorted
+        return Voxels(grid, ijk[:, 0] + n * (ijk[:, 1] + n * ijk[:, 2]), v.normal_sum[sel],
+                      None if v.cover is None else v.cover[sel])
 
 
 BLOCKING_SUB = 2
@@ -725,7 +814,8 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
 
 
 __all__ = ["ALPHA_CHANNELS", "ANISO_CHANNELS", "BLOCKING_SUB", "BYTES_PER_VOXEL",
-           "COVER_CHANNELS", "ConeResult", "ConeVolumes", "aniso_lookup", "cover_level0",
+           "COVER_CHANNELS", "ConeResult", "ConeVolumes", "LatticeVoxels", "aniso_lookup",
+           "cover_level0", "frame_box", "lattice_index",
            "MipVolume", "Voxels", "blocking_potential", "box_interval", "build_mips",
            "check_memory", "eta_level0", "pack", "shape_triangles", "trace_cones", "voxelize",
            "voxelize_shapes"]
