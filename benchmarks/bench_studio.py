@@ -32,6 +32,7 @@ import argparse
 import asyncio
 import collections
 import json
+import os
 import random
 import statistics
 import sys
@@ -52,11 +53,12 @@ VIDEO_METHODS = ("dlpv", "dir", "dvct", "ibl", "prt")
 """The methods of issue #32's acceptance."""
 
 
-def _engine(resolution: tuple[int, int], method: str = "dir"):
+def _engine(resolution: tuple[int, int], method: str = "dir", **config):
     from arlight.demo import demo_scene_path
     from arlight.studio import Engine, StudioConfig
 
-    return Engine(StudioConfig(demo_scene_path(), resolution=resolution, method=method))
+    return Engine(StudioConfig(demo_scene_path(), resolution=resolution, method=method,
+                               **config))
 
 
 # ---------------------------------------------------------------------- load
@@ -283,7 +285,7 @@ def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
 
 
 def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int],
-              methods: tuple[str, ...], reps: int) -> dict:
+              methods: tuple[str, ...], reps: int, drag_threads: int = 1) -> dict:
     """Continuous drags in Chromium with adaptive resolution (see the module doc)."""
     from playwright.sync_api import sync_playwright
 
@@ -293,13 +295,14 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     if (why := why_no_browser()) is not None:
         raise SystemExit(f"video-rate benchmark: {why}")
     load0 = _load()
-    engine = _engine(resolution)
+    engine = _engine(resolution, drag_threads=drag_threads)
     names = [n for n in methods if n in engine.catalogue
              and not engine.catalogue[n].unsupported]
     lat = {n: [] for n in names}  # (ms, factor) per frame shown while dragging
     first = {n: [] for n in names}  # the first frame of each drag, ms
     settle = {n: [] for n in names}  # last pointer event -> full-size frame drawn, ms
     renders = {n: [] for n in names}  # (factor, render_s, pose_s) of the frames shown
+    stages = {n: [] for n in names}  # the server's stage times (s) of the frames shown
     log_drags: list[dict] = []  # per drag: its last seq, (seq, factor, ms) of its frames
     rng = random.Random(1)
     with BackgroundServer(engine) as srv, sync_playwright() as p:
@@ -316,6 +319,8 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
                 (x["seq"], x["factor"], round(x["ms"])) for x in drag]})
             lat[name] += [(x["ms"], x["factor"]) for x in drag]
             renders[name] += [(x["factor"], x["render_s"], x.get("pose_s")) for x in drag]
+            stages[name] += [{**x.get("stats", {}), "server_ms": x.get("server_ms"),
+                              "ms": x["ms"]} for x in drag]
             if drag:
                 first[name].append(drag[0]["ms"])
         browser.close()
@@ -325,6 +330,8 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
             "budget_ms": engine.config.frame_budget_ms, "rest_ms": engine.config.rest_ms,
             "factors": engine.factors, "latency": lat, "first": first, "settle": settle,
             "renders": renders, "per_scale": per_scale, "load": [load0, load1],
+            "stages": stages, "drag_threads": drag_threads,
+            "openblas": os.environ.get("OPENBLAS_NUM_THREADS"),
             "drag_log": log_drags}
 
 
@@ -343,8 +350,10 @@ def video_report(v: dict) -> str:
                       f"{x['cpus']} CPUs, CPU pressure (avg60) {x['cpu_pressure'] or 'n/a'} %"
                       for when, x in zip(("before", "after the drags"), v["load"],
                                          strict=True) for a, b, c in [x["loadavg"]])
+    env = f"OPENBLAS_NUM_THREADS={v['openblas']} " if v.get("openblas") else ""
     lines = [VIDEO_HEADING, "",
-             f"`benchmarks/bench_studio.py --only video`: the studio at {w}×{h} in headless "
+             f"`{env}benchmarks/bench_studio.py --only video --drag-threads "
+             f"{v.get('drag_threads', 1)}`: the studio at {w}×{h} in headless "
              f"Chromium with adaptive resolution (render budget {v['budget_ms']:.0f} ms, rest "
              f"after {v['rest_ms']:.0f} ms; factors {', '.join(map(str, v['factors']))}); per "
              f"method {v['drags']} drags of {v['moves']} pointer events {v['move_ms']:.0f} ms "
@@ -385,6 +394,26 @@ def video_report(v: dict) -> str:
         poses = [r[2] for r in recs if r[2] is not None]
         cells.append(f"{statistics.median(poses) * 1e3:.0f}" if poses else "–")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", "Where a drag frame's time goes (issue #32; medians over the frames drawn, "
+              "ms): *wait* — from the change it shows to the start of its render (the worker "
+              "busy with the previous frame; latest wins, so never a queue of stale ones); "
+              "*render* (`method.render`); *upsample* — full size in the insertion's "
+              "footprint only (*window*: its share of the frame); *display* — the camera "
+              "transfer in that window over the photo's codes; *JPEG*; *server* — the "
+              "change to the frame posted; *page* — the rest of *drag → composite* (the "
+              "pointer event reaching the server, the WebSocket, decoding and drawing):", "",
+              "| method | wait | render | upsample | window | display | JPEG | server | page "
+              "|", "|---|---|---|---|---|---|---|---|---|"]
+    for name, recs in v.get("stages", {}).items():
+        def med(key: str, scale: float = 1e3, recs=recs) -> str:
+            xs = [r[key] for r in recs if r.get(key) is not None]
+            return f"{statistics.median(xs) * scale:.0f}" if xs else "–"
+
+        page = [r["ms"] - r["server_ms"] for r in recs if r.get("server_ms") is not None]
+        page_ms = f"{statistics.median(page):.0f}" if page else "–"
+        lines.append(f"| {name} | {med('wait_s')} | {med('render_s')} | "
+                     f"{med('upsample_s')} | {med('footprint', 100)} % | {med('display_s')} | "
+                     f"{med('jpeg_s')} | {med('server_ms', 1)} | {page_ms} |")
     lines += ["", "`method.render` time per size with the object moving 2 cm along the table "
               "every frame (median of 3 after a warm-up, same process, measured right after "
               "the drags), ms — what shrinks with the pixel count, and the fixed per-frame "
@@ -516,6 +545,8 @@ def main() -> None:
     ap.add_argument("--move-ms", type=float, default=33.0,
                     help="video: milliseconds between pointer events")
     ap.add_argument("--video-methods", default=",".join(VIDEO_METHODS))
+    ap.add_argument("--drag-threads", type=int, default=1,
+                    help="video: the studio's --drag-threads (Dr.Jit workers of drag frames)")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
     if args.screenshot:
@@ -523,7 +554,8 @@ def main() -> None:
         return
     if args.only == "video":
         video = run_video(args.drags, args.moves, args.move_ms, args.latency_resolution,
-                          tuple(args.video_methods.split(",")), reps=3)
+                          tuple(args.video_methods.split(",")), reps=3,
+                          drag_threads=args.drag_threads)
         print(json.dumps(video, default=str))
         publish(video_report(video), args.write)
         return

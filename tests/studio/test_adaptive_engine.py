@@ -19,11 +19,26 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
                                                              monkeypatch):
     """Rejects: a drag frame rendered at full size although over budget; a downscaled
     frame that is not the render at that size upsampled and composited over the photo; a
-    studio that never goes back to full size at rest, or keeps re-rendering it."""
+    studio that never goes back to full size at rest, or keeps re-rendering it; a drag
+    frame not rendered with ``drag_threads`` Dr.Jit workers, or a full-size frame left
+    with them."""
+    import drjit as dr
+
     from arlight.methods import get_method
+    from arlight.methods.dir import DIRMethod
     from arlight.studio.engine import _transforms
 
     eng = studio_engine
+    threads = []  # (width rendered, Dr.Jit workers) of each dir frame
+    plain = DIRMethod.render
+
+    def render(self, state, view, settings=None):
+        threads.append((view.camera.width, dr.thread_count()))
+        return plain(self, state, view, settings)
+
+    monkeypatch.setattr(DIRMethod, "render", render)
+    default = eng.call(dr.thread_count).result(60)
+    monkeypatch.setattr(eng.config, "drag_threads", default + 1)  # not the default
     assert eng.factors == (1, 2)
     slow = ScaleController(eng.factors, budget_s=1e-9)  # nothing fits: the coarsest
     slow.observe(1, 1.0)
@@ -56,6 +71,11 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     assert full["latency_ms"] >= 1000.0  # rendered only after the 1 s rest
     assert (full["width"], full["height"]) == SIZE and not full["superseded"]
     assert extra is None
+    assert (SIZE[0] // 2, default + 1) in threads and threads[-1] == (SIZE[0], default)
+    assert {w for w, n in threads if n == default + 1} == {SIZE[0] // 2}
+    assert 0 < small["stats"]["footprint"] <= 1 and small["stats"]["wait_s"] >= 0
+    assert "footprint" not in full["stats"]
+    monkeypatch.undo()
 
     def expected():
         fn = get_method("dir")

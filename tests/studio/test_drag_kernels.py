@@ -15,7 +15,6 @@ from arlight.demo import DEMO_DIR
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.load import load_scene
 
-
 MIN_OPS = 30
 """Smaller kernels are Dr.Jit's own compress/reduction kernels whose code follows the
 per-frame lane counts (16–23 operations on the demo; found in the kernel cache)."""

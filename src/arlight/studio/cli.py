@@ -110,6 +110,9 @@ def studio_command(
     rest_ms: Annotated[float, typer.Option("--rest-ms", help="the pointer rests after this "
                        "many milliseconds without a drag; the frame is then rendered at full "
                        "size once", min=0.0, max=60000.0)] = 150.0,
+    drag_threads: Annotated[int, typer.Option("--drag-threads", help="Dr.Jit worker threads "
+                            "while a drag frame renders (0: one per core, as full-size "
+                            "frames)", min=0, max=256)] = 1,
 ) -> None:
     """Live AR composite in the browser: drag the virtual object, switch methods.
 
@@ -133,7 +136,7 @@ def studio_command(
                           save_dir=save_dir, ground_truth=ground_truth,
                           image_format=image_format.lower(), quality=quality,
                           max_sessions=max_sessions, frame_budget_ms=frame_budget_ms,
-                          rest_ms=rest_ms)
+                          rest_ms=rest_ms, drag_threads=drag_threads)
     engine = Engine(config)
     console = Console(stderr=True)
     if not is_loopback(host):

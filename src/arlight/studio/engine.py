@@ -110,6 +110,12 @@ class StudioConfig:
             (0: always render at full size).
         rest_ms: the pointer rests when no drag or pose message came for this long,
             milliseconds; a frame rendered smaller is then rendered again at full size.
+        drag_threads: Dr.Jit LLVM worker threads while a drag frame (rendered smaller)
+            renders, 0: Dr.Jit's default (one per core); full-size frames always render
+            with the default. A drag frame is some 300 small kernels: on a loaded machine
+            (the browser, other processes) each launch on two workers waits for both to be
+            scheduled — with one, drag frames cost 0.5–0.6× the CPU and wall time
+            (issue #32, docs/studio.md).
     """
 
     scene: Path
@@ -124,6 +130,7 @@ class StudioConfig:
     max_sessions: int = 16
     frame_budget_ms: float = 100.0
     rest_ms: float = 150.0
+    drag_threads: int = 1
 
 
 MOTION = frozenset({"drag", "pose"})
@@ -316,6 +323,9 @@ class Engine:
                         ("--rest-ms", config.rest_ms)):
             if not 0 <= v <= 60000:
                 raise InputError(f"must be in [0, 60000] ms, got {v}", field=name)
+        if not 0 <= config.drag_threads <= 256:
+            raise InputError(f"must be in [0, 256], got {config.drag_threads}",
+                             field="--drag-threads")
         self.source = Path(config.scene).resolve()
         self.full = load_scene(self.source)
         if self.full.frame is None:
@@ -334,6 +344,7 @@ class Engine:
                       for k in self.factors}  # the camera resized, photo box-filtered
         self.rest_s = config.rest_ms / 1e3
         self._photo = PhotoCodes(self.view.frame)  # its display codes per exposure
+        self._jit_threads: int | None = None  # Dr.Jit's default worker count (worker thread)
         self._scales: dict[str, ScaleController] = {}  # per method; worker thread only
         self._wake_at = float("inf")  # the earliest rest of a session shown downscaled
         self.save_dir = Path(config.save_dir or self.source.parent).resolve()
@@ -784,6 +795,18 @@ class Engine:
             s.poses[name] = s.poses[name].moved_to(hit.position)
         return version, seq, motion
 
+    def _set_jit_threads(self, drag: bool) -> None:
+        """Dr.Jit's LLVM worker count for the next frame: :attr:`StudioConfig.drag_threads`
+        for a drag frame, else Dr.Jit's default (changed only when it differs; render
+        worker only)."""
+        import drjit as dr
+
+        if self._jit_threads is None:
+            self._jit_threads = dr.thread_count()
+        want = (self.config.drag_threads or self._jit_threads) if drag else self._jit_threads
+        if dr.thread_count() != want:
+            dr.set_thread_count(want)
+
     def scale_controller(self, method: str) -> ScaleController:
         """The method's :class:`ScaleController` (render times differ per method)."""
         if method not in self._scales:
@@ -844,6 +867,7 @@ class Engine:
         denoise = denoise and self.catalogue[method].noisy
         if denoise:
             settings = replace(settings, options={**settings.options, "denoise": "oidn"})
+        self._set_jit_threads(factor > 1)
         t1 = time.perf_counter()
         layers = fn.render(state, view, settings)
         if denoise and progressive and factor == 1:  # denoise the running mean instead

@@ -148,7 +148,7 @@ function shown(h) {
           studio.latencies.push({seq, ms, method: h.method, type: sent.type,
                                   render_s: h.stats.render_s, factor: h.factor,
                                   pose_s: h.stats.time_pose,
-                                  server_ms: h.latency_ms, at: now});
+                                  server_ms: h.latency_ms, at: now, stats: h.stats});
           $("latency").textContent = `${ms.toFixed(0)} ms`;
         }
         studio.sendTimes.delete(seq);
