@@ -272,6 +272,7 @@ def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
                                                       0.01 * (step % 3)])
                 view = replace(engine.views[k], object_transforms=_transforms(
                     {"bunny": pose}))
+                engine._set_jit_threads(k > 1)  # as the studio renders that size
                 t0 = time.perf_counter()
                 layers = fn.render(drag.state(k), view, drag.settings(k))
                 ts.append(time.perf_counter() - t0)
@@ -397,13 +398,14 @@ def video_report(v: dict) -> str:
     lines += ["", "Where a drag frame's time goes (issue #32; medians over the frames drawn, "
               "ms): *wait* — from the change it shows to the start of its render (the worker "
               "busy with the previous frame; latest wins, so never a queue of stale ones); "
+              "*place* — standing the object on the surface under the pointer; "
               "*render* (`method.render`); *upsample* — full size in the insertion's "
               "footprint only (*window*: its share of the frame); *display* — the camera "
               "transfer in that window over the photo's codes; *JPEG*; *server* — the "
               "change to the frame posted; *page* — the rest of *drag → composite* (the "
               "pointer event reaching the server, the WebSocket, decoding and drawing):", "",
-              "| method | wait | render | upsample | window | display | JPEG | server | page "
-              "|", "|---|---|---|---|---|---|---|---|---|"]
+              "| method | wait | place | render | upsample | window | display | JPEG | server "
+              "| page |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, recs in v.get("stages", {}).items():
         def med(key: str, scale: float = 1e3, recs=recs) -> str:
             xs = [r[key] for r in recs if r.get(key) is not None]
@@ -411,13 +413,14 @@ def video_report(v: dict) -> str:
 
         page = [r["ms"] - r["server_ms"] for r in recs if r.get("server_ms") is not None]
         page_ms = f"{statistics.median(page):.0f}" if page else "–"
-        lines.append(f"| {name} | {med('wait_s')} | {med('render_s')} | "
+        lines.append(f"| {name} | {med('wait_s')} | {med('time_place')} | {med('render_s')} | "
                      f"{med('upsample_s')} | {med('footprint', 100)} % | {med('display_s')} | "
                      f"{med('jpeg_s')} | {med('server_ms', 1)} | {page_ms} |")
     lines += ["", "`method.render` time per size with the object moving 2 cm along the table "
               "every frame (median of 3 after a warm-up, same process, measured right after "
-              "the drags), ms — what shrinks with the pixel count, and the fixed per-frame "
-              "cost (pose, light injection and propagation, voxelisation) that does not:", "",
+              "the drags; the smaller sizes with the drag frames' Dr.Jit workers), ms — "
+              "what shrinks with the pixel count, and the fixed per-frame cost (pose, "
+              "light injection and propagation, voxelisation) that does not:", "",
               "| method | " + " | ".join(f"{w // k}×{h // k}" for k in facs)
               + " | pose |", "|---|" + "---|" * (len(facs) + 1)]
     for name, per in v["per_scale"].items():
