@@ -57,6 +57,15 @@ from arlight.methods.base import (
 )
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.ambient import (
+    AMBIENT_OPTIONS,
+    AmbientOcclusion,
+    ambient_drag_options,
+    pose_ambient,
+    prepare_ambient,
+    real_ambient_loss,
+    virtual_ambient,
+)
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.rsm import (
@@ -71,8 +80,8 @@ from arlight.realtime.rsm import (
 )
 from arlight.realtime.shading import (
     SHADOW_EPS,
-    ambient_irradiance_dr,
     direct_irradiance,
+    on_active,
     scene_bounds,
     virtual_bounds,
 )
@@ -99,6 +108,7 @@ OPTIONS: dict[str, Field] = {
                             min=0.0, max=1.0e6),
     "interleave": Field("int", 4, "interleaved sampling block k (k² VPL subsets; 1: every "
                         "VPL at every pixel)", "pixels", min=1, max=16),
+    **AMBIENT_OPTIONS,
     **REDUCTION_OPTIONS,
     **GBUFFER_OPTIONS,
 }
@@ -116,9 +126,12 @@ def _check(opts: Options) -> None:
 def drag_options(options: Options, factor: int) -> dict[str, int]:
     """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32):
     ``vpls`` and ``rsm_size`` divided by ``factor`` (at least 64 VPLs, 16 texels), so the
-    VPLs' RSMs and their selection shrink with the image as the gathering does."""
+    VPLs' RSMs and their selection shrink with the image as the gathering does; the
+    ambient occlusion field's rays and shells too
+    (:func:`~arlight.realtime.ambient.ambient_drag_options`)."""
     return {"vpls": max(64, options.vpls // factor),
-            "rsm_size": max(16, options.rsm_size // factor)}
+            "rsm_size": max(16, options.rsm_size // factor),
+            **ambient_drag_options(options, factor)}
 
 
 SPEC = MethodSpec(
@@ -135,12 +148,15 @@ SPEC = MethodSpec(
 
 @dataclass
 class DIRData:
-    """The world, its Mitsuba views, the reduced lights and the scene's bounding sphere."""
+    """The world, its Mitsuba views, the reduced lights, the scene's bounding sphere and the
+    virtual objects' occlusion of the SH ambient remainder (:mod:`arlight.realtime.ambient`).
+    """
 
     world: World
     views: SceneViews
     lights: LightSet
     bounds: tuple[np.ndarray, float]
+    ambient: AmbientOcclusion = dataclasses.field(default_factory=AmbientOcclusion.none)
 
 
 OBJECT_PAD = 1.5
@@ -406,15 +422,22 @@ class DIRMethod(BaseMethod):
         views = build_views(world)
         lights = reduce_lights(world, env_lights=options.env_lights,
                                area_grid=options.area_grid)
-        return DIRData(world, views, lights, scene_bounds(views.mixed))
+        return DIRData(world, views, lights, scene_bounds(views.mixed),
+                       prepare_ambient(world, views.mixed, options))
 
     def move(self, data: DIRData, world: World, transforms: dict[str, np.ndarray],
              options: Options) -> DIRData | None:
         """The shapes moved in place (the lights do not depend on them), the bounds
-        measured again; nothing else is kept between frames."""
+        measured again, the ambient occluder and its field posed
+        (:func:`~arlight.realtime.ambient.pose_ambient`); nothing else is kept between
+        frames."""
+        before = data.world
         posed = place_views(data.views, world, transforms, real_moves=True)
-        return None if posed is None else DIRData(posed, data.views, data.lights,
-                                                  scene_bounds(data.views.mixed))
+        if posed is None:
+            return None
+        amb = pose_ambient(data.ambient, before, posed, data.views.mixed, options)
+        return None if amb is None else DIRData(posed, data.views, data.lights,
+                                                scene_bounds(data.views.mixed), amb)
 
     def relit(self, data: DIRData, world: World, options: Options) -> DIRData | None:
         """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
@@ -459,8 +482,14 @@ class DIRMethod(BaseMethod):
                 e_im = e_id = mi.Color3f(0.0)
         with timer.stage("assemble"):
             rho = gb.albedo * (1.0 / math.pi)
-            e_amb = ambient_irradiance_dr(data.lights, gb.normal)
-            delta = dr.select(real, rho * (e_dm - e_dr + e_id), mi.Color3f(0.0))
+            # the SH ambient remainder occluded by the virtual objects (issue #33,
+            # arlight.realtime.ambient): AO on virtual lanes, the blocked part on real ones
+            e_amb = on_active(lambda p, n: virtual_ambient(data.ambient, data.lights, p, n,
+                                                           options.ao_rays, settings.seed),
+                              gb.position, gb.normal, virt)
+            e_loss = real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal,
+                                       real)
+            delta = dr.select(real, rho * (e_dm - e_dr + e_id - e_loss), mi.Color3f(0.0))
             mixed = dr.select(virt, rho * (e_dm + e_im + e_amb), mi.Color3f(0.0))
             layers = assemble(gb, view.frame, mixed, delta,
                               {"vpls": float(vpls.count if vpls else 0),

@@ -39,7 +39,7 @@ Stats: ``time_gbuffer``, ``time_rsm``, ``time_inject_rho``, ``time_inject_delta_
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -59,6 +59,15 @@ from arlight.methods.fragments import (
     volume_grid,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.ambient import (
+    AMBIENT_OPTIONS,
+    AmbientOcclusion,
+    ambient_drag_options,
+    pose_ambient,
+    prepare_ambient,
+    real_ambient_loss,
+    virtual_ambient,
+)
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
 from arlight.realtime.rsm import (
@@ -83,7 +92,6 @@ from arlight.realtime.sh_volume import (
     transmittance_dr,
 )
 from arlight.realtime.shading import (
-    ambient_irradiance_dr,
     direct_irradiance,
     on_active,
     virtual_bounds,
@@ -126,6 +134,7 @@ OPTIONS: dict[str, Field] = {
                              "cost 0.2 dB on the training worlds, docs/methods/dlpv.md)"),
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
+    **AMBIENT_OPTIONS,
     **LATTICE_OPTIONS,
     **REDUCTION_OPTIONS,
     **GBUFFER_OPTIONS,
@@ -136,10 +145,11 @@ def drag_options(options: Options, factor: int) -> dict[str, int]:
     """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32): the
     RSM side, the volume's cells per edge and the propagation steps divided by ``factor``
     (at least 64 texels, 16 cells, 8 steps): RSMs, injection and propagation do not shrink
-    with the image otherwise."""
+    with the image otherwise; the ambient occlusion field's rays and shells too
+    (:func:`~arlight.realtime.ambient.ambient_drag_options`)."""
     return {"rsm_size": max(64, options.rsm_size // factor),
             "volume_size": max(16, options.volume_size // factor),
-            "steps": max(8, options.steps // factor)}
+            "steps": max(8, options.steps // factor), **ambient_drag_options(options, factor)}
 
 
 SPEC = MethodSpec(
@@ -172,6 +182,8 @@ class DLPVData:
     inject_scale: tuple[float, float] = (1.0, 1.0)
     real_blocking: np.ndarray | None = None
     transmittance: list | None = None
+    ambient: AmbientOcclusion = field(default_factory=AmbientOcclusion.none)
+    ao_rays: int = 0
 
 
 @dataclass
@@ -244,7 +256,7 @@ def prepare(world: World, options: Options) -> DLPVData:
     real, trans = geometry_volume(world, grid, None) if options.geometry_volume else (None,
                                                                                      None)
     return DLPVData(world, views, lights, grid, k_delta, maps, k_rho, injection_scales(options),
-                    real, trans)
+                    real, trans, prepare_ambient(world, views.mixed, options), options.ao_rays)
 
 
 def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -259,13 +271,16 @@ def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], option
     if moved is None:
         return None
     posed, grid, bounds = moved
+    amb = pose_ambient(data.ambient, data.world, posed, data.views.mixed, options)
+    if amb is None:
+        return None
     if grid is None or data.real_maps is None:
-        return replace(data, world=posed)
+        return replace(data, world=posed, ambient=amb)
     real, trans = None, None
     if data.real_blocking is not None:
         keep = data.real_blocking if same_grid(data.grid, grid) else None
         real, trans = geometry_volume(posed, grid, keep)
-    return replace(data, world=posed, grid=grid,
+    return replace(data, world=posed, grid=grid, ambient=amb,
                    real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds),
                    real_blocking=real, transmittance=trans)
 
@@ -365,30 +380,34 @@ def delta_dampening(options: Options) -> tuple[bool, bool]:
 
 
 def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Color3f]:
-    """Per-lane ``(virtual radiance, delta radiance)`` (Alg. 1 / Eqs. 5.14–5.16)."""
+    """Per-lane ``(virtual radiance, delta radiance)`` (Alg. 1 / Eqs. 5.14–5.16), with the
+    SH ambient remainder occluded by the virtual objects (issue #33,
+    :mod:`arlight.realtime.ambient`): weighted by their ambient occlusion on virtual lanes
+    (Eq. 2 there), its blocked part subtracted on real lanes (Eq. 1, the occlusion field)."""
     virt = gb.virtual
     real = gb.valid & ~virt
-    e_amb = ambient_irradiance_dr(data.lights, gb.normal)
     # opaque: one compiled kernel for every scale (benchmarks/tune_realtime.py sweeps them)
     k = dr.opaque(mi.Float, float(data.read_scale))
     k_rho = dr.opaque(mi.Float, float(data.rho_scale))
     half = 0.5 * vols.rho.grid.cell if vols.rho is not None else 0.0
 
     def virtual_irradiance(p: mi.Point3f, n: mi.Vector3f) -> mi.Color3f:
-        """Direct (shadow rays) plus ``V_ρ``'s indirect irradiance on virtual lanes."""
+        """Direct (shadow rays), occluded ambient and ``V_ρ``'s indirect irradiance on
+        virtual lanes."""
         e = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
+        e += virtual_ambient(data.ambient, data.lights, p, n, data.ao_rays)
         if vols.rho is None:
             return e
         return e + query_irradiance(vols.rho, p + n * half, n) * k_rho  # [KD10]: half a cell
 
     e_virtual = on_active(virtual_irradiance, gb.position, gb.normal, virt)
-    delta = mi.Color3f(0.0)
+    e_delta = -real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal, real)
     if vols.delta is not None:
         q = gb.position + gb.normal * half
-        delta = gb.albedo * (k * (1.0 / np.pi)) * query_irradiance_compact(vols.delta, q, gb.normal,
-                                                                   real)
-    mixed = dr.select(virt, gb.albedo * (1.0 / np.pi) * (e_virtual + e_amb), mi.Color3f(0.0))
-    delta = dr.select(real, delta, mi.Color3f(0.0))
+        e_delta += k * query_irradiance_compact(vols.delta, q, gb.normal, real)
+    rho = gb.albedo * (1.0 / np.pi)
+    mixed = dr.select(virt, rho * e_virtual, mi.Color3f(0.0))
+    delta = dr.select(real, rho * e_delta, mi.Color3f(0.0))
     dr.eval(mixed, delta)
     return mixed, delta
 
