@@ -157,10 +157,12 @@ def pose_ambient(amb: AmbientOcclusion, before: World, after: World, view: Scene
     """``amb`` of ``before`` for ``after`` (the same world posed otherwise, ``view`` already
     moved): the occluder and field follow the pose (:func:`~arlight.realtime.oof.
     move_occluder`, :func:`~arlight.realtime.oof.pose_field`: an object-space field is
-    looked up through the new pose, a world-space one sampled again). None when the
-    occluder cannot follow (prepare again)."""
-    if amb.occluder is None:
-        return amb
+    looked up through the new pose, a world-space one sampled again — only when a virtual
+    shape moved). None when the occluder cannot follow (prepare again)."""
+    if amb.occluder is None or all(
+            np.array_equal(a.to_world, b.to_world)
+            for a, b in zip(before.shapes, after.shapes, strict=True) if b.is_virtual):
+        return amb  # nothing virtual moved (a still frame): a world-space field stays valid
     ok, occluder = move_occluder(amb.occluder, before, after)
     if not ok:
         return None
