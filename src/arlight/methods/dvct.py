@@ -519,7 +519,8 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
     with timer.stage("voxelize"):
         virt = voxelize(data.virtual_triangles, grid,
                         with_cover=bool(options.directional_occupancy))
-        alpha0, normal0 = eta_level0(data.real_voxels, virt)
+        both = data.real_voxels.union(virt)
+        alpha0, normal0 = eta_level0(data.real_voxels, virt, both)
     ch = light_channels(options)
     with timer.stage("inject"):
         if pairs:
@@ -532,10 +533,9 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
         normal = build_mips(normal0, grid, 3) if options.back_faces else None
         delta = build_mips(d0, grid, ch)
         rho = build_mips(r0, grid, ch)
-        cover = build_mips(cover_level0(data.real_voxels, virt), grid, COVER_CHANNELS) \
-            if options.directional_occupancy else None
-    return Volumes(alpha, normal, delta, rho, count, data.real_voxels.union(virt).occupied,
-                   cover)
+        cover = build_mips(cover_level0(data.real_voxels, virt, both), grid,
+                           COVER_CHANNELS) if options.directional_occupancy else None
+    return Volumes(alpha, normal, delta, rho, count, both.occupied, cover)
 
 
 # --------------------------------------------------------------------------------------------

@@ -399,10 +399,17 @@ class LatticeVoxels:
     """Shapes voxelised once over a window of a world cell lattice (:func:`voxelize` with
     ``lattice``), from which every grid on the same lattice inside the window is cut
     (issue #32: a volume that follows a moving object keeps the real proxy's voxels while
-    it stays in the window). ``voxels`` live on ``window``."""
+    it stays in the window). ``voxels`` live on ``window``; ``cells`` ``(k, 3)`` int32 are
+    their ``(i, j, l)`` in the window (decoded once)."""
 
     window: Grid
     voxels: Voxels
+    cells: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.cells is None:
+            i, m = self.voxels.index, self.window.n
+            self.cells = np.stack([i % m, (i // m) % m, i // (m * m)], 1).astype(np.int32)
 
     @staticmethod
     def around(shapes: list[Shape], grid: Grid, with_cover: bool = False,
@@ -428,11 +435,9 @@ class LatticeVoxels:
         v = self.voxels
         # the grid's layers of z are one run of the sorted window indices
         a, b = np.searchsorted(v.index, [off[2] * m * m, (off[2] + n) * m * m])
-        i = v.index[a:b]
-        ijk = np.stack([i % m, (i // m) % m, i // (m * m)], 1) - off
-        keep = np.all((ijk >= 0) & (ijk < n), 1)
-        ijk = ijk[keep]
-        sel = np.flatnonzero(keep) + a
+        x, y = self.cells[a:b, 0] - off[0], self.cells[a:b, 1] - off[1]
+        sel = np.flatnonzero((x >= 0) & (x < n) & (y >= 0) & (y < n)) + a
+        ijk = self.cells[sel].astype(np.int64) - off
         # a box cut keeps the z, y, x order: the flat indices stay sorted
         return Voxels(grid, ijk[:, 0] + n * (ijk[:, 1] + n * ijk[:, 2]), v.normal_sum[sel],
                       None if v.cover is None else v.cover[sel])
@@ -556,10 +561,11 @@ def pack(*arrays: np.ndarray) -> np.ndarray:
 # Cone tracing
 # --------------------------------------------------------------------------------------------
 
-def cover_level0(real: Voxels, virtual: Voxels) -> mi.Float:
+def cover_level0(real: Voxels, virtual: Voxels, both: Voxels | None = None) -> mi.Float:
     """Packed finest level of the directional occupancy (:data:`COVER_CHANNELS`): per cell
-    the ``cover`` of real ∪ virtual geometry and of the real geometry alone."""
-    both = real.union(virtual)
+    the ``cover`` of real ∪ virtual geometry (``both``, when the caller has it) and of the
+    real geometry alone."""
+    both = real.union(virtual) if both is None else both
     if both.cover is None or real.cover is None:
         raise ValueError("cover_level0 needs voxels made with_cover")
     out = np.zeros((real.grid.n ** 3, 6), np.float32)
@@ -568,10 +574,12 @@ def cover_level0(real: Voxels, virtual: Voxels) -> mi.Float:
     return mi.Float(aligned(out.ravel(), np.float32))
 
 
-def eta_level0(real: Voxels, virtual: Voxels) -> tuple[mi.Float, mi.Float]:
+def eta_level0(real: Voxels, virtual: Voxels, both: Voxels | None = None
+               ) -> tuple[mi.Float, mi.Float]:
     """Packed finest levels of ``V_η`` as Dr.Jit buffers: occupancy (2 channels,
-    ``α_all = max(α_real, α_virtual)`` and ``α_real``) and the unit mean normal (3)."""
-    both = real.union(virtual)
+    ``α_all = max(α_real, α_virtual)`` and ``α_real``) and the unit mean normal (3);
+    ``both``: ``real.union(virtual)`` when the caller has it."""
+    both = real.union(virtual) if both is None else both
     m = real.grid.n ** 3
     alpha = dr.zeros(mi.Float, m * 2)
     normal = dr.zeros(mi.Float, m * 3)
