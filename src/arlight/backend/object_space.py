@@ -147,27 +147,37 @@ class ObjectSpaceScene:
     def ray_intersect(self, ray: mi.Ray3f, active: mi.Bool | bool = True
                       ) -> mi.SurfaceInteraction3f:
         """The nearest hit among the real scene and the objects, in world space (ties go to
-        the real scene, then to the earlier object)."""
-        best = (self.real.ray_intersect(ray, active=active) if self.real is not None
-                else dr.zeros(mi.SurfaceInteraction3f, dr.width(ray.o)))
-        for obj in self.objects:
+        the real scene, then to the earlier object). One surface interaction is computed
+        per lane, from the merged preliminary hit and the ray in its shape's space."""
+        pi, rays, owner = self._nearest(ray, active)
+        si = pi.compute_surface_interaction(rays, mi.RayFlags.All, active)
+        for k, obj in enumerate(self.objects):
+            si = dr.select(owner == k, obj.to_world(si, ray), si)
+        return si
+
+    def _nearest(self, ray: mi.Ray3f, active: mi.Bool | bool
+                 ) -> tuple[mi.PreliminaryIntersection3f, mi.Ray3f, mi.Int32]:
+        """The nearest preliminary hit, the ray in the space of its shape (the world ray or
+        an object's local one) and the index of the object hit (−1: the real scene)."""
+        pi = (self.real.ray_intersect_preliminary(ray, active=active)
+              if self.real is not None
+              else dr.zeros(mi.PreliminaryIntersection3f, dr.width(ray.o)))
+        rays = mi.Ray3f(ray)
+        owner = dr.full(mi.Int32, -1, dr.width(pi.t))
+        for k, obj in enumerate(self.objects):
             local = obj.local_ray(ray)
-            si = obj.scene.ray_intersect(local, active=active)
-            nearer = si.is_valid() & (si.t < best.t)
-            best = dr.select(nearer, obj.to_world(si, ray), best)
-        return best
+            hit = obj.scene.ray_intersect_preliminary(local, active=active)
+            nearer = hit.is_valid() & (hit.t < pi.t)
+            pi = dr.select(nearer, hit, pi)
+            rays = dr.select(nearer, local, rays)
+            owner = dr.select(nearer, k, owner)
+        return pi, rays, owner
 
     def ray_intersect_preliminary(self, ray: mi.Ray3f, active: mi.Bool | bool = True
                                   ) -> mi.PreliminaryIntersection3f:
         """The nearest preliminary hit: world ``t``; for an object hit, its object-space
         shape, primitive and barycentrics (module docstring)."""
-        best = (self.real.ray_intersect_preliminary(ray, active=active)
-                if self.real is not None
-                else dr.zeros(mi.PreliminaryIntersection3f, dr.width(ray.o)))
-        for obj in self.objects:
-            pi = obj.scene.ray_intersect_preliminary(obj.local_ray(ray), active=active)
-            best = dr.select(pi.is_valid() & (pi.t < best.t), pi, best)
-        return best
+        return self._nearest(ray, active)[0]
 
     def ray_test(self, ray: mi.Ray3f, active: mi.Bool | bool = True) -> mi.Bool:
         """Whether each ray hits anything before ``ray.maxt``."""
