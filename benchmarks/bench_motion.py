@@ -91,12 +91,14 @@ def settings_for(method: str) -> RenderSettings:
     return RenderSettings(spp=1, seed=3) if method == "onepass" else RenderSettings(seed=3)
 
 
-def measure(method: str, rounds: int, warmup: int) -> dict[str, float]:
-    """Still and moving frame times of one method (seconds), interleaved."""
+def measure(method: str, rounds: int, warmup: int) -> dict[str, float | dict]:
+    """Still and moving frame times of one method (seconds), interleaved, and under
+    ``stages`` the per-stage medians of both kinds (ms; printed, not tabled)."""
     scene = load_scene(DEMO_DIR / "scene.toml")
     m, s = get_method(method), settings_for(method)
     state = m.prepare(scene.world, s)
     still, moving, pose = [], [], []
+    stages: dict[str, list[dict]] = {"moving": [], "still": []}
     frame = 0
     for i in range(warmup + rounds):
         frame += 1
@@ -107,6 +109,8 @@ def measure(method: str, rounds: int, warmup: int) -> dict[str, float]:
             still.append(lay_s.stats["seconds"])
             moving.append(lay_m.stats["seconds"])
             pose.append(lay_m.stats.get("time_pose", 0.0))
+            stages["moving"].append(lay_m.stats)
+            stages["still"].append(lay_s.stats)
     lit = []
     if method not in NO_LIGHT_ROW:
         for i in range(warmup + rounds):
@@ -119,7 +123,13 @@ def measure(method: str, rounds: int, warmup: int) -> dict[str, float]:
     return {"still": statistics.median(still), "moving": statistics.median(moving),
             "moving_mean": statistics.fmean(moving), "pose": statistics.median(pose),
             "incremental": float(getattr(m, "incremental_pose", False)),
-            "lamp": statistics.median(lit) if lit else math.nan}
+            "lamp": statistics.median(lit) if lit else math.nan,
+            # per-stage medians (ms) of both kinds: where a moving frame's extra time goes
+            "stages": {kind: {k[5:]: round(statistics.median(st.get(k, 0.0) for st in rows)
+                                           * 1e3, 1)
+                              for k in sorted({k for st in rows for k in st
+                                               if k.startswith("time_")})}
+                       for kind, rows in stages.items()}}
 
 
 def table(results: dict[str, dict[str, float]], rounds: int, load: str, psi: str) -> str:
