@@ -91,3 +91,14 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
 
     want = eng.call(expected).result(120)
     np.testing.assert_allclose(composite, want, rtol=0, atol=1e-6)
+
+
+def test_prepared_states_are_out_of_the_collectors_reach(studio_engine):
+    """After a state arrives from a preparation thread the worker freezes the heap, so a
+    full collection does not scan the prepared states during a drag. Rejects a worker that
+    never freezes it."""
+    import gc
+
+    studio_engine.prepared("dir")
+    studio_engine.call(lambda: None).result(60)  # the worker has taken the handoff
+    assert gc.get_freeze_count() > 1000

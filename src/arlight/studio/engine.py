@@ -245,6 +245,19 @@ def new_jit_scope() -> None:
                         else dr.JitBackend.LLVM)
 
 
+def freeze_heap() -> None:
+    """Collect the garbage, then move every live object out of the collector's reach
+    (``gc.freeze``): the prepared states (Mitsuba scenes, NumPy arrays, Python objects by
+    the hundred thousand) are never garbage, but a full collection scanned them all —
+    80 ms and more, at random drag frames (issue #32: the p95 latency). Called on the
+    worker after a state arrives, when no preparation is running (none of its
+    temporaries frozen)."""
+    import gc
+
+    gc.collect()
+    gc.freeze()
+
+
 def _transforms(poses: dict[str, ObjectPose]) -> dict[str, np.ndarray]:
     """``FrameView.object_transforms`` of the poses (objects at rest are left out)."""
     return {k: p.matrix() for k, p in poses.items() if not p.is_rest}
@@ -520,7 +533,10 @@ class Engine:
             if self._handoff:  # arrays from a preparation thread: a new scope first
                 with self._cond:
                     self._handoff = False
+                    settled = not self._preparing
                 new_jit_scope()
+                if settled:
+                    freeze_heap()
             if call is not None:
                 fn, fut = call
                 if fut.set_running_or_notify_cancel():
