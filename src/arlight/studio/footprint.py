@@ -52,14 +52,21 @@ def footprint_window(small: np.ndarray, height: int, width: int) -> Window:
 def composite_window(layers: Layers, background: np.ndarray, window: Window) -> np.ndarray:
     """The full-size composite of ``layers`` (rendered smaller) over ``background``:
     ``background`` outside ``window``, inside it the window of
-    ``layers.upsampled(background).composite`` — computed from that window only, bit for
-    bit the same (float32, ``(H, W, 3)``)."""
+    ``layers.upsampled(background).composite`` — computed from that window only (``mixed``
+    from the smaller window of ``mask > 0``: the composite reads it where the object
+    covers only), bit for bit the same (float32, ``(H, W, 3)``)."""
     h, w = background.shape[:2]
     out = np.array(background, np.float32, copy=True)
     rows, cols = window
     if rows.stop > rows.start and cols.stop > cols.start:
-        mixed, delta, mask = (upsample(a, h, w, rows, cols)
-                              for a in (layers.mixed, layers.delta, layers.mask))
+        delta, mask = (upsample(a, h, w, rows, cols) for a in (layers.delta, layers.mask))
+        # mixed is read where the mask covers only: upsampled in the mask's window
+        mixed = np.zeros(delta.shape, np.float32)
+        mr, mc = footprint_window(np.asarray(layers.mask) > 0, h, w)
+        if mr.stop > mr.start and mc.stop > mc.start:
+            mixed[mr.start - rows.start:mr.stop - rows.start,
+                  mc.start - cols.start:mc.stop - cols.start] = upsample(layers.mixed, h, w,
+                                                                          mr, mc)
         out[rows, cols] = composite(background[rows, cols], mixed, delta, mask)
     return out
 
