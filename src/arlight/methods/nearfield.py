@@ -2,8 +2,10 @@
 area lights (VALs) plus 9 SH coefficients per virtual object, rendered with per-vertex PRT,
 two visibilities per VAL and the differential composite of Eq. 14.
 
-* **prepare** (once per world): the G-buffer scenes, the proxy and virtual-object occluder
-  scenes, the per-vertex PRT transfer of every virtual mesh (``prt``'s,
+* **prepare** (once per world): the G-buffer views (the real view plus each virtual object
+  in object space, :func:`arlight.backend.object_space.build_split_views`: a pose moves no
+  Mitsuba scene), the proxy scene and the virtual-object occluder, the per-vertex PRT
+  transfer of every virtual mesh (``prt``'s,
   :func:`arlight.realtime.prt_shading.prt_meshes`, cached on disk), the material table and
   the light state: read from ``light`` (a ``NearFieldLight`` JSON, ``arlight light atlas -o
   vals.json``) or, without it, made by the server pipeline
@@ -290,8 +292,8 @@ class NearFieldMethod(BaseMethod):
 
     def prepare_posed(self, state: Prepared, transforms: dict[str, np.ndarray],
                       settings: RenderSettings) -> NearFieldData:
-        """The posed world prepared again (where :meth:`move` cannot, e.g. a virtual
-        primitive) with the state's light and server — not a capture of its own: the light
+        """The posed world prepared again (where :meth:`move` cannot: a real shape moved)
+        with the state's light and server — not a capture of its own: the light
         of the last pose (``with_light`` sets it), its SH re-traced where the server made
         it."""
         data = state.last if state.last is not None else state.data
