@@ -59,20 +59,66 @@ def test_ray_limit_10_cm():
         assert np.allclose(lost[0], expect, atol=1e-9)
 
 
-def test_unoccluded_transfer_matches_zonal_harmonics():
-    """An isolated point's 81-ray transfer is Â_l·Y_lm(n) within 3 % of ‖T‖ (band 3 ≈ 0);
-    10k directions agree within 0.2 %. Rejects a missing cosine, a wrong quadrature weight
-    (e.g. 2π/N) or a sign error in the basis."""
+def test_unoccluded_transfer_is_e6_exactly():
+    """E3 is evaluated as E6 minus the quadrature of the blocked directions, so an isolated
+    point's 81-ray transfer is Â_l·Y_lm(n) to rounding (band 3 = 0), and the k = 4 interleaved
+    partial transfers sum to it: the visibility-state cache's free points (E6, no rays) and
+    cast points share one unoccluded part. Rejects the plain 81-ray sum (3 % off ‖T‖, band 3
+    ≠ 0) and a subset's share of E6 other than its direction count / 81."""
     rng = np.random.default_rng(3)
     n = rng.normal(size=(6, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     p = np.zeros((6, 3))
     views = views_of([box("far", (0.01, 0.01, 0.01), (5.0, 5.0, 5.0))])
     exact = unoccluded_transfer(n)
-    t81 = compute_transfer(views, p, n, DirectionSet(81, 1)).real
-    err = np.linalg.norm(t81 - exact, axis=1) / np.linalg.norm(exact, axis=1)
-    assert err.max() < 0.03
     assert np.abs(exact[:, 9:]).max() < 1e-12  # Â_3 = 0
-    t10k = compute_transfer(views, p, n, DirectionSet(10000, 1)).real
-    err10k = np.linalg.norm(t10k - exact, axis=1) / np.linalg.norm(exact, axis=1)
-    assert err10k.max() < 2e-3
+    t81 = compute_transfer(views, p, n, DirectionSet(81, 1)).real
+    assert np.abs(t81 - exact).max() < 1e-12
+    ds = DirectionSet(81, 4)
+    parts = sum(compute_transfer(views, p, n, ds, s).real for s in ds.subsets())
+    assert np.abs(parts - exact).max() < 1e-12
+
+
+def _slab_blocked(o: np.ndarray, d: np.ndarray, lo, hi, tmax: float) -> np.ndarray:
+    """Whether rays ``o + t d`` (one origin, directions ``(N, 3)``) hit the axis-aligned box
+    ``[lo, hi]`` for ``0 < t < tmax`` (slab test, NumPy: independent of Mitsuba)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (np.asarray(lo) - o) / d
+        t2 = (np.asarray(hi) - o) / d
+    tn = np.nanmax(np.minimum(t1, t2), axis=1)
+    tf = np.nanmin(np.maximum(t1, t2), axis=1)
+    return (tn <= tf) & (tf > 0) & (tn < tmax)
+
+
+def test_occluded_transfer_against_a_dense_numpy_quadrature():
+    """24 points on a floor 1–8 cm from a 10 cm box (in front of a face and off a corner):
+    the 81-ray transfer (Mitsuba's ray tests) against E3 summed over 200 000 directions with a
+    NumPy slab test for the box: within 15 % of ‖T‖ at every point (measured ≤ 12.5 %, the
+    81-direction quadrature of the blocked part), and on average as close as the plain 81-ray
+    sum (E3 over the same directions, NumPy visibility). Rejects a sign error on the blocked
+    part (the box would add light), blocked directions not weighted by their cosine, and a
+    visibility range ignored (rays hit the box beyond 10 cm)."""
+    lo, hi = np.array([0.0, 0.0, -0.05]), np.array([0.1, 0.1, 0.05])
+    views = views_of([box("occ", hi - lo, (lo + hi) / 2)])
+    r = np.repeat([0.01, 0.02, 0.03, 0.045, 0.06, 0.08], 4)
+    ang = np.tile(np.radians([180.0, 150.0, 120.0, 215.0]), 6)
+    p = np.stack([r * np.cos(ang), np.zeros_like(r), r * np.sin(ang)], axis=1)
+    p[:, 2] += np.where(ang > np.pi, -0.05, 0.0)  # the last azimuth: off the corner
+    n = np.tile([0.0, 1.0, 0.0], (len(p), 1))
+    t81 = compute_transfer(views, p, n, DirectionSet(81, 1), ray_offset=0.0).real
+
+    def plain(dirs: np.ndarray, pt: np.ndarray) -> np.ndarray:
+        cos = np.clip(dirs[:, 1], 0.0, None)
+        vis = ~_slab_blocked(pt, dirs, lo, hi, 0.10)
+        return (4 * np.pi / len(dirs)) * (cos * vis) @ SH.sh_basis(dirs, 3)
+
+    dense, d81 = fibonacci_sphere(200000), DirectionSet(81, 1).directions
+    err, err_plain = [], []
+    for i in range(len(p)):
+        ref = plain(dense, p[i])
+        err.append(np.linalg.norm(t81[i] - ref) / np.linalg.norm(ref))
+        err_plain.append(np.linalg.norm(plain(d81, p[i]) - ref) / np.linalg.norm(ref))
+    assert max(err) < 0.15, max(err)
+    # the two 81-direction forms are alike where rays are blocked (mean 5.7 % and 5.8 %):
+    # the gain of E6-minus-blocked is the unoccluded part, exact (test above)
+    assert np.mean(err) < 1.5 * np.mean(err_plain), (np.mean(err), np.mean(err_plain))
