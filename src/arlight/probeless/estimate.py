@@ -39,7 +39,9 @@ interreflection — by the median upper-hemisphere error, jointly with the visib
 under a near-lamp guard (the range stayed Gruber's 10 cm), and reported on Gruber's SH cap
 light, held out (issue #33, ``benchmarks/tune_light_estimation.py
 --part setups``, benchmarks/RESULTS.md): training median 0.622 → 0.568, Gruber's light
-0.567 → 0.352 (static) and 0.357 → 0.291 (moving) against the old 3e-3 without smoothing.
+0.567 → 0.352 (static) and 0.357 → 0.291 (moving) against the old 3e-3 without smoothing;
+re-chosen (kept) with the plane-fit normals (:data:`arlight.probeless.reconstruct.NORMAL_RADIUS`)
+and E3 as unoccluded minus blocked: Gruber's light 0.290 / 0.251.
 3e-3 had been chosen on those very Gruber sequences on the raw marching-cubes mesh, whose
 staircase normals a strong ridge partly hid. On the generated worlds of issue #30 (light at
 the objects, local lamps; no reconstruction) the training median SH error fell with *more*
