@@ -133,3 +133,68 @@ def test_poses_reuse_what_they_can_and_equal_a_fresh_preparation(demo):
         assert (data.real_window is first.real_window) == window
         assert all((a is b) == (maps or k != "directional") for k, a, b in zip(
             kinds, data.real_maps.mu, first.real_maps.mu, strict=True))
+
+
+def test_moving_frames_compile_no_kernel(demo):
+    """Frames with the bunny turned 5° and moved 1 cm further every frame (as bench_motion)
+    launch no kernel of 30 or more operations that an earlier frame did not launch — the
+    small reductions included that ``test_kernel_reuse`` leaves out (below 100 operations).
+    Rejects per-frame widths or data-dependent scales compiled into kernels as literals:
+    the shadow cones' per-light offsets (the real lanes' count changes with the pose) and
+    the fixed-point scale of the exact injection sums (``exact_sum``), both of which compiled
+    kernels on every moving frame (the scale: :func:`test_exact_sums_of_any_scale_share_a_kernel`).
+    (Below 30 operations: the Mitsuba update's scatters of NumPy buffers whose alignment
+    varies.)"""
+    import drjit as dr
+
+    m = get_method("dvct")
+    s = RenderSettings(spp=1, options=SMALL)
+    state = m.prepare(demo.world, s)
+    seen: set[str] = set()
+    for i in range(1, 6):
+        view = replace(demo.view, object_transforms={
+            "bunny": rigid(5.0 * i, [0.01 * i, 0.0, 0.004 * i * i])})
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        try:
+            m.render(state, view, s)
+        finally:
+            history = dr.kernel_history()
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+        kernels = {k["hash"] for k in history if k.get("type") == dr.KernelType.JIT
+                   and k.get("operation_count", 0) >= 30}
+        if i >= 3:
+            assert kernels <= seen, f"{len(kernels - seen)} kernels new in moving frame {i}"
+        seen |= kernels
+
+
+def test_exact_sums_of_any_scale_share_a_kernel():
+    """The injection's order-independent sums (:func:`~arlight.realtime.exact_sum.
+    scatter_sum_exact`) of values 1000× larger — another fixed-point scale — launch the
+    kernels the first sums launched, and still sum exactly (against NumPy). Rejects the scale
+    as a literal (a new kernel whenever a moving object changed the injected flux's range)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from arlight.jit import aligned
+    from arlight.realtime.exact_sum import scatter_sum_exact
+
+    rng = np.random.default_rng(5)
+    idx = rng.integers(0, 7, 500)
+    base = rng.random(500).astype(np.float32)
+    seen = None
+    for factor in (1.0, 1000.0):
+        vals = (base * factor).astype(np.float32)
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        try:
+            out = scatter_sum_exact([mi.Float(aligned(vals, np.float32))],
+                                    mi.UInt32(aligned(idx, np.uint32)), mi.Bool(True), 7)[0]
+            got = np.array(out)
+        finally:
+            history = dr.kernel_history()
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+        kernels = {k["hash"] for k in history if k.get("type") == dr.KernelType.JIT}
+        want = np.bincount(idx, weights=vals.astype(np.float64), minlength=7)
+        assert np.allclose(got, want, rtol=1e-6)
+        if seen is not None:
+            assert kernels <= seen
+        seen = kernels

@@ -66,7 +66,7 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
 from arlight.errors import InputError
-from arlight.jit import aligned, opaques
+from arlight.jit import aligned, opaque, opaques
 from arlight.methods.base import (
     BaseMethod,
     Layers,
@@ -665,19 +665,50 @@ def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes, shells: float 
     the transmittance the virtual objects leave along it
     (:func:`~arlight.realtime.voxels.trace_cones`) and ``E_i^µ`` light ``i``'s irradiance
     in the *real* proxy, with one shadow ray: the real-occluder question — where a real
-    occluder already shadows the point, the photograph is dark and nothing is removed."""
-    out = mi.Color3f(0.0)
+    occluder already shadows the point, the photograph is dark and nothing is removed.
+    The cones of all lights are one :func:`~arlight.realtime.voxels.trace_cones` call (lanes
+    light-major; one loop kernel per frame however many lights, issue #32's fixed
+    per-frame cost)."""
+    lights = data.lights.lights
+    if not lights:
+        return mi.Color3f(0.0)
     s0 = vols.alpha.grid.cell
-    for lt, size in zip(data.lights.lights, data.light_size, strict=True):
+    n = lanes.width
+    zero = dr.zeros(mi.Float, n)
+    dirs, dists, tans, lits, irr = [], [], [], [], []
+    for lt, size in zip(lights, data.light_size, strict=True):
         d, dist = light_direction(lt, lanes.position)
-        tan_h = mi.Float(size) if lt.kind == "directional" else size / dr.maximum(dist, 1e-9)
-        e = direct_irradiance(data.views.real, LightSet([lt]), lanes.position, lanes.normal,
-                              mi.Bool(True), shadows=True)
-        lit = dr.dot(d, lanes.normal) > 0.0
-        res = trace_cones(vols, lanes.position + lanes.normal * (SHADOW_LIFT * s0), d, tan_h,
-                          dist, lit, t_start=SHADOW_START * s0, level_bias=level_bias,
-                          shells=shells)
-        out -= e * res.added
+        r = opaque(size)  # a relit area light changes it: no literal in the kernel
+        dists.append(zero + dist)
+        tans.append(zero + r if lt.kind == "directional" else r / dr.maximum(dist, 1e-9))
+        dirs.append(d)
+        lits.append(dr.dot(d, lanes.normal) > 0.0)
+        irr.append(direct_irradiance(data.views.real, LightSet([lt]), lanes.position,
+                                     lanes.normal, mi.Bool(True), shadows=True))
+    # widths as opaque scalars: the real lanes' count changes with every pose (as literals
+    # it compiled the cone kernel again on every moving frame)
+    width = dr.opaque(mi.UInt32, n)
+    src = dr.arange(mi.UInt32, n * len(lights)) % width
+    lifted = mi.Point3f(lanes.position + lanes.normal * (SHADOW_LIFT * s0))
+    start = dr.gather(mi.Point3f, lifted, src)
+    lane = dr.arange(mi.UInt32, n)
+
+    def light_major(parts: list) -> object:
+        """The per-light 1D arrays one after another, scattered at opaque offsets
+        (``dr.concat`` puts the widths into the kernel as literals)."""
+        out = dr.zeros(type(parts[0]), n * len(parts))
+        for i, part in enumerate(parts):
+            dr.scatter(out, part, lane + width * i)
+        return out
+
+    direction = mi.Vector3f(*(light_major([d[c] for d in dirs]) for c in range(3)))
+    res = trace_cones(vols, start, direction, light_major(tans), light_major(dists),
+                      light_major(lits), t_start=SHADOW_START * s0, level_bias=level_bias,
+                      shells=shells)
+    added = res.added
+    out = mi.Color3f(0.0)
+    for i, e in enumerate(irr):
+        out -= e * dr.gather(mi.Float, added, lane + width * i)
     return out
 
 

@@ -48,12 +48,15 @@ def scatter_sum_exact(values: Sequence[mi.Float], index: mi.UInt32, active: mi.B
     if not math.isfinite(max_abs):
         raise ValueError("scatter_sum_exact: non-finite values")
     scale = fixed_point_scale(max_abs, lanes)
+    # opaque: the scale follows the data, and a literal compiled new kernels whenever it
+    # changed (every frame of a moving object, issue #32)
+    up, down = dr.opaque(mi.Float, scale), dr.opaque(mi.Float, 1.0 / scale)
     sums = []
     for v in values:
         acc = dr.zeros(mi.Int64, size)
         # ``v * scale`` is exact (a power of two) and so is its rounding to an integer
-        dr.scatter_reduce(dr.ReduceOp.Add, acc, mi.Int64(dr.round(v * scale)), index, active)
-        sums.append(mi.Float(acc) * (1.0 / scale))  # one rounding, then exact scaling
+        dr.scatter_reduce(dr.ReduceOp.Add, acc, mi.Int64(dr.round(v * up)), index, active)
+        sums.append(mi.Float(acc) * down)  # one rounding, then exact scaling
     return sums
 
 

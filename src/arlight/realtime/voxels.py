@@ -342,20 +342,17 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20,
     if len(tri) == 0:
         return Voxels.empty(grid, with_cover)
     n, s = grid.n, grid.cell
-    if lattice:
+    if lattice:  # world cell units, candidates relative to the grid's lattice index
         base = lattice_index(grid)
-        world = tri / s  # world cell units
-        lo = np.clip(np.floor(world.min(1) - 1e-6).astype(np.int64) - base, 0, n - 1)
-        hi = np.clip(np.floor(world.max(1) + 1e-6).astype(np.int64) - base, 0, n - 1)
-        inside = np.all(world.max(1) >= base - 1e-6, 1) & np.all(
-            world.min(1) <= base + n + 1e-6, 1)
-        local, offset = world, base.astype(np.float64)
-    else:
-        local = (tri - grid.origin) / s  # cell units
-        lo = np.clip(np.floor(local.min(1) - 1e-6).astype(np.int64), 0, n - 1)
-        hi = np.clip(np.floor(local.max(1) + 1e-6).astype(np.int64), 0, n - 1)
-        inside = np.all(local.max(1) >= -1e-6, 1) & np.all(local.min(1) <= n + 1e-6, 1)
-        offset = np.zeros(3)
+        local = tri / s
+    else:  # cell units relative to the grid's origin
+        base = np.zeros(3, np.int64)
+        local = (tri - grid.origin) / s
+    offset = base.astype(np.float64)
+    mn, mx = local.min(1), local.max(1)
+    lo = np.clip(np.floor(mn - 1e-6).astype(np.int64) - base, 0, n - 1)
+    hi = np.clip(np.floor(mx + 1e-6).astype(np.int64) - base, 0, n - 1)
+    inside = np.all(mx >= base - 1e-6, 1) & np.all(mn <= base + n + 1e-6, 1)
     tri, local, lo, hi = tri[inside], local[inside], lo[inside], hi[inside]
     ext = hi - lo + 1
     count = ext.prod(1)
