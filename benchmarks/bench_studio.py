@@ -272,7 +272,7 @@ def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
                                                       0.01 * (step % 3)])
                 view = replace(engine.views[k], object_transforms=_transforms(
                     {"bunny": pose}))
-                engine._set_jit_threads(k > 1)  # as the studio renders that size
+                engine._set_jit_threads(k > 1)  # workers and calls as the studio renders that size
                 t0 = time.perf_counter()
                 layers = fn.render(drag.state(k), view, drag.settings(k))
                 ts.append(time.perf_counter() - t0)
@@ -286,7 +286,8 @@ def _scale_times(engine, names: list[str], reps: int) -> dict[str, dict]:
 
 
 def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int],
-              methods: tuple[str, ...], reps: int, drag_threads: int = 1) -> dict:
+              methods: tuple[str, ...], reps: int, drag_threads: int = 1,
+              drag_calls: str = "evaluated") -> dict:
     """Continuous drags in Chromium with adaptive resolution (see the module doc)."""
     from playwright.sync_api import sync_playwright
 
@@ -296,7 +297,7 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     if (why := why_no_browser()) is not None:
         raise SystemExit(f"video-rate benchmark: {why}")
     load0 = _load()
-    engine = _engine(resolution, drag_threads=drag_threads)
+    engine = _engine(resolution, drag_threads=drag_threads, drag_calls=drag_calls)
     names = [n for n in methods if n in engine.catalogue
              and not engine.catalogue[n].unsupported]
     lat = {n: [] for n in names}  # (ms, factor) per frame shown while dragging
@@ -331,7 +332,7 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
             "budget_ms": engine.config.frame_budget_ms, "rest_ms": engine.config.rest_ms,
             "factors": engine.factors, "latency": lat, "first": first, "settle": settle,
             "renders": renders, "per_scale": per_scale, "load": [load0, load1],
-            "stages": stages, "drag_threads": drag_threads,
+            "stages": stages, "drag_threads": drag_threads, "drag_calls": drag_calls,
             "openblas": os.environ.get("OPENBLAS_NUM_THREADS"),
             "drag_log": log_drags}
 
@@ -354,7 +355,8 @@ def video_report(v: dict) -> str:
     env = f"OPENBLAS_NUM_THREADS={v['openblas']} " if v.get("openblas") else ""
     lines = [VIDEO_HEADING, "",
              f"`{env}benchmarks/bench_studio.py --only video --drag-threads "
-             f"{v.get('drag_threads', 1)}`: the studio at {w}×{h} in headless "
+             f"{v.get('drag_threads', 1)} --drag-calls {v.get('drag_calls', 'symbolic')}`: "
+             f"the studio at {w}×{h} in headless "
              f"Chromium with adaptive resolution (render budget {v['budget_ms']:.0f} ms, rest "
              f"after {v['rest_ms']:.0f} ms; factors {', '.join(map(str, v['factors']))}); per "
              f"method {v['drags']} drags of {v['moves']} pointer events {v['move_ms']:.0f} ms "
@@ -550,6 +552,8 @@ def main() -> None:
     ap.add_argument("--video-methods", default=",".join(VIDEO_METHODS))
     ap.add_argument("--drag-threads", type=int, default=1,
                     help="video: the studio's --drag-threads (Dr.Jit workers of drag frames)")
+    ap.add_argument("--drag-calls", default="evaluated", choices=("evaluated", "symbolic"),
+                    help="video: the studio's --drag-calls (Dr.Jit calls of drag frames)")
     ap.add_argument("--write", action="store_true", help="store the section in RESULTS.md")
     args = ap.parse_args()
     if args.screenshot:
@@ -558,7 +562,7 @@ def main() -> None:
     if args.only == "video":
         video = run_video(args.drags, args.moves, args.move_ms, args.latency_resolution,
                           tuple(args.video_methods.split(",")), reps=3,
-                          drag_threads=args.drag_threads)
+                          drag_threads=args.drag_threads, drag_calls=args.drag_calls)
         print(json.dumps(video, default=str))
         publish(video_report(video), args.write)
         return

@@ -20,8 +20,9 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     """Rejects: a drag frame rendered at full size although over budget; a downscaled
     frame that is not the render at that size upsampled and composited over the photo; a
     studio that never goes back to full size at rest, or keeps re-rendering it; a drag
-    frame not rendered with ``drag_threads`` Dr.Jit workers, or a full-size frame left
-    with them."""
+    frame not rendered with ``drag_threads`` Dr.Jit workers and evaluated calls, or a
+    full-size frame left with them; an evaluated-call drag frame that is not bit for bit
+    the symbolic render."""
     import drjit as dr
 
     from arlight.methods import get_method
@@ -33,7 +34,8 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     plain = DIRMethod.render
 
     def render(self, state, view, settings=None):
-        threads.append((view.camera.width, dr.thread_count()))
+        threads.append((view.camera.width, dr.thread_count(),
+                        dr.flag(dr.JitFlag.SymbolicCalls)))
         return plain(self, state, view, settings)
 
     monkeypatch.setattr(DIRMethod, "render", render)
@@ -71,8 +73,10 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     assert full["latency_ms"] >= 1000.0  # rendered only after the 1 s rest
     assert (full["width"], full["height"]) == SIZE and not full["superseded"]
     assert extra is None
-    assert (SIZE[0] // 2, default + 1) in threads and threads[-1] == (SIZE[0], default)
-    assert {w for w, n in threads if n == default + 1} == {SIZE[0] // 2}
+    assert (SIZE[0] // 2, default + 1, False) in threads
+    assert threads[-1] == (SIZE[0], default, True)
+    assert {w for w, n, _ in threads if n == default + 1} == {SIZE[0] // 2}
+    assert {w for w, _, symbolic in threads if not symbolic} == {SIZE[0] // 2}
     assert 0 < small["stats"]["footprint"] <= 1 and small["stats"]["wait_s"] >= 0
     assert "footprint" not in full["stats"]
     monkeypatch.undo()
@@ -89,8 +93,8 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
 
         return comp(eng.view.frame, m, d, k)
 
-    want = eng.call(expected).result(120)
-    np.testing.assert_allclose(composite, want, rtol=0, atol=1e-6)
+    want = eng.call(expected).result(120)  # symbolic calls: the worker's default
+    np.testing.assert_array_equal(composite, want)
 
 
 def test_prepared_states_are_out_of_the_collectors_reach(studio_engine):

@@ -35,11 +35,26 @@ def _all_kernels(render) -> set[str]:
             and k.get("operation_count", 0) >= MIN_OPS}
 
 
+@pytest.mark.parametrize("symbolic", [True, False])
 @pytest.mark.parametrize("name", ["dlpv", "dir"])
-def test_moving_drag_frames_compile_no_kernel(name):
-    """Rejects per-frame values compiled into small kernels as literals — dlpv's RSM
-    candidate test against the objects' bounding box (``rsm.render_rsm_pair_reusing``)
-    compiled one kernel per frame."""
+def test_moving_drag_frames_compile_no_kernel(name, symbolic):
+    """With symbolic and with evaluated calls (the studio's drag frames). Rejects
+    per-frame values compiled into small kernels as literals — dlpv's RSM candidate test
+    against the objects' bounding box (``rsm.render_rsm_pair_reusing``) compiled one kernel
+    per frame."""
+    import drjit as dr
+
+    before = dr.flag(dr.JitFlag.SymbolicCalls)
+    dr.set_flag(dr.JitFlag.SymbolicCalls, symbolic)
+    try:
+        _drag_frames(name)
+    finally:
+        dr.set_flag(dr.JitFlag.SymbolicCalls, before)
+
+
+def _drag_frames(name: str) -> None:
+    """Five drag frames of ``name`` at 80×60 with its 1/8 drag options, the object moving;
+    frames 3 and 4 launch no kernel the earlier ones did not."""
     demo = load_scene(DEMO_DIR / "scene.toml").resized(80, 60)
     method = get_method(name)
     spec = method.spec

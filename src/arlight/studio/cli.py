@@ -113,6 +113,9 @@ def studio_command(
     drag_threads: Annotated[int, typer.Option("--drag-threads", help="Dr.Jit worker threads "
                             "while a drag frame renders (0: one per core, as full-size "
                             "frames)", min=0, max=256)] = 1,
+    drag_calls: Annotated[str, typer.Option("--drag-calls", help="Dr.Jit virtual calls "
+                          "of drag frames: evaluated (only the shapes/BSDFs reached) or "
+                          "symbolic (every one alive traced)")] = "evaluated",
 ) -> None:
     """Live AR composite in the browser: drag the virtual object, switch methods.
 
@@ -136,7 +139,8 @@ def studio_command(
                           save_dir=save_dir, ground_truth=ground_truth,
                           image_format=image_format.lower(), quality=quality,
                           max_sessions=max_sessions, frame_budget_ms=frame_budget_ms,
-                          rest_ms=rest_ms, drag_threads=drag_threads)
+                          rest_ms=rest_ms, drag_threads=drag_threads,
+                          drag_calls=drag_calls.lower())
     engine = Engine(config)
     console = Console(stderr=True)
     if not is_loopback(host):
