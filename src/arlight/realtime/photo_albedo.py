@@ -1,0 +1,64 @@
+"""The real surfaces' diffuse albedo read from the photograph (issue #33).
+
+The differential methods change a real pixel by ``ρ/π ΔE`` (Franke Eq. 5.14 with the delta
+irradiance ``ΔE`` of shadows, bounce and occlusion). With the proxy's albedo ``ρ`` this is
+only as right as the proxy: a texture the reconstruction averaged to its mean makes the
+shadow too deep on dark texels (below zero, clipped black) and too shallow on bright ones,
+and a glossy highlight the light put into the photograph is never taken away. The
+photograph knows the surface better: for a diffuse surface under the model's irradiance
+``E_r`` (the reduced lights with shadow rays in the real proxy plus the SH ambient
+remainder) it shows ``B = ρ E_r / π``, so
+
+    ρ̂ = clip(π B / E_r, 0, 1)                        (per channel)
+
+is the albedo that reproduces the photograph, and ``ρ̂/π ΔE = B ΔE / E_r`` is the change
+as a *ratio* of the light the pixel already receives — the multiplicative form of the
+AR-OOF shadow factor (:func:`arlight.realtime.oof.shadow_factor`, ``B (f − 1)`` with
+``f = (E_r + ΔE)/E_r``), which is independent of the albedo. The clip keeps ``ρ̂`` a
+physical albedo where the model misses light that reaches the surface (its bounce, say:
+then ``E_r`` is too small) and makes a shadow remove at most the pixel's own radiance.
+Where the model gives the surface no light at all the proxy's albedo is kept.
+"""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.mitsuba_scene import SceneView
+from arlight.jit import aligned
+from arlight.realtime.light_reduction import LightSet
+from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, on_active
+
+E_MIN = 1e-6
+"""Model irradiance (W/m²) below which a channel keeps the proxy's albedo."""
+
+
+def model_irradiance(real: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
+                     active: mi.Bool) -> mi.Color3f:
+    """``E_r`` (W/m²) at ``p`` (normals ``n``) in the real proxy: the reduced lights with
+    one shadow ray each, plus the SH ambient remainder (unoccluded, clamped at 0), on the
+    ``active`` lanes (zero elsewhere; shadow rays traced for those lanes only)."""
+    e = on_active(lambda q, m: direct_irradiance(real, lights, q, m, mi.Bool(True)),
+                  p, n, active) if lights.lights else dr.zeros(mi.Color3f, dr.width(p))
+    amb = dr.maximum(ambient_irradiance_dr(lights, n), 0.0)
+    return dr.select(active, e + amb, mi.Color3f(0.0))
+
+
+def photo_albedo(real: SceneView, lights: LightSet, frame: np.ndarray, pixel: mi.UInt32,
+                 p: mi.Point3f, n: mi.Vector3f, proxy_albedo: mi.Color3f,
+                 active: mi.Bool) -> mi.Color3f:
+    """Per lane ``ρ̂ = clip(π B / E_r, 0, 1)`` (module docstring): ``B`` the photograph
+    ``frame`` (``(H, W, 3)`` linear radiance) at the lane's ``pixel`` (row-major index),
+    ``E_r`` :func:`model_irradiance`; ``proxy_albedo`` on inactive lanes and in channels
+    where ``E_r`` < :data:`E_MIN`."""
+    b = dr.gather(mi.Color3f, mi.Float(aligned(np.reshape(frame, -1), np.float32)), pixel)
+    e_r = model_irradiance(real, lights, p, n, active)
+    est = dr.clip(math.pi * b / dr.maximum(e_r, E_MIN), 0.0, 1.0)
+    return dr.select(active & (e_r >= E_MIN), est, proxy_albedo)
+
+
+__all__ = ["E_MIN", "model_irradiance", "photo_albedo"]

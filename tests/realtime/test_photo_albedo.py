@@ -1,0 +1,134 @@
+"""The albedo read from the photograph (``arlight.realtime.photo_albedo``, issue #33).
+
+The world's floor is a checkerboard of dark and bright albedo; the proxy, as the held-out
+worlds' reconstructions do, has lost the texture to its mean. The truth is Mitsuba's own
+render of the world (direct light only), independent of the methods' code."""
+
+from __future__ import annotations
+
+import math
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from scipy.ndimage import binary_erosion
+
+from arlight.backend.mitsuba_scene import build_views
+from arlight.methods import RenderSettings, get_method
+from arlight.realtime.gbuffer import render_gbuffer
+from arlight.realtime.light_reduction import LightSet, ReducedLight
+from arlight.realtime.photo_albedo import photo_albedo
+from arlight.scene.load import parse_scene
+from arlight.synthetic import synthesize
+
+DARK, BRIGHT = 0.12, 0.72
+"""The checker's two albedos; the proxy's floor has their mean."""
+LIGHT = {"type": "point", "position": [-0.35, 1.2, -0.25], "intensity": 2.5}
+LOOK = {"origin": [0.6, 0.8, 1.5], "target": [0.1, 0.0, 0.1]}
+
+
+def _checker(tmp_path) -> str:
+    """A 16×16 checkerboard of :data:`DARK` / :data:`BRIGHT` (linear), as an 8-bit PNG the
+    loader reads as sRGB-encoded (so it decodes to these albedos up to 8-bit rounding)."""
+    cells = (np.indices((16, 16)).sum(0) % 2).astype(np.float64)
+    lin = np.where(cells[..., None] > 0, BRIGHT, DARK) * np.ones(3)
+    enc = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    path = tmp_path / "checker.png"
+    iio.imwrite(path, np.round(enc.repeat(8, 0).repeat(8, 1) * 255).astype(np.uint8))
+    return str(path)
+
+
+def _scene(floor: dict, w: int = 128, h: int = 96) -> dict:
+    return {"camera": {"resolution": [w, h], "fov_y_deg": 40, "look_at": LOOK},
+            "shapes": [
+                {"name": "floor", "role": "real", "type": "rectangle", "size": [2, 2],
+                 "normal": [0, 1, 0], "material": floor},
+                {"name": "cube", "role": "virtual", "type": "box", "size": [0.3] * 3,
+                 "transform": {"translate": [0.0, 0.35, 0.0]},
+                 "material": {"type": "diffuse", "albedo": 0.5}}],
+            "lights": [LIGHT]}
+
+
+@pytest.fixture(scope="module")
+def checker_world(tmp_path_factory, eval_cache):
+    tmp = tmp_path_factory.mktemp("checker")
+    tex = _checker(tmp)
+    world = parse_scene(_scene({"type": "diffuse", "texture": tex}), base_dir=tmp)
+    proxy = parse_scene(_scene({"type": "diffuse", "albedo": (DARK + BRIGHT) / 2}),
+                        base_dir=tmp)
+    photo = synthesize(world, spp=256, max_depth=2, cache_dir=eval_cache)
+    # the texture's albedo per pixel: the world's G-buffer (the texture sampled at the hit)
+    views = build_views(world.world)
+    gb = render_gbuffer(views.real, world.camera, 1, 0)
+    truth = np.array(gb.albedo, np.float64).T.reshape(world.camera.height,
+                                                      world.camera.width, 3)
+    return world, proxy.with_frame(photo.frame), photo, truth
+
+
+def _texels(truth: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dark and the bright texels' interiors in ``region``: pixels whose G-buffer albedo
+    and their 8 neighbours' are within 3 % of :data:`DARK` or :data:`BRIGHT` (8-bit
+    rounding; the photograph's pixel filter mixes both at a border)."""
+    a = np.asarray(truth[..., 0])
+    return tuple(region & binary_erosion(np.abs(a - v) < 0.03 * v, np.ones((3, 3), bool))
+                 for v in (DARK, BRIGHT))
+
+
+def test_reads_the_texture_the_proxy_lost(checker_world):
+    """On the lit floor ρ̂ is each texel's own albedo within 5 % (the photograph's noise at
+    256 spp), dark and bright alike. Rejects the proxy's albedo (the mean: 2.5× the dark
+    texels', 0.6× the bright), ``B / E_r`` without π, and an ``E_r`` without the light's
+    cosine or fall-off (off by tens of per cent across the floor)."""
+    world, proxy, photo, truth = checker_world
+    views = build_views(proxy.world)
+    gb = render_gbuffer(views.real, proxy.camera, 1, 0)
+    pos = np.array(LIGHT["position"], np.float64)
+    lights = LightSet([ReducedLight(kind="point", position=pos, axis=np.zeros(3),
+                                    intensity=np.full(3, LIGHT["intensity"]), source="l0")])
+    real = gb.valid & ~gb.virtual
+    rho = photo_albedo(views.real, lights, proxy.frame, gb.pixel, gb.position, gb.normal,
+                       gb.albedo, real)
+    h, w = proxy.camera.height, proxy.camera.width
+    est = np.array(rho, np.float64).T.reshape(h, w, 3)
+    floor = np.array(real, bool).reshape(h, w) & (np.asarray(photo.mask) < 1e-6).reshape(h, w)
+    # texel borders mix two albedos inside one pixel: read the texel interiors
+    for sel in _texels(truth, floor):
+        assert sel.sum() > 50
+        np.testing.assert_allclose(np.median(est[sel], axis=0),
+                                   np.median(truth[sel], axis=0), rtol=0.05)
+    assert math.isclose(np.median(np.array(gb.albedo, np.float64)), (DARK + BRIGHT) / 2,
+                        rel_tol=1e-3)
+
+
+def test_dvct_shadow_on_a_texture_the_proxy_averaged(checker_world):
+    """dvct's composite in the cube's shadow core against Mitsuba's ground truth: with the
+    photograph's albedo the dark and the bright texels both within 25 %; with the proxy's
+    (option off, Franke's ``ρ/π ΔE``) the dark texels' shadow is far too deep (the mean
+    albedo removes 3× the light they reflect) — the wrong implementation this rejects."""
+    world, proxy, photo, truth = checker_world
+    method = get_method("dvct")
+    small = {"volume_size": 64, "rsm_size": 128, "cone_scale": 1}
+    gt = np.asarray(photo.ground_truth, np.float64)
+    frame = np.asarray(photo.frame, np.float64)
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    core = ((gt @ lum) < 0.25 * (frame @ lum)) & (np.asarray(photo.mask).reshape(gt.shape[:2])
+                                                   < 1e-6)
+    assert core.sum() > 20
+    errs = {}
+    for on in (True, False):
+        out = method(proxy, RenderSettings(options={**small, "photo_albedo": on}))
+        comp = np.asarray(out.composite, np.float64)
+        for target, sel in zip((DARK, BRIGHT), _texels(truth, core), strict=True):
+            if sel.sum() < 5:
+                continue
+            # the shadow's depth: light removed, as a share of what the truth removes
+            removed = (frame[sel] - comp[sel]) @ lum
+            want = (frame[sel] - gt[sel]) @ lum
+            errs[on, target] = float(np.median(removed) / np.median(want))
+    assert errs, "no shadow-core texels"
+    for (on, target), ratio in errs.items():
+        if on:
+            assert abs(ratio - 1.0) < 0.25, (target, ratio)
+    assert {t for on, t in errs if on} == {DARK, BRIGHT}, errs
+    assert all(abs(r - 1.0) > 0.3 for (on, _), r in errs.items() if not on), errs
+
