@@ -14,6 +14,7 @@ import pytest
 from arlight.demo import DEMO_DIR
 from arlight.methods import RenderSettings, get_method
 from arlight.scene.load import load_scene
+from tests.kernels import traced_kernels
 
 MIN_OPS = 30
 """Smaller kernels are Dr.Jit's own compress/reduction kernels whose code follows the
@@ -23,16 +24,7 @@ per-frame lane counts (16–23 operations on the demo; found in the kernel cache
 def _all_kernels(render) -> set[str]:
     """Hashes of the JIT kernels of :data:`MIN_OPS` operations or more that ``render()``
     launches."""
-    import drjit as dr
-
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        render()
-    finally:
-        history = dr.kernel_history()
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    return {k["hash"] for k in history if k.get("type") == dr.KernelType.JIT
-            and k.get("operation_count", 0) >= MIN_OPS}
+    return traced_kernels(render, MIN_OPS)
 
 
 @pytest.mark.parametrize("symbolic", [True, False])
