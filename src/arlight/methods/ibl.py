@@ -57,6 +57,7 @@ from arlight.methods.base import (
 )
 from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS, place_occluded
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.ambient import ao_distance
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.ibl_shading import (
     PROBE_OPTIONS,
@@ -88,7 +89,6 @@ from arlight.realtime.shading import (
     ambient_irradiance_dr,
     direct_light,
     split_lights,
-    virtual_bounds,
 )
 from arlight.scene.model import FrameView, World
 from arlight.sphere.sh import directional_light_coeffs, irradiance, n_coeffs, project_equirect
@@ -200,8 +200,7 @@ def _ao_distance(world: World, views: SceneViews, options: Options) -> float:
     """The AO ray length (m): the option, or the diagonal of the virtual objects' box."""
     if options.ao_distance > 0.0:
         return float(options.ao_distance)
-    b = virtual_bounds(world, views.mixed) if world.has_virtual else None
-    return float(np.linalg.norm(b[1] - b[0])) if b is not None else math.inf
+    return ao_distance(world, views.mixed)
 
 
 def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options: Options
