@@ -38,7 +38,7 @@ def _checker(tmp_path) -> str:
     return str(path)
 
 
-def _scene(floor: dict, w: int = 128, h: int = 96) -> dict:
+def _scene(floor: dict, w: int = 128, h: int = 96, light: dict = LIGHT) -> dict:
     return {"camera": {"resolution": [w, h], "fov_y_deg": 40, "look_at": LOOK},
             "shapes": [
                 {"name": "floor", "role": "real", "type": "rectangle", "size": [2, 2],
@@ -46,7 +46,7 @@ def _scene(floor: dict, w: int = 128, h: int = 96) -> dict:
                 {"name": "cube", "role": "virtual", "type": "box", "size": [0.3] * 3,
                  "transform": {"translate": [0.0, 0.35, 0.0]},
                  "material": {"type": "diffuse", "albedo": 0.5}}],
-            "lights": [LIGHT]}
+            "lights": [light]}
 
 
 @pytest.fixture(scope="module")
@@ -132,3 +132,19 @@ def test_dvct_shadow_on_a_texture_the_proxy_averaged(checker_world):
     assert {t for on, t in errs if on} == {DARK, BRIGHT}, errs
     assert all(abs(r - 1.0) > 0.3 for (on, _), r in errs.items() if not on), errs
 
+
+
+def test_dvct_delta_with_the_photographs_albedo_follows_the_photograph(checker_world):
+    """With ``photo_albedo`` the change is a ratio of the light the pixel receives: a model
+    light twice as bright, with the same photograph, gives the same delta (ρ̂ halves).
+    Rejects the proxy's albedo (its delta doubles: Franke's form is linear in the light,
+    tests/methods/test_dvct.py) and a ρ̂ not divided by the model's irradiance."""
+    world, proxy, photo, truth = checker_world
+    small = {"volume_size": 32, "rsm_size": 64, "cone_scale": 1, "photo_albedo": True}
+    method = get_method("dvct")
+    base = method(proxy, RenderSettings(options=small)).delta
+    bright = parse_scene(_scene({"type": "diffuse", "albedo": (DARK + BRIGHT) / 2},
+                                light={**LIGHT, "intensity": 2 * LIGHT["intensity"]}))
+    twice = method(bright.with_frame(photo.frame), RenderSettings(options=small)).delta
+    assert np.abs(base).max() > 1e-2
+    np.testing.assert_allclose(twice, base, rtol=1e-3, atol=1e-5 * np.abs(base).max())

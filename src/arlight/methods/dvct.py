@@ -164,12 +164,15 @@ OPTIONS: dict[str, Field] = {
                                     "own bounce 0.52 → 0.67 of Mitsuba's; on, as Franke: "
                                     "off with the other issue-#33 options lost 0.15 dB "
                                     "median on 6 training worlds)"),
-    "photo_albedo": Field("bool", True, "real pixels change by ρ̂/π ΔE with the albedo "
+    "photo_albedo": Field("bool", False, "real pixels change by ρ̂/π ΔE with the albedo "
                           "read from the photograph, ρ̂ = clip(π B / E_r, 0, 1) "
                           "(arlight.realtime.photo_albedo; issue #33: the shadow as a ratio of "
                           "the light the pixel receives, right on textures the proxy "
-                          "averaged; on: chosen on training worlds, median +0.02 dB "
-                          "changed_psnr, 9 of 11 gain); off: the proxy's albedo, as Franke"),
+                          "averaged: held-out world-1000027 +7.0 dB, 1000031 +3.6). Off "
+                          "(training:24: median +0.02 dB changed_psnr, 9 of 11 gain, worst "
+                          "−0.59; E_r lacks the real interreflection, so in closed rooms ρ̂ "
+                          "runs high: cornell-near-field's ring 2× worse): the proxy's "
+                          "albedo, as Franke"),
     "back_faces": Field("bool", False, "dim V_Δ/V_ρ cells seen from behind their V_η normal "
                         "(costs a third more cone gathers; no gain on the suite)"),
     "diffuse_cones": Field("bool", True, "trace the 9 diffuse cones (T_Δ², Eq. 5.21; "
