@@ -185,9 +185,9 @@ def mesh_bounds(name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
 def mean_albedo(path: str) -> tuple[float, float, float]:
     """Mean linear albedo of a texture (sRGB-decoded), as a reconstruction that lost the
     texture would estimate it."""
-    from arlight.io.images import read_linear
+    from arlight.io.images import mean_linear
 
-    return tuple(_v(read_linear(path)[..., :3].reshape(-1, 3).mean(axis=0)))
+    return tuple(_v(mean_linear(path)))
 
 
 @cache

@@ -120,6 +120,12 @@ def read_linear(path: str | Path) -> np.ndarray:
     return srgb_decode(codes / float(np.iinfo(codes.dtype).max)).astype(np.float32)
 
 
+def mean_linear(path: str | Path) -> np.ndarray:
+    """Mean linear RGB ``(3,)`` of an image (:func:`read_linear`, averaged in its float32):
+    a texture's mean albedo, as a reconstruction that lost the texture would estimate it."""
+    return read_linear(path)[..., :3].reshape(-1, 3).mean(axis=0)
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success only."""

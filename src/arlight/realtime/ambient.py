@@ -130,14 +130,13 @@ def virtual_albedo(world: World) -> np.ndarray:
     reflectance — ``diffuse``: the albedo (a texture's mean), ``phong``: ``kd + ks`` (its
     directional-hemispherical reflectance at normal incidence, the specular lobe folded in
     as diffuse); other materials 0 (no fill)."""
-    from arlight.io.images import read_linear
+    from arlight.io.images import mean_linear
 
     out = []
     for s in world.virtual_shapes:
         p = s.material.params
         if s.material.type == "diffuse":
-            out.append(read_linear(p["texture"])[..., :3].reshape(-1, 3).mean(axis=0)
-                       if p.get("texture") else p["albedo"])
+            out.append(mean_linear(p["texture"]) if p.get("texture") else p["albedo"])
         elif s.material.type == "phong":
             out.append(np.add(p["kd"], p["ks"]))
         else:
