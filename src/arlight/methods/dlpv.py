@@ -281,7 +281,7 @@ def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], option
         keep = data.real_blocking if same_grid(data.grid, grid) else None
         real, trans = geometry_volume(posed, grid, keep)
     return replace(data, world=posed, grid=grid, ambient=amb,
-                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds),
+                   real_maps=moved_maps(data.real_maps, data.views, grid, bounds),
                    real_blocking=real, transmittance=trans)
 
 

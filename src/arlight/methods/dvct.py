@@ -428,7 +428,7 @@ def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], option
     tris = np.concatenate([shape_triangles(s) for s in posed.virtual_shapes])
     return replace(data, world=posed, grid=grid, real_voxels=real, real_window=window,
                    virtual_triangles=tris,
-                   real_maps=moved_maps(data.real_maps, data.views, data.grid, grid, bounds,
+                   real_maps=moved_maps(data.real_maps, data.views, grid, bounds,
                                         directional_coverage(grid)))
 
 

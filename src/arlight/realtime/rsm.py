@@ -483,9 +483,8 @@ class RealMaps:
     rays: list[LightRays]
     mu: list[RSM]
     box: tuple[np.ndarray, np.ndarray]  # the virtual objects' world bounding box (m)
-    coverage: tuple[np.ndarray, float] | None = None
-    """(centre, radius) directional maps cover, m, when the method chose it
-    (:func:`real_maps`' ``coverage``); None: the volume's bounding sphere."""
+    coverage: tuple[np.ndarray, float]
+    """(centre, radius) the directional maps cover, m (:func:`real_maps`)."""
 
 
 class RSMState(Protocol):
@@ -514,9 +513,10 @@ def real_maps(views: SceneViews, lights: LightSet, grid: Grid, res: int,
     """Every reduced light's RSM rays (directional maps cover ``coverage``, (centre,
     radius) in m, by default the volume's bounding sphere) and ``R_µ`` cast into the
     real-only view."""
-    rays = [light_rays(lt, res, coverage or _coverage(grid)) for lt in lights.lights]
+    cover = coverage or _coverage(grid)
+    rays = [light_rays(lt, res, cover) for lt in lights.lights]
     return RealMaps(lights, res, rays, [render_rsm(views.real, r) for r in rays], box,
-                    coverage)
+                    cover)
 
 
 def same_coverage(a: tuple[np.ndarray, float] | None,
@@ -526,27 +526,25 @@ def same_coverage(a: tuple[np.ndarray, float] | None,
             and np.array_equal(a[0], b[0]))
 
 
-def moved_maps(maps: RealMaps, views: SceneViews, old: Grid, grid: Grid,
+def moved_maps(maps: RealMaps, views: SceneViews, grid: Grid,
                box: tuple[np.ndarray, np.ndarray],
                coverage: tuple[np.ndarray, float] | None = None) -> RealMaps:
-    """``real_maps(views, maps.lights, grid, maps.res, box)`` after the virtual objects
-    moved and the proxy did not (incremental pose, issue #32): a light's rays and ``R_µ`` are
-    kept unless they depend on the grid — a directional light's map covers the volume — and
-    the grid moved from ``old`` to ``grid`` — or, with ``coverage`` (the sphere the maps
-    were cast for is ``maps.coverage``), the coverage changed; those are cast again. Bit
-    for bit the maps :func:`real_maps` casts (the same rays into the same real-only view)."""
-    if coverage is None:
-        moved = not same_grid(old, grid)
-    else:
-        moved = not same_coverage(maps.coverage, coverage)
+    """``real_maps(views, maps.lights, grid, maps.res, box, coverage)`` after the virtual
+    objects moved and the proxy did not (incremental pose, issue #32): a light's rays and
+    ``R_µ`` are kept unless they depend on the coverage — a directional light's map covers
+    ``coverage`` (default the volume's bounding sphere) — and it differs from the sphere
+    ``maps`` were cast for; those are cast again. Bit for bit the maps :func:`real_maps`
+    casts (the same rays into the same real-only view)."""
+    cover = coverage or _coverage(grid)
+    moved = not same_coverage(maps.coverage, cover)
     rays, mu = [], []
     for lt, r, m in zip(maps.lights.lights, maps.rays, maps.mu, strict=True):
         if moved and lt.kind == "directional":
-            r = light_rays(lt, maps.res, coverage or _coverage(grid))
+            r = light_rays(lt, maps.res, cover)
             m = render_rsm(views.real, r)
         rays.append(r)
         mu.append(m)
-    return RealMaps(maps.lights, maps.res, rays, mu, box, coverage)
+    return RealMaps(maps.lights, maps.res, rays, mu, box, cover)
 
 
 def rsm_pair(data: RSMState) -> list[RSMPair]:
