@@ -5,10 +5,11 @@ diffuse, ``tags["all_diffuse"]``; ``training-diffuse:N`` for the training worlds
 are chosen on): per world, the real-time methods (``dlpv``, ``dir``, ``dvct``, ``ibl``,
 ``prt``) are timed by the evaluation harness (one warm-up, ``--repeats`` timed frames, the
 world prepared once) and ``onepass`` is timed on a ladder of spp, raw and with ``denoise =
-oidn`` at each OIDN quality of ``--qualities`` (aux on, separate), up to the first frame
-slower than the world's slowest real-time method (worlds no real-time method renders are
-not counted; ties within :data:`TIE_DB` are counted as losses and named). At ``t*`` = that
-slowest method's frame time, the best ``onepass`` frame of each kind that took at most
+oidn`` at each OIDN quality of ``--qualities`` (aux on, separate; per spp a warm-up and
+the median of ``--repeats`` timed frames, default 3), up to the first spp slower than the
+world's slowest real-time method (worlds no real-time method renders are not counted;
+ties within :data:`TIE_DB` are counted as losses and named). At ``t*`` = that slowest
+method's frame time, the best ``onepass`` frame of each kind that took at most
 ``t*`` is compared with every real-time method: PSNR (display, against Mitsuba's ground
 truth), and the bias of :mod:`arlight.denoise.bias` (relative mean signed luminance error
 in the shadow, on the object, at the silhouette) against the ground truth and — the
@@ -61,6 +62,7 @@ from arlight.evaluate.harness import (
 )
 from arlight.evaluate.worlds import generate, parse_worlds
 from arlight.methods import RenderSettings, get_method
+from arlight.timing import StageTimer
 
 HEADING = "## Denoised differential rendering: onepass + OIDN vs the real-time methods (#31)"
 REAL_TIME = ("dlpv", "dir", "dvct", "ibl", "prt")
@@ -77,6 +79,10 @@ CONVERGED_SPP = 256
 BIAS_REGIONS = ("shadow", "object", "silhouette")
 TIE_DB = 0.05
 """PSNR difference (dB) under which every method ties on a world."""
+DENOISED_EXTRA: dict[str, str] = {}
+"""Options given to every *denoised* ladder frame of ``onepass`` (``--delta``: the real
+pixels' change, docs/methods/denoising.md); raw onepass keeps the options' defaults, so the
+comparison is denoised onepass as configured against onepass as shipped."""
 
 
 @dataclass
@@ -134,9 +140,11 @@ def heldout_seeds(spec: str) -> list[int]:
 
 def ladder(scene, photo, cfg: EvalConfig, options: dict, max_seconds: float,
            spps=LADDER, keep: dict | None = None) -> list[Point]:
-    """onepass on ``scene`` at each spp (world prepared once; per spp a warm-up and a timed
-    frame), stopped after the first frame slower than ``max_seconds``; ``keep`` (if given)
-    gets each spp's composite."""
+    """onepass on ``scene`` at each spp (world prepared once; per spp a warm-up and
+    ``cfg.repeats`` timed frames, their median time — as the real-time methods' cells and
+    the harness's ladder are timed, so one load spike does not decide an equal-time
+    comparison), stopped after the first spp slower than ``max_seconds``; ``keep`` (if
+    given) gets each spp's composite."""
     method = get_method("onepass")
     ar = scene.ar_scene(photo)
     state = method.prepare(ar.world, RenderSettings(spp=1, max_depth=cfg.max_depth))
@@ -146,9 +154,12 @@ def ladder(scene, photo, cfg: EvalConfig, options: dict, max_seconds: float,
         s = RenderSettings(spp=spp, max_depth=cfg.max_depth, seed=cfg.seed,
                            options=dict(options))
         method.render(state, ar.view, s)  # warm-up: kernels compile per spp
-        t0 = time.perf_counter()
-        out = method.render(state, ar.view, s)
-        dt = time.perf_counter() - t0
+        times = []
+        for _ in range(max(cfg.repeats, 1)):
+            t0 = time.perf_counter()
+            out = method.render(state, ar.view, s)
+            times.append(time.perf_counter() - t0)
+        dt = statistics.median(times)
         if keep is not None:
             keep[spp] = out.composite
         points.append(Point(spp, dt, composite_metrics(out.composite, photo, tr, region),
@@ -184,7 +195,8 @@ def run_world(seed: int, cfg: EvalConfig, variant_spp: int, variants: bool = Tru
     comps: dict[str, dict[int, np.ndarray]] = {"raw": {}, "oidn": {}}
     run.raw = ladder(scene, photo, cfg, {}, limit, keep=comps["raw"])
     for q in qualities:
-        run.denoised[q] = ladder(scene, photo, cfg, {**OIDN, "denoise_quality": q}, limit,
+        opts = {**OIDN, **DENOISED_EXTRA, "denoise_quality": q}
+        run.denoised[q] = ladder(scene, photo, cfg, opts, limit,
                                  keep=comps["oidn"] if q == DEFAULT_QUALITY else None)
     for label, opts in (VARIANTS.items() if variants else ()):
         run.variants[label] = ladder(scene, photo, cfg, opts, math.inf, (variant_spp,))[0]
@@ -216,6 +228,8 @@ FULL_CONFIGS = {
     "balanced, aux off": {**BALANCED, "denoise_aux": "off"},
     "fast, aux off": {**OIDN, "denoise_quality": "fast", "denoise_aux": "off"},
     "balanced, aux 1 spp": {**BALANCED, "denoise_aux_spp": 1},
+    "raw, ratio": {"delta": "ratio"},
+    "fast, ratio": {**OIDN, "denoise_quality": "fast", "delta": "ratio"},
 }
 """The 640×480 configurations (onepass options), each at every spp of FULL_SPP."""
 FULL_CONVERGED_SPP = 64
@@ -239,6 +253,8 @@ class FullRun:
     gt_ceiling: float
     converged: float
     rows: list[tuple] = field(default_factory=list)
+    converged_ratio: float = math.nan
+    """The proxy ceiling with ``delta = ratio`` (``converged``: ``additive``), same render."""
 
 
 def gt_noise_mse(photo, transfer) -> float:
@@ -269,13 +285,20 @@ def full_res(seed: int, cfg: EvalConfig, gt_spp: int, configs: list[str] | None 
     ar = scene.ar_scene(photo)
     method = get_method("onepass")
     state = method.prepare(ar.world, RenderSettings(spp=1, max_depth=cfg.max_depth))
-    conv = method.render(state, ar.view, RenderSettings(
-        spp=FULL_CONVERGED_SPP, max_depth=cfg.max_depth, seed=cfg.seed + 1)).composite
-    d_gt, d_conv = M.display(photo.ground_truth, tr), M.display(conv, tr)
+    conv_layers = method.render(state, ar.view, RenderSettings(
+        spp=FULL_CONVERGED_SPP, max_depth=cfg.max_depth, seed=cfg.seed + 1,
+        options={"delta": "additive"}))
+    d_gt = M.display(photo.ground_truth, tr)
+    d_convs = {"additive": M.display(conv_layers.composite, tr),
+               "ratio": M.display(method.ratio(  # the ratio's ceiling from the same render
+                   conv_layers, state.data, ar.view, method.spec.parse_options(
+                       {"delta": "ratio"}), StageTimer(), {}, state.world).composite, tr)}
+    default = method.spec.parse_options({}).delta
     run = FullRun(f"world-{seed}", gt_spp, 10 * math.log10(1 / e_gt),
-                  M.psnr(d_conv, d_gt, peak=1.0))
+                  M.psnr(d_convs["additive"], d_gt, peak=1.0),
+                  converged_ratio=M.psnr(d_convs["ratio"], d_gt, peak=1.0))
     print(run.world, "gt ceiling", round(run.gt_ceiling, 2), "converged", round(run.converged, 2),
-          flush=True)
+          "ratio", round(run.converged_ratio, 2), flush=True)
     for label in configs or FULL_CONFIGS:
         opts = FULL_CONFIGS[label]
         for spp in FULL_SPP:
@@ -287,8 +310,9 @@ def full_res(seed: int, cfg: EvalConfig, gt_spp: int, configs: list[str] | None 
             dt = time.perf_counter() - t0
             d = M.display(out.composite, tr)
             mse = M.mse(d, d_gt)
+            conv_d = d_convs[opts.get("delta", default)]  # the same delta's ceiling
             row = (label, spp, dt, M.psnr(d, d_gt, peak=1.0),
-                   10 * math.log10(1 / max(mse - e_gt, 1e-12)), M.psnr(d, d_conv, peak=1.0),
+                   10 * math.log10(1 / max(mse - e_gt, 1e-12)), M.psnr(d, conv_d, peak=1.0),
                    {k: out.stats.get(k, 0.0) for k in STAGES},
                    region_bias(out.composite, photo.ground_truth, photo.frame, photo.mask))
             run.rows.append(row)
@@ -360,8 +384,10 @@ def full_section(data: dict) -> list[str]:
              "(E[MSE(x, GT)] = MSE(x, truth) + σ²_GT for an error independent of the GT's "
              f"noise), so the GT does not cap it; **proxy ceiling** = onepass at "
              f"{FULL_CONVERGED_SPP} spp against the GT (the proxy geometry's error: no sample "
-             "count or denoiser gets above it); **vs conv.** = against that converged onepass "
-             "(the Monte Carlo + denoiser error alone). CPU pressure (PSI some avg60) "
+             "count or denoiser gets above it; `delta = additive`, in brackets `delta = "
+             "ratio` from the same render); **vs conv.** = against that converged onepass "
+             "with the row's `delta` (the Monte Carlo + denoiser error alone). CPU pressure "
+             "(PSI some avg60) "
              f"{data.get('full_pressure', '?')} %.", ""]
     head = ("| world | GT ceiling | proxy ceiling | config | spp | ms/frame | × raw 1 spp | "
             "trace | aux | OIDN | PSNR vs GT | vs truth | vs conv. | bias % shadow / object / "
@@ -371,7 +397,9 @@ def full_section(data: dict) -> list[str]:
         raw1 = next((row[2] for row in r.rows if row[0] == "raw" and row[1] == 1), math.nan)
         for label, spp, sec, p_gt, p_true, p_conv, st, bias in r.rows:
             lines.append(
-                f"| {r.world} | {r.gt_ceiling:.1f} | {r.converged:.2f} | {label} | {spp} | "
+                f"| {r.world} | {r.gt_ceiling:.1f} | {r.converged:.2f}"
+                f"{'' if math.isnan(r.converged_ratio) else f' ({r.converged_ratio:.2f})'}"
+                f" | {label} | {spp} | "
                 f"{sec * 1e3:.0f} | {sec / raw1:.1f} | {st['time_trace'] * 1e3:.0f} | "
                 f"{st['time_denoise_aux'] * 1e3:.0f} | {st['time_denoise'] * 1e3:.0f} | "
                 f"{p_gt:.2f} | {p_true:.2f} | {p_conv:.2f} | {_bias(bias)} |")
@@ -409,8 +437,9 @@ def section(data: dict) -> str:
              f"pressure (PSI some avg60, %) {data['pressure_start']} at the start, "
              f"{data['pressure_end']} at the end; every comparison is within one world of "
              "one run. Real-time methods: harness frame time (median of "
-             f"{cfg['repeats']} warm frame(s)); onepass: one warm-up and one timed frame per "
-             "spp. t* = the world's slowest real-time method's frame time; onepass columns: "
+             f"{cfg['repeats']} warm frame(s)); onepass: one warm-up and "
+             f"{cfg['repeats']} timed frame(s) per spp, their median. t* = the world's "
+             "slowest real-time method's frame time; onepass columns: "
              "the best frame that took ≤ t* (spp in brackets). PSNR on display values (dB).",
              "", "### Equal time: PSNR at t*", "",
              "| world | t* (ms) | " + " | ".join(REAL_TIME) + " | onepass raw | "
@@ -452,9 +481,11 @@ def section(data: dict) -> str:
                      + f" | {_cell(raw)} | " + " | ".join(_cell(dn[q]) for q in qs)
                      + f" | {verdict} |")
     pct = 100 * wins[DEFAULT_QUALITY] / max(compared, 1)
-    lines += ["", f"**Denoised onepass (default options: `{DEFAULT_QUALITY}`, aux on, "
-              f"separate) has the highest PSNR at t* — above every real-time method and raw "
-              f"onepass — on {wins[DEFAULT_QUALITY]} of {compared} worlds** ({pct:.0f} %; "
+    extra = "".join(f", {k} = {v}" for k, v in DENOISED_EXTRA.items())
+    lines += ["", f"**Denoised onepass (`{DEFAULT_QUALITY}`, aux on, separate{extra}; "
+              f"raw onepass with its defaults) has the highest PSNR at t* — above every "
+              f"real-time method and raw onepass — on {wins[DEFAULT_QUALITY]} of "
+              f"{compared} worlds** ({pct:.0f} %; "
               f"target ≥ 75 %; {'met' if pct >= 75 else 'not met'}"
               + (f"; {ties} of them a tie — every method, onepass too, within "
                  f"{TIE_DB} dB: the insertion barely changes the image — counted as "
@@ -544,7 +575,8 @@ def main() -> None:
     ap.add_argument("--worlds", default="heldout-diffuse:8")
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--gt-spp", type=int, default=256)
-    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=3, help="timed frames per real-time "
+                    "cell and per onepass spp (the median is compared)")
     ap.add_argument("--variant-spp", type=int, default=4)
     ap.add_argument("--full", type=int, default=0, help="worlds timed at 640×480")
     ap.add_argument("--full-worlds", default="", help="worlds of the 640×480 part (default "
@@ -562,9 +594,14 @@ def main() -> None:
                     "names of FULL_CONFIGS; default all)")
     ap.add_argument("--selection", default="", help="how the worlds were chosen (the "
                     "report's wording; default from --worlds)")
+    ap.add_argument("--delta", choices=("additive", "ratio"), default=None, help="onepass's "
+                    "`delta` option on the denoised equal-time ladders (raw onepass keeps the "
+                    "default; default: the option's default)")
     ap.add_argument("--save", type=Path)
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args()
+    if args.delta:
+        DENOISED_EXTRA["delta"] = args.delta
     if args.load:
         data = None
         for path in args.load:

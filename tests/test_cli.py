@@ -100,7 +100,7 @@ def test_render_bad_options_exit_2_and_name_the_option(tmp_path, capsys):
                  "-o", str(out)]) == 2
     assert "options.reproject: expected true or false" in err()
     assert main(["render", str(p), "--option", "reproject=false", "-o", str(out)]) == 2
-    assert ("options.reproject: unknown option; known options: denoise, denoise_aux, "
+    assert ("options.reproject: unknown option; known options: delta, denoise, denoise_aux, "
             "denoise_aux_spp, denoise_device, denoise_quality, denoise_target, replicas, "
             "sampler") in err()
     assert main(["render", str(p), "-m", "onepass", "--option", "bogus", "-o", str(out)]) == 2

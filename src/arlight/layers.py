@@ -12,6 +12,8 @@ as one term, so a zero delta leaves the background bit-exact.
 * :class:`Layers` — what a method returns (``mixed``, ``delta``, ``mask``, the composite,
   standard errors, stats); :meth:`Layers.assemble` builds the composite through
   :func:`composite`.
+* :func:`photo_scale` / :func:`ratio_change` — the photo-consistent (ratio) change
+  ``B + s (I_m − I_r)``, ``s = clip(B / I_r, 0, 1/ρ)`` (option ``delta = ratio``).
 * :func:`differential_samples` / :func:`layers_from_passes` — the per-sample layers of a
   differential Monte Carlo method and the layers from their moments.
 
@@ -20,6 +22,7 @@ Core tier: imports NumPy only (Dr.Jit arrays are passed in, never imported here)
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass, field
 from typing import Any
@@ -218,6 +221,66 @@ class Layers:
                          strict_dtype=False, finite=False)
 
 
+RATIO_MIN = 1e-6
+"""Real radiance ``I_r`` (W m⁻² sr⁻¹) below which a channel keeps the additive change."""
+
+
+def photo_scale(photo: Any, real: Any, albedo: Any, ops: Any = np) -> Any:
+    """The photo-consistent scale ``s`` of a real pixel's change (issue #31; per channel).
+
+    Differential rendering adds ``I_m − I_r`` to the photograph ``B``: right only where the
+    proxy reproduces the photograph. Where it does not (a texture the reconstruction
+    averaged, a highlight it lacks), the ratio form (Debevec 1998's multiplicative variant;
+    the AR-OOF shadow factor) changes the pixel in proportion to what it shows:
+
+        B + s (I_m − I_r),   s = clip(B / I_r, 0, 1/ρ)   (= B I_m / I_r unclipped)
+
+    For a diffuse first hit ``I_r = ρ E_r / π``, so ``ρ s = clip(π B / E_r, 0, 1)`` is the
+    albedo that reproduces the photograph (:mod:`arlight.realtime.photo_albedo`), and the
+    clip keeps it physical (``ρ̂ = ρ s ≤ 1``). ``s = 1`` (the additive change) where
+    ``I_r < RATIO_MIN``.
+
+    Args:
+        photo: ``B``, linear radiance (negative values read as 0).
+        real: ``I_r``, the proxy's radiance at the same pixel (a denoised or converged one:
+            the ratio of noisy estimates is biased, ``E[1/X] > 1/E[X]``).
+        albedo: ``ρ``, the proxy's first-hit diffuse albedo in [0, 1].
+        ops: ``numpy`` (NumPy arrays) or ``drjit`` (Dr.Jit arrays): where ``minimum``,
+            ``maximum`` and ``select`` (NumPy: ``where``) come from.
+
+    Returns:
+        ``s``, same shape/type as the inputs, in ``[0, 1/ρ]``.
+    """
+    select = np.where if ops is np else ops.select
+    s = ops.minimum(ops.maximum(photo, 0.0) / ops.maximum(real, RATIO_MIN),
+                    1.0 / ops.maximum(albedo, RATIO_MIN))
+    return select(real >= RATIO_MIN, s, 1.0)
+
+
+def ratio_change(layers: Layers, albedo: np.ndarray, rows: slice = slice(None),
+                 cols: slice = slice(None)) -> Layers:
+    """``layers`` with the photo-consistent change ``s ⊙ delta`` (:func:`photo_scale`, with
+    ``I_r`` = ``layers.real``, else ``mixed − delta``) in the window ``(rows, cols)`` (which
+    must hold every non-zero delta) and the composite (:func:`composite`) recomputed;
+    ``albedo`` is the window's ``(h, w, 3)``. A zero delta stays exactly zero, so pixels the
+    insertion does not change are the photograph bit for bit. The composite's standard error
+    (where there is one) becomes ``s``·that of the delta on uncovered pixels (``s`` taken as
+    exact). Other fields (``noisy`` of denoised layers) are kept."""
+    box = (rows, cols)
+    real = layers.real if layers.real is not None else layers.mixed - layers.delta
+    s = photo_scale(layers.background[box], real[box], albedo).astype(np.float32)
+    delta = layers.delta.copy()
+    delta[box] *= s
+    stderr = dict(layers.stderr)
+    if "composite" in stderr and "delta" in stderr:
+        se = stderr["composite"].copy()
+        free = layers.mask[box] <= 0
+        se[box][free] = (stderr["delta"][box] * s)[free]
+        stderr["composite"] = se
+    comp = composite(layers.background, layers.mixed, delta, layers.mask).astype(np.float32)
+    return dataclasses.replace(layers, delta=delta, composite=comp, stderr=stderr)
+
+
 def differential_samples(mixed, real, mask, background) -> dict:
     """Per-sample layers of a differential Monte Carlo method (Dr.Jit arrays per lane).
 
@@ -251,4 +314,5 @@ def layers_from_passes(frame: np.ndarray, result, **stats: float) -> Layers:
                            stats={**base, **stats})
 
 
-__all__ = ["Layers", "composite", "differential_samples", "layers_from_passes", "upsample"]
+__all__ = ["Layers", "RATIO_MIN", "composite", "differential_samples", "layers_from_passes",
+           "photo_scale", "ratio_change", "upsample"]

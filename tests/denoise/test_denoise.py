@@ -35,8 +35,12 @@ def converged():
 
 
 def render(scene, method="onepass", spp=1, seed=0, **options):
+    """``method``'s layers; the change additive unless asked (these tests are about the
+    denoiser, and their random photographs are no image of the proxy, which ``delta =
+    ratio``, the default with the denoiser on, would read them as)."""
     m = get_method(method)
-    return m(scene, RenderSettings(spp=spp, seed=seed, options=options))
+    return m(scene, RenderSettings(spp=spp, seed=seed,
+                                   options={"delta": "additive", **options}))
 
 
 @pytest.mark.parametrize("target", ["separate", "delta"])

@@ -85,7 +85,8 @@ def test_option_types_defaults_and_command_line_strings():
                                      "light_sampling": "importance", "sample_offset": 0,
                                      "denoise": "none", "denoise_quality": "fast",
                                      "denoise_aux": True, "denoise_aux_spp": 4,
-                                     "denoise_target": "separate", "denoise_device": "cpu"}
+                                     "denoise_target": "separate", "denoise_device": "cpu",
+                                     "delta": "auto"}
     opts = spec.parse_options({"reproject": "false", "mode": "twopass"})
     assert opts.reproject is False and opts["mode"] == "twopass" and opts.env_mode == "mis"
     assert spec.parse_options({"reproject": "TRUE"}).reproject is True

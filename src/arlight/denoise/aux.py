@@ -115,12 +115,16 @@ def aux_buffers(view: SceneView, camera: Camera, samples: int = 4,
     albedo = np.zeros((pixels, 3), np.float64)
     normal = np.zeros((pixels, 3), np.float64)
     step = max(1, MAX_LANES // spp)  # pixels per launch
+
+    def u32(x: int) -> mi.UInt32:  # opaque: another window or launch reuses the kernels
+        return dr.opaque(mi.UInt32, x)
+
     for p0 in range(0, pixels, step):
         n = min(step, pixels - p0)
         lane = dr.arange(mi.UInt32, n * spp)
-        local = lane // spp + p0
-        pixel = (local // w + r0) * camera.width + local % w + c0
-        k = lane % spp
+        local = lane // u32(spp) + u32(p0)
+        pixel = (local // u32(w) + u32(r0)) * u32(camera.width) + local % u32(w) + u32(c0)
+        k = lane % u32(spp)
         rays = generate_rays(camera, pixel, k, spp, mi.UInt32(AUX_SEED))
         a, nrm = _first_diffuse_hit(view, mi.Ray3f(rays))
         a_np = np.asarray(a, np.float64).reshape(3, n, spp)  # Dr.Jit: channel-major

@@ -1,4 +1,5 @@
-"""The denoiser's method options, shared by every method that produces Monte Carlo noise.
+"""The denoiser's method options, shared by every method that produces Monte Carlo noise
+(with ``delta``, the form of the real pixels' change, which reads the denoised renders).
 
 :class:`~arlight.methods.spec.MethodSpec` adds :data:`OPTIONS` to the options of every
 method whose capabilities say ``noisy`` (``onepass``, ``reference``, ``dic``), as frame
@@ -37,9 +38,18 @@ OPTIONS: dict[str, Field] = {
                             choices=("cpu", "cuda")),
     "denoise_aux_spp": Field("int", 4, "sub-pixel samples of the auxiliary buffers (box "
                              "filter; at least 16 on a thin-lens camera)", min=1, max=256),
+    "delta": Field("choice", "auto", "how a real pixel changes: `additive`: B + I_m − "
+                   "I_r (Debevec; Kán Eq. 2.20); `ratio`: B + s (I_m − I_r) with s = B / I_r "
+                   "(after the denoiser, if any), clipped so the implied albedo ρ s ≤ 1 — "
+                   "photo-consistent where the proxy lost the photograph's texture "
+                   "(arlight.layers.photo_scale, docs/methods/denoising.md); `auto`: ratio "
+                   "with the denoiser on, additive without (chosen on training worlds: "
+                   "+0.7 dB median with OIDN, a noisy undenoised I_r makes s noisy)",
+                   choices=("auto", "additive", "ratio")),
 }
 """``denoise``, ``denoise_quality``, ``denoise_aux``, ``denoise_target``,
-``denoise_device``, ``denoise_aux_spp``."""
+``denoise_device``, ``denoise_aux_spp`` and the change's form ``delta`` (applied by
+:meth:`arlight.methods.base.BaseMethod.render` after the denoiser)."""
 
 NAMES = frozenset(OPTIONS)
 
@@ -77,4 +87,14 @@ class DenoiseSettings:
                                device=opts.get("denoise_device", "cpu"))
 
 
-__all__ = ["DenoiseSettings", "NAMES", "NOT_NOISY", "OPTIONS"]
+def delta_form(opts: Any, denoised: bool) -> str:
+    """The change's form a render applies: the ``delta`` option, ``auto`` resolved to
+    ``ratio`` when the frame was denoised and ``additive`` when not (options without
+    ``delta``, the real-time methods': ``additive``)."""
+    form = opts.get("delta", "additive")
+    if form == "auto":
+        return "ratio" if denoised else "additive"
+    return form
+
+
+__all__ = ["DenoiseSettings", "NAMES", "NOT_NOISY", "OPTIONS", "delta_form"]

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from arlight.denoise.options import NAMES as DENOISE_NAMES
-from arlight.denoise.options import DenoiseSettings
+from arlight.denoise.options import DenoiseSettings, delta_form
 from arlight.errors import InputError
 from arlight.layers import Layers
 from arlight.methods.spec import MethodSpec, Options
@@ -347,7 +347,32 @@ class BaseMethod(ABC):
         if denoise is not None:
             layers = self.denoise(layers, data, view, denoise, timer, transforms,
                                   state.world)
+        if delta_form(opts, denoise is not None) == "ratio":
+            layers = self.ratio(layers, data, view, opts, timer, transforms, state.world)
         return layers
+
+    def ratio(self, layers: Layers, data: Any, view: FrameView, opts: Options,
+              timer: StageTimer, transforms: dict[str, np.ndarray] | None = None,
+              world: World | None = None) -> Layers:
+        """The photo-consistent change (option ``delta = ratio``,
+        :func:`arlight.layers.ratio_change`) on the (denoised) layers: ``s`` from the
+        photograph and ``I_r`` in the bounding box of the non-zero delta, ``ρ`` the mixed
+        view's first-hit albedo there (the denoiser's auxiliary buffers, through
+        :data:`arlight.denoise.aux.AUX_CACHE`: a crop of the denoised window's); stage
+        ``ratio``. Without a delta the layers are returned as they are."""
+        from arlight.denoise.aux import AUX_CACHE
+        from arlight.denoise.differential import window
+        from arlight.layers import ratio_change
+
+        changed = np.any(layers.delta != 0, axis=-1)
+        scene_view = self.aux_view(data)
+        if not changed.any() or scene_view is None:
+            return layers
+        with timer.stage("ratio"):
+            rows, cols = window(changed, 0)
+            buffers, _ = AUX_CACHE.get(scene_view, view.camera, opts["denoise_aux_spp"],
+                                       transforms, rows, cols, world)
+            return ratio_change(layers, buffers.albedo, rows, cols)
 
     def __call__(self, scene: ARScene, settings: RenderSettings | None = None) -> Layers:
         """One-shot: ``render(prepare(scene.world), scene.view)``; the stats add
