@@ -33,7 +33,9 @@ def test_delta_equals_brute_force_instant_radiosity():
     wrong scene, an unclamped or wrongly normalised G, and dropping the R_µ VPLs that the
     object hides."""
     scene = make(box_scene(w=24, h=18))
-    opts = {"vpls": 36, "interleave": 1, "clamp_distance": 0.3}
+    # the proxy's albedo (the frame is a constant: no photograph to read it from)
+    opts = {"vpls": 36, "interleave": 1, "clamp_distance": 0.3, "real_albedo": "proxy",
+            "gbuffer_spp": 1}  # one G-buffer sample: the gather at the pixel centres
     method = get_method("dir")
     settings = RenderSettings(options=opts)
     state = method.prepare(scene.world, settings)

@@ -21,7 +21,11 @@ from tests.conftest import LOOK
 from tests.conftest import parsed_with_constant_frame as make
 
 LUM_W = np.array([0.2126, 0.7152, 0.0722])
-SMALL = {"volume_size": 16, "steps": 8, "rsm_size": 64}
+SMALL = {"volume_size": 16, "steps": 8, "rsm_size": 64, "real_albedo": "proxy"}
+"""Small volumes; the proxy's albedo (the frames are constants, no photograph to read)."""
+FRANKE = {"direct": "volume", "lost_bounce": True}
+"""The paper's V_Δ: direct lobes and both RSMs' VPLs (the defaults before issue #33's
+shadow rays, tests/realtime/test_shading_shadows.py)."""
 
 
 def box_scene(virtual: bool = True, light: str = "point", w: int = 40, h: int = 30) -> dict:
@@ -105,7 +109,8 @@ def test_delta_volume_against_an_independent_construction(direct):
     eliminating texels that differ, and a normalisation applied to the wrong lobes."""
     from tests.realtime.test_sh_volume import _geometric_matrices
 
-    opts = _opts(dampening=False, direct_inject=direct, geometry_volume=True)
+    opts = _opts(dampening=False, direct="volume" if direct else "none", geometry_volume=True,
+                 lost_bounce=True)
     data = prepare(parse_scene(box_scene()).world, opts)
     assert data.transmittance is not None
     vols = build_volumes(data, opts)
@@ -154,7 +159,7 @@ def test_shadow_is_negative_and_bleeding_is_red():
     delta; near the red cube the real surfaces receive more red than blue bounce. Rejects an
     inverted direct injection (shadow brighter) and a bounce without the cube's albedo."""
     scene = make(box_scene(w=80, h=60))
-    layers = run(scene, volume_size=32, steps=16, rsm_size=128)
+    layers = run(scene, volume_size=32, steps=16, rsm_size=128, **FRANKE)
     d = layers.delta
     real = layers.mask == 0
     lum = d @ np.array([0.2126, 0.7152, 0.0722])
@@ -291,7 +296,7 @@ def test_volume_on_the_fixed_lattice_stays_while_the_object_moves_within_it():
 
 
 def test_derived_shadow_depth_matches_ray_traced_shadow():
-    """At the defaults (direct lobes normalised by the plane response) the mean delta in the
+    """With the paper's V_Δ (direct lobes normalised by the plane response) the mean delta in the
     cube's shadow is within 30 % of `dir`'s, whose direct shadow is ray traced (measured
     1.13×; 0.90× with the geometry volume blocking the cube's own positive lobes); at KD10's
     raw scale (``calibrate`` = 1/plane_response) it is > 1.4× too deep. Rejects a missing
@@ -301,14 +306,17 @@ def test_derived_shadow_depth_matches_ray_traced_shadow():
 
     scene = make(box_scene(w=160, h=120))
     ref = get_method("dir")(scene, RenderSettings(options={"vpls": 4, "interleave": 1,
-                                                           "clamp_distance": 10.0})).delta
+                                                           "clamp_distance": 10.0,
+                                                           "real_albedo": "proxy"})).delta
     y = np.array([0.2126, 0.7152, 0.0722])
     shadow = ref @ y < -0.1
     assert shadow.sum() > 50
-    dl = get_method("dlpv")(scene, RenderSettings()).delta @ y
-    gv = get_method("dlpv")(scene, RenderSettings(options={"geometry_volume": True})).delta @ y
+    lpv = {**FRANKE, "real_albedo": "proxy"}
+    dl = get_method("dlpv")(scene, RenderSettings(options=lpv)).delta @ y
+    gv = get_method("dlpv")(scene, RenderSettings(options={**lpv, "geometry_volume": True})
+                            ).delta @ y
     raw = get_method("dlpv")(scene, RenderSettings(options={
-        "calibrate": 1.0 / plane_response(32, 32, True)})).delta @ y
+        **lpv, "calibrate": 1.0 / plane_response(32, 32, True)})).delta @ y
     for d in (dl, gv):
         ratio = d[shadow].mean() / (ref @ y)[shadow].mean()
         assert 0.7 < ratio < 1.3, ratio
@@ -321,9 +329,10 @@ def test_calibrate_divides_delta_reads_and_calibrate_rho_the_virtual_bounce():
     virtual pixels' indirect light) and leaves the delta alone. Rejects one factor applied
     to both volumes, or a factor multiplied instead of divided."""
     scene = make(box_scene(w=40, h=30))
-    a = run(scene, calibrate=1.0, calibrate_rho=1.0)
-    b = run(scene, calibrate=2.0, calibrate_rho=1.0)
-    c = run(scene, calibrate=1.0, calibrate_rho=4.0)
+    # probe off: with the bounce probe the objects' indirect light is the probe's, no V_ρ
+    a = run(scene, calibrate=1.0, calibrate_rho=1.0, probe=False, **FRANKE)
+    b = run(scene, calibrate=2.0, calibrate_rho=1.0, probe=False, **FRANKE)
+    c = run(scene, calibrate=1.0, calibrate_rho=4.0, probe=False, **FRANKE)
     virt = a.mask > 0.5
     assert np.abs(a.delta).max() > 1e-3
     assert np.allclose(b.delta, 0.5 * a.delta, rtol=1e-5, atol=1e-7)

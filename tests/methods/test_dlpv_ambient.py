@@ -66,6 +66,7 @@ def reference():
 def _ring_mean(reference, method: str, **opts) -> np.ndarray:
     """Per channel: the method's mean change (its ``delta`` layer) on the ring."""
     scene, ring, _ = reference
+    opts = {"real_albedo": "proxy", **opts}  # the ring's albedo is the proxy's, a constant
     return get_method(method)(scene, RenderSettings(options=opts)).delta[ring].mean(axis=0)
 
 

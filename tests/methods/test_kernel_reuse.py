@@ -18,6 +18,13 @@ from arlight.scene.load import load_scene
 from arlight.scene.model import FrameView
 from tests.kernels import traced_kernels
 
+MIN_OPS = 30
+"""Kernels counted: 30 operations or more. Below are Dr.Jit's own conversions of a
+``Color3f`` to NumPy (14–23 operations), whose code holds the array's width, which the
+footprint changes with the pose. 100, the default, missed the per-pose exact-sum scale and
+cone offsets (issue #32) and nearfield's strided ray columns (31 operations, an alignment per
+frame)."""
+
 
 @pytest.fixture(scope="module")
 def demo():
@@ -30,7 +37,8 @@ def test_moving_frames_reuse_the_compiled_kernels(demo, name):
     prepared = {}
     # prepare's kernels count as seen: a pose that casts again a proxy map prepare cast
     # (dvct's directional RSMs, only when their snapped sphere moves) reuses its kernel
-    seen = traced_kernels(lambda: prepared.setdefault("state", method.prepare(demo.world)))
+    seen = traced_kernels(lambda: prepared.setdefault("state", method.prepare(demo.world)),
+                          min_ops=MIN_OPS)
     state = prepared["state"]
     view = demo.view
     obj = next(s.name for s in demo.world.shapes if s.is_virtual)
@@ -43,7 +51,7 @@ def test_moving_frames_reuse_the_compiled_kernels(demo, name):
                           frame=view.frame, depth=view.depth,
                           object_transforms={obj: t} if k else {})
         kernels = traced_kernels(lambda f=frame, k=k: method.render(
-            state, f, RenderSettings(spp=1, seed=k)))
+            state, f, RenderSettings(spp=1, seed=k)), min_ops=MIN_OPS)
         if k >= 2:  # frame 1 is the first moved one (its pose path); then nothing is new
             assert kernels <= seen, f"{len(kernels - seen)} kernels new in moving frame {k}"
         seen |= kernels
@@ -79,7 +87,7 @@ def test_relit_frames_reuse_the_compiled_kernels(demo, name):
         def frame(k=k):
             method.relight(state, _lamp_moved(demo.world.lights, k), settings)
             method.render(state, demo.view, settings)
-        kernels = traced_kernels(frame)
+        kernels = traced_kernels(frame, min_ops=MIN_OPS)
         if k >= 3:
             assert kernels <= seen, f"{len(kernels - seen)} kernels new in relit frame {k}"
         seen |= kernels
@@ -100,7 +108,7 @@ def test_nearfield_turning_stretching_object_reuses_the_kernels(demo):
         t[0, 3] = 0.01 * k
         frame = dataclasses.replace(demo.view, object_transforms={"bunny": t})
         kernels = traced_kernels(lambda f=frame, k=k: method.render(
-            state, f, RenderSettings(spp=1, seed=k)))
+            state, f, RenderSettings(spp=1, seed=k)), min_ops=MIN_OPS)
         if k >= 3:
             assert kernels <= seen, f"{len(kernels - seen)} kernels new in moving frame {k}"
         seen |= kernels

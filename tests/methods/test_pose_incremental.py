@@ -219,6 +219,29 @@ def test_two_virtual_shapes_pose_like_a_fresh_preparation(demo, method):
     assert _equal(m.render(state, demo.view, s), rest)
 
 
+@pytest.mark.parametrize("method", ["ibl"])
+def test_a_world_space_field_is_sampled_again_only_when_a_virtual_shape_moves(demo, method):
+    """With two virtual shapes the occlusion field is in world space: a pose that leaves
+    the virtual shapes where they are keeps the very field (sampling it again took about
+    1 s on the first frame of a fresh state); one that moves the bunny samples a new field.
+    Rejects a pose that samples the field again whatever moved, and one that keeps it
+    when a virtual shape moved. (prt shares ``pose_field``; its pose prepares again when a
+    virtual primitive, the box here, is in the world.)"""
+    import importlib
+
+    shapes = [replace(s, role="virtual") if s.name == "red_box" else s
+              for s in demo.world.shapes]
+    world = replace(demo.world, shapes=shapes)
+    m = get_method(method)
+    s = RenderSettings(spp=1, options=SMALL[method])
+    data = m.prepare(world, s).data
+    assert data.field is not None and data.field.frame is None
+    pose = importlib.import_module(f"arlight.methods.{method}").pose
+    options = m.options(s)
+    assert pose(data, world, {}, options).field is data.field
+    assert pose(data, world, {"bunny": MOVES[0]}, options).field is not data.field
+
+
 def test_nearfield_moves_skewed_and_primitive_objects_in_place(demo, tmp_path):
     """nearfield traces its virtual objects in object space (``backend.object_space``):
     a pose with non-uniform scale of the bunny and a move of a virtual box (a primitive)

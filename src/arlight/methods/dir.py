@@ -19,9 +19,14 @@ Instant radiosity (Keller 1997) run twice per frame from the same reflective sha
 * every G-buffer pixel gathers ``L = ρ/π Σ_v Φ_v/π · G_b(x, v) · V(x, v)`` (Franke Eq. 2.43)
   with the clamped geometry term ``G_b = min(<n_x,ω>+ <n_v,−ω>+ / d², 1/d_c²)`` (Eq. 2.45)
   and ray-traced visibility ``V``, in the mixed scene for ``R_ρ``'s VPLs and in the real
-  scene for ``R_µ``'s; direct light from the reduced lights with shadow rays in both;
+  scene for ``R_µ``'s; direct light from the reduced lights with shadow rays in both (on
+  real pixels the real-scene ray only where the mixed one is blocked, and several rays over
+  an extended light's region or patch: ``shadow_samples``,
+  :func:`~arlight.realtime.shading.direct_change`);
 * virtual pixels show the mixed solution (plus SH ambient); real pixels get
-  ``delta = mixed − real`` (Knecht's differential: only the change is added to the frame).
+  ``delta = mixed − real`` (Knecht's differential: only the change is added to the frame),
+  with the photograph's albedo ``ρ̂ = clip(π B / E_r, 0, 1)`` (``real_albedo = photo``,
+  :mod:`arlight.realtime.real_lane`; ``E_r`` with ``R_µ``'s gathered indirect light).
 
 Cost control: with ``interleave = k`` (Segovia et al. 2006's interleaved sampling, our
 choice in place of Knecht's imperfect shadow maps) pixel ``(x, y)`` gathers only the VPLs
@@ -55,7 +60,12 @@ from arlight.methods.base import (
     RenderSettings,
     place_views,
 )
-from arlight.methods.fragments import GBUFFER_OPTIONS, REDUCTION_OPTIONS
+from arlight.methods.fragments import (
+    AA_GBUFFER_SPP,
+    REDUCTION_OPTIONS,
+    drag_gbuffer_spp,
+    gbuffer_options,
+)
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.ambient import (
     AMBIENT_OPTIONS,
@@ -64,10 +74,18 @@ from arlight.realtime.ambient import (
     pose_ambient,
     prepare_ambient,
     real_ambient_loss,
-    virtual_ambient,
 )
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
+from arlight.realtime.ibl_shading import probe_drag_options
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
+from arlight.realtime.object_shading import (
+    OBJECT_OPTIONS,
+    ObjectLight,
+    pose_object_light,
+    prepare_object_light,
+    shade_objects,
+)
+from arlight.realtime.real_lane import REAL_LANE_OPTIONS, real_albedo
 from arlight.realtime.rsm import (
     RSM,
     Aim,
@@ -80,7 +98,7 @@ from arlight.realtime.rsm import (
 )
 from arlight.realtime.shading import (
     SHADOW_EPS,
-    direct_irradiance,
+    direct_change,
     on_active,
     scene_bounds,
     virtual_bounds,
@@ -109,8 +127,10 @@ OPTIONS: dict[str, Field] = {
     "interleave": Field("int", 4, "interleaved sampling block k (k² VPL subsets; 1: every "
                         "VPL at every pixel)", "pixels", min=1, max=16),
     **AMBIENT_OPTIONS,
+    **OBJECT_OPTIONS,
+    **REAL_LANE_OPTIONS,
     **REDUCTION_OPTIONS,
-    **GBUFFER_OPTIONS,
+    **gbuffer_options(AA_GBUFFER_SPP),
 }
 
 
@@ -125,13 +145,16 @@ def _check(opts: Options) -> None:
 
 def drag_options(options: Options, factor: int) -> dict[str, int]:
     """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32):
-    ``vpls`` and ``rsm_size`` divided by ``factor`` (at least 64 VPLs, 16 texels), so the
+    ``vpls`` and ``rsm_size`` divided by ``factor`` (at least 64 VPLs, 16 texels) and one
+    G-buffer sample (:func:`~arlight.methods.fragments.drag_gbuffer_spp`), so the
     VPLs' RSMs and their selection shrink with the image as the gathering does; the
     ambient occlusion field's rays and shells too
-    (:func:`~arlight.realtime.ambient.ambient_drag_options`)."""
+    (:func:`~arlight.realtime.ambient.ambient_drag_options`); the objects' bounce probe
+    is not traced again per pose (:func:`~arlight.realtime.ibl_shading.probe_drag_options`)."""
     return {"vpls": max(64, options.vpls // factor),
             "rsm_size": max(16, options.rsm_size // factor),
-            **ambient_drag_options(options, factor)}
+            **drag_gbuffer_spp(options, factor),
+            **ambient_drag_options(options, factor), **probe_drag_options(options, factor)}
 
 
 SPEC = MethodSpec(
@@ -157,6 +180,7 @@ class DIRData:
     lights: LightSet
     bounds: tuple[np.ndarray, float]
     ambient: AmbientOcclusion = dataclasses.field(default_factory=AmbientOcclusion.none)
+    objects: ObjectLight | None = None
 
 
 OBJECT_PAD = 1.5
@@ -318,10 +342,12 @@ def _contribution(x: mi.Point3f, nx: mi.Vector3f, vp: mi.Point3f, vn: mi.Vector3
     return phi * (g * (1.0 / math.pi)), ray, g > 0.0
 
 
-def gather(data: DIRData, gb: GBuffer, vpls: VPLs, k: int, bound: float
-           ) -> tuple[mi.Color3f, mi.Color3f, int]:
+def gather(data: DIRData, gb: GBuffer, vpls: VPLs, k: int, bound: float,
+           objects: bool = True) -> tuple[mi.Color3f, mi.Color3f, int]:
     """Per-lane indirect irradiance ``(mixed, delta)`` from the VPLs (interleaved by ``k``)
-    and the number of shadow rays traced."""
+    and the number of shadow rays traced. ``objects`` False: the virtual lanes gather
+    nothing (their indirect light comes from the bounce probe,
+    :mod:`arlight.realtime.object_shading`; ``mixed`` is then 0 there)."""
     virt = gb.virtual
     real = gb.valid & ~virt
     x, nx = gb.position, gb.normal
@@ -342,6 +368,8 @@ def gather(data: DIRData, gb: GBuffer, vpls: VPLs, k: int, bound: float
         p, n, phi, ok = _vpl(vpls.rho, idx, have)
         c_r, ray_r, front_r = _contribution(x, nx, p, n, phi, bound)
         act_r = have & ok & front_r
+        if not objects:  # the object lanes take their indirect light from the probe
+            act_r &= ~virt
         vis_r = act_r & ~data.views.mixed.scene.ray_test(ray_r, act_r)
         rays += int(dr.count(act_r)[0]) if dr.width(act_r) else 0
         e_r = dr.select(vis_r, c_r, mi.Color3f(0.0))
@@ -423,7 +451,8 @@ class DIRMethod(BaseMethod):
         lights = reduce_lights(world, env_lights=options.env_lights,
                                area_grid=options.area_grid)
         return DIRData(world, views, lights, scene_bounds(views.mixed),
-                       prepare_ambient(world, views.mixed, options))
+                       prepare_ambient(world, views.mixed, options),
+                       prepare_object_light(world, views, options))
 
     def move(self, data: DIRData, world: World, transforms: dict[str, np.ndarray],
              options: Options) -> DIRData | None:
@@ -436,8 +465,10 @@ class DIRMethod(BaseMethod):
         if posed is None:
             return None
         amb = pose_ambient(data.ambient, before, posed, data.views.mixed, options)
-        return None if amb is None else DIRData(posed, data.views, data.lights,
-                                                scene_bounds(data.views.mixed), amb)
+        if amb is None:
+            return None
+        return DIRData(posed, data.views, data.lights, scene_bounds(data.views.mixed), amb,
+                       pose_object_light(data.objects, posed, data.views, options))
 
     def relit(self, data: DIRData, world: World, options: Options) -> DIRData | None:
         """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
@@ -451,7 +482,8 @@ class DIRMethod(BaseMethod):
             return None
         return replace(data, world=world, bounds=scene_bounds(data.views.mixed),
                        lights=reduce_lights(world, env_lights=options.env_lights,
-                                            area_grid=options.area_grid))
+                                            area_grid=options.area_grid),
+                       objects=prepare_object_light(world, data.views, options))
 
     def render_view(self, data: DIRData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:
@@ -461,11 +493,14 @@ class DIRMethod(BaseMethod):
         virt = gb.virtual
         real = gb.valid & ~virt
         with timer.stage("direct"):
-            e_dm = direct_irradiance(data.views.mixed, data.lights, gb.position, gb.normal,
-                                     gb.valid)
-            e_dr = direct_irradiance(data.views.real, data.lights, gb.position, gb.normal,
-                                     real)
-            dr.eval(e_dm, e_dr)
+            # the real lanes' direct change: shadow rays in the mixed scene, in the real one
+            # where those are blocked (soft for extended lights with shadow_samples > 1);
+            # none without virtual objects (the two views' BVHs may round a grazing ray apart)
+            e_dd = on_active(lambda p, n: direct_change(data.views, data.lights, p, n,
+                                                        mi.Bool(True), options.shadow_samples),
+                             gb.position, gb.normal, real) if data.world.has_virtual \
+                else mi.Color3f(0.0)
+            dr.eval(e_dd)
         rays = 0
         with timer.stage("rsm"):
             vpls = frame_vpls(data, gb, options, settings.seed) \
@@ -474,23 +509,32 @@ class DIRMethod(BaseMethod):
             if vpls is not None:
                 bound = 1.0 / options.clamp_distance ** 2 if options.clamp_distance > 0 \
                     else float("inf")
-                e_im, e_id, rays = gather(data, gb, vpls, options.interleave, bound)
+                e_im, e_id, rays = gather(data, gb, vpls, options.interleave, bound,
+                                          objects=not data.objects.probe)
         with timer.stage("filter"):
             if vpls is not None:
                 e_im, e_id = interleave_filter(gb, [e_im, e_id], options.interleave)
             else:
                 e_im = e_id = mi.Color3f(0.0)
         with timer.stage("assemble"):
-            rho = gb.albedo * (1.0 / math.pi)
-            # the SH ambient remainder occluded by the virtual objects (issue #33,
-            # arlight.realtime.ambient): AO on virtual lanes, the blocked part on real ones
-            e_amb = on_active(lambda p, n: virtual_ambient(data.ambient, data.lights, p, n,
-                                                           options.ao_rays, settings.seed),
-                              gb.position, gb.normal, virt)
+            # the SH ambient remainder's part blocked by the virtual objects on real lanes
+            # (issue #33, arlight.realtime.ambient)
             e_loss = real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal,
                                        real)
-            delta = dr.select(real, rho * (e_dm - e_dr + e_id - e_loss), mi.Color3f(0.0))
-            mixed = dr.select(virt, rho * (e_dm + e_im + e_amb), mi.Color3f(0.0))
+            # ρ̂ from the photograph under E_r with the real solution's indirect light: on
+            # real lanes e_im − e_id is R_µ's gather (arlight.realtime.real_lane)
+            rho_real = real_albedo(options.real_albedo, data.views, data.lights, view.frame,
+                                   gb, real, e_im - e_id) * (1.0 / math.pi)
+            delta = dr.select(real, rho_real * (e_dd + e_id - e_loss),
+                              mi.Color3f(0.0))
+            # the objects' own shading (arlight.realtime.object_shading), with the VPLs'
+            # indirect irradiance only without the bounce probe
+            e_ind = e_im
+            mixed = shade_objects(data.objects, data.world, data.views, data.lights,
+                                  data.ambient, gb,
+                                  None if vpls is None or data.objects.probe else
+                                  lambda idx, p, n: dr.gather(mi.Color3f, e_ind, idx),
+                                  options.ao_rays, settings.seed)
             layers = assemble(gb, view.frame, mixed, delta,
                               {"vpls": float(vpls.count if vpls else 0),
                                "vpls_on_object": float(vpls.on_object if vpls else 0),

@@ -23,6 +23,14 @@ Per frame and per reduced light (:mod:`arlight.realtime.light_reduction`):
    the volume evaluated with the inverse normal (cosine-convolved, :func:`~arlight.realtime.
    sh_volume.query_irradiance`) at the point moved half a cell along its normal.
 
+Issue #33 defaults (chosen on 12 training worlds): ``direct = rays`` — the reduced lights'
+direct change on real pixels from shadow rays in the mixed and the real scene
+(:func:`~arlight.realtime.shading.direct_change`, soft for extended lights:
+``shadow_samples``) in place of step 3's lobes (``direct = volume``, Franke's blurred
+shadow); ``lost_bounce`` off — ``V_Δ`` without the ``−R_µ`` VPLs of step 2 (an LPV reads a
+real surface's own VPLs on itself); ``real_albedo = photo`` (the change as a ratio of the
+photograph, :mod:`arlight.realtime.real_lane`).
+
 The volume is a world-axis-aligned cube around the virtual objects, ``volume_scale`` (2) ×
 their largest bounding-box edge, on a fixed world lattice (``fixed_lattice``,
 :func:`~arlight.methods.fragments.volume_grid`). Injection is normalised by
@@ -52,10 +60,12 @@ from arlight.methods.base import (
     RenderSettings,
 )
 from arlight.methods.fragments import (
-    GBUFFER_OPTIONS,
+    AA_GBUFFER_SPP,
     LATTICE_OPTIONS,
     REDUCTION_OPTIONS,
+    drag_gbuffer_spp,
     follow_volume,
+    gbuffer_options,
     volume_grid,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -66,10 +76,18 @@ from arlight.realtime.ambient import (
     pose_ambient,
     prepare_ambient,
     real_ambient_loss,
-    virtual_ambient,
 )
 from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer
+from arlight.realtime.ibl_shading import probe_drag_options
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, reduce_lights
+from arlight.realtime.object_shading import (
+    OBJECT_OPTIONS,
+    ObjectLight,
+    pose_object_light,
+    prepare_object_light,
+    shade_objects,
+)
+from arlight.realtime.real_lane import REAL_LANE_OPTIONS, real_albedo
 from arlight.realtime.rsm import (
     RealMaps,
     RSMPair,
@@ -92,7 +110,7 @@ from arlight.realtime.sh_volume import (
     transmittance_dr,
 )
 from arlight.realtime.shading import (
-    direct_irradiance,
+    direct_change,
     on_active,
     virtual_bounds,
 )
@@ -105,12 +123,16 @@ CALIBRATE = 1.0
 normalisation (:func:`injection_scales`; issue #33: 1, none)."""
 CALIBRATE_RHO = 1.0
 """Default ``calibrate_rho``, an extra divisor of ``V_ρ`` reads (1: none)."""
+DIRECT_MODES = ("volume", "rays", "none")
+"""Values of the ``direct`` option: where the direct change on real surfaces comes from."""
 
 OPTIONS: dict[str, Field] = {
     "volume_size": Field("int", 32, "cells per edge of V_Δ and V_ρ (Franke: 32³)", "cells",
                          min=2, max=256),
     "steps": Field("int", 32, "propagation iterations (Franke: 32)", "", min=0, max=1024),
-    "rsm_size": Field("int", 512, "RSM resolution per light, texels per side (Franke: 512²)",
+    "rsm_size": Field("int", 256, "RSM resolution per light, texels per side (Franke: 512²; "
+                      "256 since issue #33: V_Δ carries the objects' bounce alone, and 512 "
+                      "changed no training world by more than 0.02 dB at 3× the maps' cost)",
                       "texels", min=1, max=16384),
     "dampening": Field("bool", True, "directional-derivative dampening of shadow bleeding "
                        "(Franke §4.4)"),
@@ -119,8 +141,14 @@ OPTIONS: dict[str, Field] = {
                            "propagation as before issue #33 (their bounce then came out at "
                            "0.26× a path-traced one; off: they propagate undamped in a volume "
                            "of their own; docs/methods/dlpv.md)"),
-    "direct_inject": Field("bool", True, "inject direct light/antiradiance into V_Δ (T_Δ¹, "
-                           "§4.3.2); off: indirect change only"),
+    "direct": Field("choice", "rays", "the reduced lights' direct change on real surfaces "
+                    "(their shadows): `volume`: direct light/antiradiance lobes injected into "
+                    "V_Δ (T_Δ¹, Franke §4.3.2: a blurred shadow); `rays`: shadow rays in the "
+                    "mixed and the real scene per real pixel (as dir; V_Δ keeps the indirect "
+                    "change); `none`: indirect change only", choices=DIRECT_MODES),
+    "lost_bounce": Field("bool", False, "inject the −R_µ VPLs into V_Δ: the real surfaces' "
+                         "bounce that the virtual objects take away (§4.3.1); off: V_Δ "
+                         "holds the objects' own bounce (+R_ρ) and the direct lobes only"),
     "calibrate": Field("float", CALIBRATE, "extra divisor of V_Δ reads on top of the derived "
                        "normalisation (direct lobes / the plane response, VPLs / the point "
                        "response; docs/methods/dlpv.md); 1: none", "", min=0.0, max=100.0,
@@ -135,21 +163,28 @@ OPTIONS: dict[str, Field] = {
     "volume_scale": Field("float", 2.0, "volume edge / largest edge of the virtual objects' "
                           "bounding box (Franke: 2)", "", min=1.0, max=100.0),
     **AMBIENT_OPTIONS,
+    **OBJECT_OPTIONS,
+    **REAL_LANE_OPTIONS,
     **LATTICE_OPTIONS,
     **REDUCTION_OPTIONS,
-    **GBUFFER_OPTIONS,
+    **gbuffer_options(AA_GBUFFER_SPP),
 }
 
 
 def drag_options(options: Options, factor: int) -> dict[str, int]:
     """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32): the
     RSM side, the volume's cells per edge and the propagation steps divided by ``factor``
-    (at least 64 texels, 16 cells, 8 steps): RSMs, injection and propagation do not shrink
-    with the image otherwise; the ambient occlusion field's rays and shells too
-    (:func:`~arlight.realtime.ambient.ambient_drag_options`)."""
+    (at least 64 texels, 16 cells, 8 steps), one G-buffer sample
+    (:func:`~arlight.methods.fragments.drag_gbuffer_spp`): RSMs, injection and
+    propagation do not shrink with the image otherwise; the ambient occlusion field's rays
+    and shells too (:func:`~arlight.realtime.ambient.ambient_drag_options`); the objects'
+    bounce probe is not traced again per pose
+    (:func:`~arlight.realtime.ibl_shading.probe_drag_options`)."""
     return {"rsm_size": max(64, options.rsm_size // factor),
+            **drag_gbuffer_spp(options, factor),
             "volume_size": max(16, options.volume_size // factor),
-            "steps": max(8, options.steps // factor), **ambient_drag_options(options, factor)}
+            "steps": max(8, options.steps // factor), **ambient_drag_options(options, factor),
+            **probe_drag_options(options, factor)}
 
 
 SPEC = MethodSpec(
@@ -184,6 +219,10 @@ class DLPVData:
     transmittance: list | None = None
     ambient: AmbientOcclusion = field(default_factory=AmbientOcclusion.none)
     ao_rays: int = 0
+    direct: str = "volume"
+    real_albedo: str = "proxy"
+    shadow_samples: int = 1
+    objects: ObjectLight | None = None
 
 
 @dataclass
@@ -256,7 +295,9 @@ def prepare(world: World, options: Options) -> DLPVData:
     real, trans = geometry_volume(world, grid, None) if options.geometry_volume else (None,
                                                                                      None)
     return DLPVData(world, views, lights, grid, k_delta, maps, k_rho, injection_scales(options),
-                    real, trans, prepare_ambient(world, views.mixed, options), options.ao_rays)
+                    real, trans, prepare_ambient(world, views.mixed, options), options.ao_rays,
+                    options.direct, options.real_albedo, options.shadow_samples,
+                    prepare_object_light(world, views, options))
 
 
 def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -276,25 +317,27 @@ def pose(data: DLPVData, world: World, transforms: dict[str, np.ndarray], option
         return None
     if grid is None or data.real_maps is None:
         return replace(data, world=posed, ambient=amb)
+    objects = pose_object_light(data.objects, posed, data.views, options)
     real, trans = None, None
     if data.real_blocking is not None:
         keep = data.real_blocking if same_grid(data.grid, grid) else None
         real, trans = geometry_volume(posed, grid, keep)
-    return replace(data, world=posed, grid=grid, ambient=amb,
+    return replace(data, world=posed, grid=grid, ambient=amb, objects=objects,
                    real_maps=moved_maps(data.real_maps, data.views, grid, bounds),
                    real_blocking=real, transmittance=trans)
 
 
 def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
                  indirect: bool = True, scales: tuple[float, float] = (1.0, 1.0),
-                 bounce: SHVolume | None = None) -> list[mi.Bool]:
+                 bounce: SHVolume | None = None, lost: bool = True) -> list[mi.Bool]:
     """Split injection into ``V_Δ`` (Eq. 13 and §4.3.2): ``+R_ρ``, ``−R_µ``. Texels that see
     the same surface in both maps cancel and are skipped (§4.3.1: "VPLs visible in both RSMs
     are eliminated"): only the texels whose mixed-scene hit is virtual are injected. Returns
     the injected-lane masks of the indirect lobes (see :func:`injected_count`). ``scales``:
     the flux factors of direct lobes and VPLs (:func:`injection_scales`); ``bounce`` (default
     ``vol``): the volume that receives the ``+R_ρ`` VPLs, the virtual objects' own bounce
-    (:func:`delta_dampening`)."""
+    (:func:`delta_dampening`); ``lost`` False: the indirect ``−R_µ`` VPLs (the real
+    surfaces' bounce the objects take away) are left out."""
     half = 0.5 * vol.grid.cell
     k_dir, k_ind = float(scales[0]), float(scales[1])
     masks = []
@@ -302,7 +345,7 @@ def inject_delta(vol: SHVolume, pairs: list[RSMPair], direct: bool,
         if dr.width(pair.changed) == 0:  # this light does not see the virtual objects
             continue
         for r, sign in ((pair.rho_changed(), 1.0), (pair.mu_changed, -1.0)):
-            if indirect:
+            if indirect and (lost or sign > 0):
                 target = bounce if bounce is not None and sign > 0 else vol
                 masks.append(inject(target, r.position, r.normal, r.flux_out * (sign * k_ind),
                                     r.valid, offset=r.normal * half))
@@ -341,21 +384,33 @@ def build_volumes(data: DLPVData, options: Options, timer: StageTimer | None = N
     with timer.stage("rsm"):
         pairs = rsm_pair(data)
     k = data.inject_scale
-    with timer.stage("inject_rho"):
-        v_rho = SHVolume.zeros(grid)
-        inject_regular(v_rho, pairs, 0, scales=k)
+    # V_ρ lights the virtual objects only; with the bounce probe their real-surface bounce
+    # comes from the probe (arlight.realtime.object_shading), and V_ρ is not built
+    need_rho = data.objects is None or not data.objects.probe
+    v_rho = None
+    if need_rho:
+        with timer.stage("inject_rho"):
+            v_rho = SHVolume.zeros(grid)
+            inject_regular(v_rho, pairs, 0, scales=k)
     damp_bounce, damp_rest = delta_dampening(options)
+    # without the −R_µ VPLs and the direct lobes V_Δ holds the objects' bounce alone: one
+    # volume, propagated with the bounce's dampening (the empty rest is not propagated)
+    bounce_only = not options.lost_bounce and options.direct != "volume"
+    if bounce_only:
+        damp_rest = damp_bounce
     split = damp_bounce != damp_rest
     with timer.stage("inject_delta_indirect"):
         v_delta = SHVolume.zeros(grid)
         v_bounce = SHVolume.zeros(grid) if split else None
-        injected = inject_delta(v_delta, pairs, direct=False, scales=k, bounce=v_bounce)
-    if options.direct_inject:
+        injected = inject_delta(v_delta, pairs, direct=False, scales=k, bounce=v_bounce,
+                                lost=options.lost_bounce)
+    if options.direct == "volume":
         with timer.stage("inject_delta_direct"):
             inject_delta(v_delta, pairs, direct=True, indirect=False, scales=k)
     trans = data.transmittance
-    with timer.stage("propagate_rho"):
-        v_rho = propagate(v_rho, options.steps, options.dampening, transmittance=trans)
+    if v_rho is not None:
+        with timer.stage("propagate_rho"):
+            v_rho = propagate(v_rho, options.steps, options.dampening, transmittance=trans)
     with timer.stage("propagate_delta"):
         v_delta = propagate(v_delta, options.steps, damp_rest, transmittance=trans)
         if v_bounce is not None:
@@ -379,7 +434,8 @@ def delta_dampening(options: Options) -> tuple[bool, bool]:
     return bool(options.dampening and options.dampen_bounce), bool(options.dampening)
 
 
-def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Color3f]:
+def shade(data: DLPVData, gb: GBuffer, vols: Volumes, frame: np.ndarray | None = None
+          ) -> tuple[mi.Color3f, mi.Color3f]:
     """Per-lane ``(virtual radiance, delta radiance)`` (Alg. 1 / Eqs. 5.14–5.16), with the
     SH ambient remainder occluded by the virtual objects (issue #33,
     :mod:`arlight.realtime.ambient`): weighted by their ambient occlusion on virtual lanes
@@ -389,25 +445,30 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes) -> tuple[mi.Color3f, mi.Co
     # opaque: one compiled kernel for every scale (benchmarks/tune_realtime.py sweeps them)
     k = dr.opaque(mi.Float, float(data.read_scale))
     k_rho = dr.opaque(mi.Float, float(data.rho_scale))
-    half = 0.5 * vols.rho.grid.cell if vols.rho is not None else 0.0
+    half = 0.5 * data.grid.cell if data.grid is not None else 0.0
 
-    def virtual_irradiance(p: mi.Point3f, n: mi.Vector3f) -> mi.Color3f:
-        """Direct (shadow rays), occluded ambient and ``V_ρ``'s indirect irradiance on
-        virtual lanes."""
-        e = direct_irradiance(data.views.mixed, data.lights, p, n, mi.Bool(True))
-        e += virtual_ambient(data.ambient, data.lights, p, n, data.ao_rays)
-        if vols.rho is None:
-            return e
-        return e + query_irradiance(vols.rho, p + n * half, n) * k_rho  # [KD10]: half a cell
+    def v_rho(idx: mi.UInt32, p: mi.Point3f, n: mi.Vector3f) -> mi.Color3f:
+        """``V_ρ``'s indirect irradiance on the virtual lanes ([KD10]: half a cell out)."""
+        return query_irradiance(vols.rho, p + n * half, n) * k_rho
 
-    e_virtual = on_active(virtual_irradiance, gb.position, gb.normal, virt)
+    # the objects' own shading (arlight.realtime.object_shading; V_ρ is None with the probe)
+    mixed = shade_objects(data.objects, data.world, data.views, data.lights, data.ambient,
+                          gb, None if vols.rho is None else v_rho, data.ao_rays)
     e_delta = -real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal, real)
+    if data.direct == "rays":
+        e_delta += on_active(lambda p, n: direct_change(data.views, data.lights, p, n,
+                                                        mi.Bool(True), data.shadow_samples),
+                             gb.position, gb.normal, real)
     if vols.delta is not None:
         q = gb.position + gb.normal * half
         e_delta += k * query_irradiance_compact(vols.delta, q, gb.normal, real)
     rho = gb.albedo * (1.0 / np.pi)
-    mixed = dr.select(virt, rho * e_virtual, mi.Color3f(0.0))
-    delta = dr.select(real, rho * e_delta, mi.Color3f(0.0))
+    # the photograph's albedo where the change is not zero (elsewhere it multiplies zero:
+    # no shadow rays for E_r outside the volume and the shadows)
+    rho_real = rho if frame is None else real_albedo(
+        data.real_albedo, data.views, data.lights, frame, gb,
+        real & dr.any(e_delta != 0.0)) * (1.0 / np.pi)
+    delta = dr.select(real, rho_real * e_delta, mi.Color3f(0.0))
     dr.eval(mixed, delta)
     return mixed, delta
 
@@ -420,7 +481,7 @@ def compose(data: DLPVData, gb: GBuffer, vols: Volumes, view: FrameView,
     calibration candidate)."""
     timer = timer or StageTimer()
     with timer.stage("shade"):
-        mixed, delta = shade(data, gb, vols)
+        mixed, delta = shade(data, gb, vols, view.frame)
     with timer.stage("assemble"):
         stats = {"lights": float(len(data.lights.lights)),
                  "vpls_delta": float(vols.vpls_delta),
@@ -454,7 +515,9 @@ class DLPVMethod(BaseMethod):
         lights = reduce_lights(world, env_lights=options.env_lights, area_grid=options.area_grid)
         if data.real_maps is None:
             return replace(data, world=world, lights=lights)
-        return replace(data, world=world, lights=lights, real_maps=real_maps(
+        return replace(data, world=world, lights=lights,
+                       objects=prepare_object_light(world, data.views, options),
+                       real_maps=real_maps(
             data.views, lights, data.grid, options.rsm_size, data.real_maps.box))
 
     def render_view(self, data: DLPVData, view: FrameView, options: Options,

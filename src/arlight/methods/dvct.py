@@ -79,9 +79,27 @@ from arlight.methods.fragments import (
     volume_grid,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
+from arlight.realtime.ambient import virtual_albedo
 from arlight.realtime.exact_sum import scatter_sum_exact
-from arlight.realtime.gbuffer import GBuffer, assemble, render_gbuffer, resolve_scalar
-from arlight.realtime.ibl_shading import ggx_d, smith_g1
+from arlight.realtime.gbuffer import (
+    GBuffer,
+    assemble,
+    facing,
+    render_gbuffer,
+    resolve_scalar,
+    surface_albedo,
+)
+from arlight.realtime.ibl_shading import (
+    MipEnvironment,
+    SpecularTables,
+    dfg_table,
+    environment_map,
+    ggx_d,
+    prefilter_ggx,
+    smith_g1,
+    specular_split_sum,
+    specular_tables,
+)
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, ReducedLight, reduce_lights
 from arlight.realtime.photo_albedo import photo_albedo
 from arlight.realtime.rsm import RealMaps, RSMPair, moved_maps, real_maps, rsm_pair, same_grid
@@ -91,6 +109,7 @@ from arlight.realtime.shading import (
     ambient_irradiance_dr,
     direct_irradiance,
     direct_irradiance_compact,
+    split_lights,
     virtual_bounds,
 )
 from arlight.realtime.voxels import (
@@ -114,6 +133,7 @@ from arlight.realtime.voxels import (
     voxelize,
 )
 from arlight.scene.model import FrameView, World
+from arlight.sphere.sh import Y00, band_of_each_coeff, clamped_cosine_band, order_of
 from arlight.timing import StageTimer
 
 OPTIONS: dict[str, Field] = {
@@ -289,6 +309,39 @@ class Materials:
                 dr.gather(mi.Float, self.hide, idx, ok))
 
 
+ENV_SAMPLES = 64
+"""GGX importance samples per texel of the prefiltered environment (as ``ibl``'s default
+``samples``; :func:`~arlight.realtime.ibl_shading.prefilter_ggx`)."""
+
+
+@dataclass
+class DistantLight:
+    """The distant light that a virtual object's specular cone meets when it leaves the
+    volume (issue #33): ``env`` the world's environment (:func:`~arlight.realtime.
+    ibl_shading.environment_map`, every ``envmap``/``sh``/``constant`` light) prefiltered per
+    GGX roughness (:func:`~arlight.realtime.ibl_shading.prefilter_ggx`), ``dfg`` the
+    split-sum table, ``tables`` the per-shape GGX ``α``, ``F0``, ``F90``
+    (:func:`~arlight.realtime.ibl_shading.specular_tables`) and ``near`` the reduced lights
+    that are *not* part of the environment (their specular stays direct: the environment
+    already holds the directional lights extracted from it)."""
+
+    env: MipEnvironment
+    dfg: mi.Float
+    tables: SpecularTables
+    near: LightSet
+
+    @staticmethod
+    def of(world: World, lights: LightSet) -> DistantLight | None:
+        """The distant light of ``world`` (None without an environment or without a glossy
+        virtual shape)."""
+        img = environment_map(world)
+        tables = specular_tables(world)
+        if img is None or not tables.glossy:
+            return None
+        return DistantLight(prefilter_ggx(img, ENV_SAMPLES), mi.Float(dfg_table().reshape(-1)),
+                            tables, split_lights(world, lights)[1])
+
+
 @dataclass
 class DVCTData:
     """What ``prepare_world`` keeps: world, Mitsuba views, reduced lights, the volume grid
@@ -307,6 +360,7 @@ class DVCTData:
     light_size: list[float]
     real_maps: RealMaps | None = None
     real_window: LatticeVoxels | None = None
+    distant: DistantLight | None = None
 
 
 def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float]:
@@ -395,7 +449,8 @@ def prepare(world: World, options: Options) -> DVCTData:
         maps = real_maps(views, lights, grid, options.rsm_size, bounds,
                          directional_coverage(grid))
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
-                    _light_sizes(world, lights, options), maps, window)
+                    _light_sizes(world, lights, options), maps, window,
+                    DistantLight.of(world, lights))
 
 
 def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -735,6 +790,9 @@ class ConeTerms:
     x: mi.Color3f
     y: mi.Color3f
     z: mi.Float
+    t: mi.Float | None = None
+    """Virtual lanes: the specular cone's transmittance ``1 − α_all`` where it leaves the
+    volume, the share of the distant light it sees (1 without a specular cone)."""
 
 
 def cone_volumes(vols: Volumes, options: Options) -> tuple[ConeVolumes, ConeVolumes]:
@@ -755,11 +813,36 @@ def diffuse_visibility(role: int, options: Options) -> int:
     return 0 if options.virtual_self_occlusion else 1
 
 
+def ambient_fill(data: DVCTData) -> mi.Color3f:
+    """The radiance a virtual object shows where it blocks the SH ambient remainder,
+    ``ρ_v L̄`` (W sr⁻¹ m⁻²; :func:`arlight.realtime.ambient.virtual_albedo` × the
+    remainder's mean radiance ``L_00 Y_00``, Eq. 3 of :mod:`arlight.realtime.ambient`): on
+    real lanes the blocked ambient is ``L_a − ρ_v L̄`` per occluded direction, on virtual
+    lanes the self-occluded directions see ``ρ_v L̄``."""
+    fill = virtual_albedo(data.world) * np.asarray(data.lights.ambient_sh, np.float64)[0] * Y00
+    return mi.Color3f(*opaques(fill))
+
+
+def real_fill(data: DVCTData, gb: GBuffer) -> mi.Color3f:
+    """The ambient radiance of a real surface that hides the SH remainder from a virtual
+    one, ``ρ_r L̄`` (W sr⁻¹ m⁻²): ``ρ_r`` the mean G-buffer albedo of the frame's real
+    pixels (the proxy the camera sees), ``L̄ = L_00 Y_00`` the remainder's mean radiance —
+    what ``V_ρ`` lacks (the RSMs hold the reduced lights only), the real counterpart of
+    :func:`ambient_fill`."""
+    real = gb.valid & ~gb.virtual
+    count = dr.maximum(dr.sum(dr.select(real, 1.0, 0.0)), 1.0)
+    alb = dr.select(real, gb.albedo, mi.Color3f(0.0))
+    rho = mi.Color3f(*(dr.sum(alb[c]) / count for c in range(3)))
+    mean = np.asarray(data.lights.ambient_sh, np.float64)[0] * Y00
+    return rho * mi.Color3f(*opaques(mean))
+
+
 def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
                stats: dict | None = None) -> ConeTerms:
     """All cones of ``lanes`` (real lanes against ``V_Δ``, virtual against ``V_ρ``)."""
     n = lanes.width
     x, y, z = dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n)
+    t = dr.full(mi.Float, 1.0, n)
     cv_delta, cv_rho = cone_volumes(vols, options)
     count = 0
     knobs = {"shells": float(options.shells), "level_bias": float(options.level_bias)}
@@ -775,7 +858,10 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
             e, ao, added = diffuse_cones(cv, sub, options.diffuse_aperture_deg,
                                          diffuse_visibility(role, options), **knobs)
             if role == ROLE_REAL:
-                amb = ambient_irradiance_dr(data.lights, sub.normal) * (1.0 / math.pi)
+                # the ambient the objects block, less their own reflection of it
+                # (realtime.ambient's Eq. 3: blocked radiance L_a − ρ_v L̄)
+                amb = dr.maximum(ambient_irradiance_dr(data.lights, sub.normal)
+                                 * (1.0 / math.pi) - ambient_fill(data), 0.0)
                 xs = e - amb * (math.pi * added)
             else:
                 xs, zs = e, added
@@ -794,14 +880,16 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
                 dr.scatter(ys, res.radiance, sidx)
                 if role == ROLE_REAL:
                     dr.scatter(zs, res.added, sidx)
+                else:
+                    dr.scatter(t, 1.0 - res.a_all, dr.gather(mi.UInt32, idx, sidx))
         dr.eval(xs, ys, zs)
         dr.scatter(x, xs, idx)
         dr.scatter(y, ys, idx)
         dr.scatter(z, zs, idx)
-    dr.eval(x, y, z)
+    dr.eval(x, y, z, t)
     if stats is not None:
         stats["cone_lanes"] = float(count)
-    return ConeTerms(x, y, z)
+    return ConeTerms(x, y, z, t)
 
 
 def cone_error(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
@@ -855,6 +943,7 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
     ty, tx = fy - y0, fx - x0
     p, n, role = gb.position, gb.normal, gb.role
     acc_x, acc_y, acc_z, acc_w = mi.Color3f(0.0), mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0)
+    acc_t = mi.Float(0.0)
     inv = 1.0 / cell
     for dy in (0, 1):
         for dx in (0, 1):
@@ -874,10 +963,13 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
             acc_x += dr.gather(mi.Color3f, terms.x, i) * w
             acc_y += dr.gather(mi.Color3f, terms.y, i) * w
             acc_z += dr.gather(mi.Float, terms.z, i) * w
+            if terms.t is not None:
+                acc_t += dr.gather(mi.Float, terms.t, i) * w
             acc_w += w
     norm = dr.select(acc_w > 0.0, dr.rcp(dr.maximum(acc_w, 1e-30)), 0.0)
-    out = ConeTerms(acc_x * norm, acc_y * norm, acc_z * norm)
-    dr.eval(out.x, out.y, out.z)
+    out = ConeTerms(acc_x * norm, acc_y * norm, acc_z * norm,
+                    None if terms.t is None else dr.select(acc_w > 0.0, acc_t * norm, 1.0))
+    dr.eval(out.x, out.y, out.z, out.t)
     return out
 
 
@@ -901,8 +993,119 @@ def ggx_specular(n: mi.Vector3f, wo: mi.Vector3f, wi: mi.Vector3f, f0: mi.Color3
     return f * (d * smith_g1(a, cos_i) * smith_g1(a, cos_o) / (4.0 * cos_i * cos_o))
 
 
+def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
+                    active: mi.Bool) -> mi.Color3f:
+    """What a virtual object's specular cone sees where it leaves the volume (issue #33;
+    the cone itself holds only ``V_ρ``, the RSMs' first bounce inside the volume), as
+    specular radiance (W sr⁻¹ m⁻², the BRDF applied) on the ``active`` lanes. One ray along
+    the mirror direction into the real proxy decides: a miss sees the distant light, the
+    split-sum ``L̃(d, α)(F0 A + F90 B)`` of the prefiltered environment
+    (:func:`~arlight.realtime.ibl_shading.specular_split_sum`, [CNS+11]'s environment
+    lookup for the transmittance left at the end of a cone); a hit sees a real surface
+    whose radiance the photograph holds where the camera sees it (``view``'s frame at the
+    hit's projection, as onepass reprojects, Kán §5.2), times ``F0`` as the cone's ``C_ρ``;
+    where the camera does not see it (behind the camera, hidden), its diffuse radiance in
+    the proxy, ``ρ/π (E_direct + E_amb)`` (the reduced lights with shadow rays, the SH
+    remainder unoccluded). Zero without a distant light."""
+    far = data.distant
+    n_l = dr.width(gb.role)
+    if far is None:
+        return dr.zeros(mi.Color3f, n_l)
+    from arlight.tracing.onepass import _Reprojector as Reprojector
+
+    idx = dr.compress(active)
+    out = dr.zeros(mi.Color3f, n_l)
+    if dr.width(idx) == 0:
+        return out
+    p = dr.gather(mi.Point3f, gb.position, idx)
+    n = dr.gather(mi.Vector3f, gb.normal, idx)
+    v = dr.gather(mi.Vector3f, gb.to_camera, idx)
+    shape = mi.UInt32(dr.maximum(dr.gather(mi.Int32, gb.shape, idx), 0))
+    tab = far.tables
+    f0 = dr.gather(mi.Color3f, tab.f0, shape)
+    ray = mi.Ray3f(p + n * 1e-4, reflect(v, n))
+    si = data.views.real.scene.ray_intersect(ray)
+    env = specular_split_sum(far.env, far.dfg, n, v, dr.gather(mi.Float, tab.alpha, shape),
+                             f0, dr.gather(mi.Color3f, tab.f90, shape))
+    hit = si.is_valid()
+    nh = facing(mi.Vector3f(si.n), -ray.d)
+    lit = surface_albedo(si, hit) * (1.0 / math.pi) * (
+        direct_irradiance(data.views.real, data.lights, si.p, nh, hit)
+        + dr.maximum(ambient_irradiance_dr(data.lights, nh), 0.0))
+    val = dr.select(hit, lit * f0, env)
+    if view is not None:
+        seen, ok, _ = Reprojector(view.camera, np.asarray(view.frame, np.float32),
+                                  data.views.real).lookup(si.p, si.is_valid())
+        val = dr.select(ok, seen * f0, val)
+    dr.scatter(out, val, idx)
+    return out
+
+
+def remainder_radiance(lights: LightSet, d: mi.Vector3f) -> mi.Color3f:
+    """The SH remainder's radiance towards unit directions ``d``, ``L_a(d) = Σ c_lm
+    Y_lm(d)`` (W sr⁻¹ m⁻², ≥ 0): :func:`~arlight.realtime.shading.ambient_irradiance_dr` of
+    the coefficients divided by the clamped cosine's band weights ``Â_l`` (Ramamoorthi &
+    Hanrahan 2001: ``E_lm = Â_l L_lm``), so the one polynomial evaluates either."""
+    sh = np.asarray(lights.ambient_sh, np.float64)
+    bands = band_of_each_coeff(order_of(sh.shape[0]))
+    a_hat = np.array([clamped_cosine_band(int(b)) for b in bands])
+    return dr.maximum(ambient_irradiance_dr(LightSet([], sh / a_hat[:, None]), d), 0.0)
+
+
+def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_deg: float,
+                  active: mi.Bool) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
+    """The SH remainder's visibility through the *real* proxy on the ``active`` (virtual)
+    lanes, for the nine diffuse cone directions (:func:`diffuse_cone_set`, weights ``w_k``,
+    ``Σ w_k = π``) with one ray each — the volume's cones see only the real geometry inside
+    it (issue #33: a sphere in a room lit through an opening was lit as if the sky were
+    open). Returns ``(V, E_r)``: ``V = Σ_k w_k miss_k / π`` the cosine-weighted share of
+    open sky, ``E_o = Σ_k w_k miss_k L_a(d_k)`` (W/m²) the remainder through it
+    (:func:`remainder_radiance`: the sky the real proxy leaves is not the hemisphere's
+    mean), and ``E_r = Σ_k w_k hit_k L_k`` (W/m²) the irradiance from the real surfaces
+    hit instead — beyond the volume the photograph at the hit's projection (all of its
+    light: no cone reached it), where the camera does not see it or inside the volume (where
+    ``V_ρ`` holds its reduced lights' first bounce) its ambient part ``ρ_r L̄``
+    (:func:`real_fill`). Zero on other lanes."""
+    from arlight.tracing.onepass import _Reprojector as Reprojector
+
+    n_l = dr.width(gb.role)
+    e_o, vis, e_r = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Float, n_l), dr.zeros(mi.Color3f,
+                                                                                  n_l)
+    idx = dr.compress(active)
+    if dr.width(idx) == 0:
+        return e_o, vis, e_r
+    dirs, w, _ = diffuse_cone_set(aperture_deg)
+    p = dr.gather(mi.Point3f, gb.position, idx)
+    frame = mi.Frame3f(dr.gather(mi.Vector3f, gb.normal, idx))
+    fill = real_fill(data, gb)
+    reproj = None if view is None else Reprojector(
+        view.camera, np.asarray(view.frame, np.float32), data.views.real)
+    grid = data.grid
+    lo, hi = (grid.lo(), grid.hi()) if grid is not None else (None, None)
+    m = dr.width(idx)
+    o_c, v_c, e_c = dr.zeros(mi.Color3f, m), dr.zeros(mi.Float, m), dr.zeros(mi.Color3f, m)
+    for d_loc, wk in zip(dirs, w, strict=True):
+        d = frame.to_world(mi.Vector3f(*(float(x) for x in d_loc)))
+        si = data.views.real.scene.ray_intersect(mi.Ray3f(p + frame.n * 1e-4, d))
+        hit = si.is_valid()
+        radiance = mi.Color3f(fill)
+        if reproj is not None:
+            outside = mi.Bool(True) if lo is None else ~(
+                (si.p.x > lo[0]) & (si.p.y > lo[1]) & (si.p.z > lo[2])
+                & (si.p.x < hi[0]) & (si.p.y < hi[1]) & (si.p.z < hi[2]))
+            seen, ok, _ = reproj.lookup(si.p, hit & outside)
+            radiance = dr.select(ok, seen, radiance)
+        v_c += dr.select(hit, 0.0, float(wk / math.pi))
+        o_c += dr.select(hit, mi.Color3f(0.0), remainder_radiance(data.lights, d) * float(wk))
+        e_c += dr.select(hit, radiance * float(wk), mi.Color3f(0.0))
+    for dst, src in ((e_o, o_c), (vis, v_c), (e_r, e_c)):
+        dr.scatter(dst, src, idx)
+    return e_o, vis, e_r
+
+
 def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
-          frame: np.ndarray | None = None) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
+          frame: np.ndarray | None = None, view: FrameView | None = None,
+          aperture_deg: float = 60.0) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
     """Per lane ``(mixed radiance on virtual lanes, delta radiance on real lanes, hidden
     fraction h·a of the background on real lanes)`` (§5.4.4). With the photograph ``frame``
     (option ``photo_albedo``) real lanes use the albedo read from it
@@ -927,15 +1130,24 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
                                       virt)
     e_amb = ambient_irradiance_dr(data.lights, gb.normal)
-    diffuse = gb.albedo * (1.0 / math.pi) * (e_dir + terms.x + e_amb * (1.0 - terms.z))
+    if np.any(data.lights.ambient_sh):  # Σ_k w_k (open sky, virtual object, real surface)
+        # the virtual objects' occlusion z taken from the open directions (a share z / V)
+        e_o, vis, e_r = real_surround(data, gb, view, aperture_deg, virt)
+        e_amb = (e_o * dr.maximum(1.0 - terms.z / dr.maximum(vis, 1e-3), 0.0)
+                 + ambient_fill(data) * (math.pi * terms.z) + e_r)
+    diffuse = gb.albedo * (1.0 / math.pi) * (e_dir + terms.x + e_amb)
     glossy = virt & (dr.max(spec) > 0.0)
     spec_direct = mi.Color3f(0.0)
+    far = data.distant
     if dr.any(glossy):
-        for lt in data.lights.lights:
+        for lt in (data.lights if far is None else far.near).lights:
             wi, _ = light_direction(lt, gb.position)
             e_i = direct_irradiance(data.views.mixed, LightSet([lt]), gb.position, gb.normal,
                                     glossy)
             spec_direct += ggx_specular(gb.normal, gb.to_camera, wi, spec, rough) * e_i
+        if far is not None:  # what the specular cone sees where it leaves the volume
+            spec_direct += escape_radiance(data, gb, view, glossy) * (
+                1.0 if terms.t is None else terms.t)
     mixed = dr.select(virt, diffuse + spec_direct + spec * terms.y, mi.Color3f(0.0))
     dr.eval(mixed, delta, hidden)
     return mixed, delta, hidden
@@ -965,7 +1177,8 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
         stats["voxels"] = float(vols.voxels)
     with timer.stage("shade"):
         mixed, delta, hidden = shade(data, gb, terms,
-                                     view.frame if options.photo_albedo else None)
+                                     view.frame if options.photo_albedo else None, view,
+                                     options.diffuse_aperture_deg)
     with timer.stage("assemble"):
         if terms is not None:
             h = resolve_scalar(gb, hidden)
@@ -1006,7 +1219,9 @@ class DVCTMethod(BaseMethod):
     def relit(self, data: DVCTData, world: World, options: Options) -> DVCTData | None:
         """Light update (issue #32, :meth:`BaseMethod.relight`): the views' emitters set in
         place, the lights reduced again, their cone radii and the proxy's RSMs made again;
-        the volume, the proxy's voxels, the triangles and the materials are kept."""
+        the volume, the proxy's voxels, the triangles and the materials are kept; the
+        distant light (:class:`DistantLight`) is made again (its prefilter is cached per
+        map)."""
         from arlight.methods.base import relight_views
 
         if not relight_views(data.views, data.world.lights, world.lights):
@@ -1016,7 +1231,8 @@ class DVCTMethod(BaseMethod):
             data.views, lights, data.grid, options.rsm_size, data.real_maps.box,
             data.real_maps.coverage)
         return replace(data, world=world, lights=lights, real_maps=maps,
-                       light_size=_light_sizes(world, lights, options))
+                       light_size=_light_sizes(world, lights, options),
+                       distant=DistantLight.of(world, lights))
 
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

@@ -210,10 +210,10 @@ def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options
     object-space occluder and occlusion field are looked up through the new pose
     (:func:`~arlight.realtime.oof.move_occluder`, :func:`~arlight.realtime.oof.pose_field`;
     with several virtual shapes the world-space occluder's shapes move in place and the
-    world-space field is sampled again); lights, environment and tables are kept, the
-    bounce probe traced again (kept with ``probe_follow`` off). Bitwise the data
-    :func:`prepare` makes of the posed world (with ``probe_follow`` on); None (nothing
-    changed) when a real shape moves."""
+    world-space field is sampled again when a virtual shape moved); lights, environment
+    and tables are kept, the bounce probe traced again (kept with ``probe_follow`` off).
+    Bitwise the data :func:`prepare` makes of the posed world (with ``probe_follow`` on);
+    None (nothing changed) when a real shape moves."""
     moved = place_occluded(data.views, data.occluder, world, data.world, transforms)
     if moved is None:
         return None
@@ -221,7 +221,7 @@ def pose(data: IBLData, world: World, transforms: dict[str, np.ndarray], options
     ambient = (data.ambient_env + _probe_sh(posed, data.views, data.env_map, options)
                if options.probe_follow else data.ambient)
     return replace(data, world=posed, occluder=occluder, ambient=ambient,
-                   field=pose_field(data.field, posed, options),
+                   field=pose_field(data.field, posed, options, data.world),
                    ao_distance=_ao_distance(posed, data.views, options))
 
 

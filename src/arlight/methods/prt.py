@@ -213,7 +213,7 @@ def pose(data: PRTData, world: World, transforms: dict[str, np.ndarray], options
     light = (data.distant + _probe_sh(posed, data.views, options) if options.probe_follow
              else data.light)
     return replace(data, world=posed, objects=objects, light=light, occluder=occluder,
-                   field=pose_field(data.field, posed, options))
+                   field=pose_field(data.field, posed, options, data.world))
 
 
 def glossy_tables(world: World) -> tuple[MipEnvironment | None, SoGTables | None,

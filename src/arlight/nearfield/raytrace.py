@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.jit import ensure_variant
+from arlight.jit import aligned, columns, ensure_variant
 
 EPS = 1e-4
 """Ray offset, m: origins leave surfaces and segments stop this short of their end."""
@@ -32,11 +32,11 @@ def mesh_scene(meshes: list[tuple[np.ndarray, np.ndarray]]) -> mi.Scene:
 
 
 def _rays(o: np.ndarray, d: np.ndarray, tmax: np.ndarray | None = None) -> mi.Ray3f:
-    o = np.ascontiguousarray(o, np.float32)
-    d = np.ascontiguousarray(d, np.float32)
-    ray = mi.Ray3f(mi.Point3f(o[:, 0], o[:, 1], o[:, 2]), mi.Vector3f(d[:, 0], d[:, 1], d[:, 2]))
+    # aligned columns: a strided view's alignment varies per call and is part of the
+    # kernel's code, so it recompiled every frame (tests/methods/test_kernel_reuse.py)
+    ray = mi.Ray3f(mi.Point3f(*columns(o, np.float32)), mi.Vector3f(*columns(d, np.float32)))
     if tmax is not None:
-        ray.maxt = mi.Float(np.ascontiguousarray(tmax, np.float32))
+        ray.maxt = mi.Float(aligned(tmax, np.float32))
     return ray
 
 

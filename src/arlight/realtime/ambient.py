@@ -51,6 +51,7 @@ from arlight.realtime.oof import (
     make_occluder,
     move_occluder,
     pose_field,
+    virtual_moved,
 )
 from arlight.realtime.shading import ambient_irradiance_dr, on_active, virtual_bounds
 from arlight.scene.model import World
@@ -159,9 +160,7 @@ def pose_ambient(amb: AmbientOcclusion, before: World, after: World, view: Scene
     move_occluder`, :func:`~arlight.realtime.oof.pose_field`: an object-space field is
     looked up through the new pose, a world-space one sampled again — only when a virtual
     shape moved). None when the occluder cannot follow (prepare again)."""
-    if amb.occluder is None or all(
-            np.array_equal(a.to_world, b.to_world)
-            for a, b in zip(before.shapes, after.shapes, strict=True) if b.is_virtual):
+    if amb.occluder is None or not virtual_moved(before, after):
         return amb  # nothing virtual moved (a still frame): a world-space field stays valid
     ok, occluder = move_occluder(amb.occluder, before, after)
     if not ok:

@@ -250,7 +250,9 @@ def bounce_probe(view: SceneView | mi.Scene, centre: np.ndarray, env: np.ndarray
     replayed for every other centre — ~0.1 s of Python tracing of Mitsuba's integrator
     becomes a few ms, bitwise the same probe (tests/methods/test_bounce_probe.py). A bare
     ``mi.Scene`` (and a scene without shapes or without lights, which Dr.Jit cannot record:
-    no instance of the called classes among the inputs) is traced anew at each call."""
+    no instance of the called classes among the inputs) is traced anew at each call, and so
+    is every probe while Dr.Jit's virtual calls are evaluated (``JitFlag.SymbolicCalls``
+    off: a frozen function cannot record them)."""
     w = 2 * height
     n = height * w * spp
     # the centre opaque: one kernel for every pose of the object (the probe follows it)
@@ -259,8 +261,11 @@ def bounce_probe(view: SceneView | mi.Scene, centre: np.ndarray, env: np.ndarray
     scene = view if isinstance(view, mi.Scene) else view.scene
     # frozen where the scene holds the instances of every class the tracing calls into:
     # Dr.Jit finds the members of called objects through the inputs (a scene without
-    # shapes or lights cannot be recorded; its probe is traced as it is)
-    if isinstance(view, mi.Scene) or not (scene.shapes() and scene.emitters()):
+    # shapes or lights cannot be recorded; its probe is traced as it is), and only with
+    # symbolic virtual calls: with evaluated ones (the studio's drag frames) the recording
+    # fails on the calls' evaluated members ("created before recording was started")
+    if isinstance(view, mi.Scene) or not (scene.shapes() and scene.emitters()) or \
+            not dr.flag(dr.JitFlag.SymbolicCalls):
         radiance, hit, d = _probe_radiance(scene, *args)
     else:
         with _FROZEN_LOCK:  # the studio prepares and renders on several threads

@@ -24,7 +24,7 @@ directional lights plus the ambient SH integrate to the map's irradiance.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -59,6 +59,14 @@ class ReducedLight:
             lights the irradiance (W/m²) at normal incidence.
         cos_cutoff, cos_beam: spot cone (cosines of the half angles).
         source: name of the world light it came from.
+        spread: angular radius (rad) of the region of sky a directional light extracted
+            from an environment stands for (its highlight region's ``spread``,
+            :func:`arlight.light.extract.find_highlights`); 0: a true direction.
+        extent: ``(2, 3)`` half-edge vectors (m) of the patch a ``cosine`` point stands for
+            (its cell of the area light's ``g × g`` grid); zeros: a true point.
+            ``spread`` and ``extent`` are the light's size for soft shadows
+            (:func:`arlight.realtime.shading.direct_change`); the light's emission is the
+            point's (or direction's) either way.
     """
 
     kind: str
@@ -68,6 +76,8 @@ class ReducedLight:
     cos_cutoff: float = -1.0
     cos_beam: float = -1.0
     source: str = ""
+    spread: float = 0.0
+    extent: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -96,8 +106,7 @@ class LightSet:
 
     def scaled(self, k: float) -> LightSet:
         """Every light and the ambient term multiplied by ``k`` (linearity tests)."""
-        return LightSet([ReducedLight(x.kind, x.position, x.axis, x.intensity * k,
-                                      x.cos_cutoff, x.cos_beam, x.source) for x in self.lights],
+        return LightSet([replace(x, intensity=x.intensity * k) for x in self.lights],
                         self.ambient_sh * k)
 
 
@@ -122,7 +131,8 @@ def _area(name: str, p: dict, grid: int) -> list[ReducedLight]:
             u = -1.0 + (2 * i + 1) / grid
             v = -1.0 + (2 * j + 1) / grid
             out.append(ReducedLight("cosine", centre + u * a + v * b, nrm,
-                                    radiance * area / grid**2, source=name))
+                                    radiance * area / grid**2, source=name,
+                                    extent=np.stack([a / grid, b / grid])))
     return out
 
 
@@ -135,9 +145,12 @@ def _environment(name: str, image: np.ndarray, rotation_deg: float, env_lights: 
     rot = _rot_y(rotation_deg)
     est = LightEstimate.from_envmap(img, n_lights=env_lights, sh_order=2, keep_map=False,
                                     threshold=auto_threshold(img, threshold_factor))
+    spreads = [est.main_spread] + [x.spread for x in est.lights]  # explicit_lights' order
     lights = [ReducedLight("directional", np.zeros(3), -(rot @ x.direction),
-                           np.asarray(x.irradiance, np.float64).copy(), source=name)
-              for x in est.explicit_lights() if float(np.max(x.irradiance)) > 0.0]
+                           np.asarray(x.irradiance, np.float64).copy(), source=name,
+                           spread=float(r))
+              for x, r in zip(est.explicit_lights(), spreads, strict=True)
+              if float(np.max(x.irradiance)) > 0.0]
     sh = est.sh
     if abs(rotation_deg) > 0.0:
         sh = rotate(sh, rot)

@@ -570,13 +570,23 @@ def field_for_world(world: World, order: int = 4, **kw) -> OcclusionField | None
     return build_field(scene, *_bounding_sphere(scene), order=order, **kw)
 
 
-def pose_field(field: OcclusionField | None, world: World, options) -> OcclusionField | None:
-    """``field`` (of this world in another pose) for ``world``: the object-space field
-    looked up through the new pose, or, for a world-space field, sampled again
-    (:func:`field_from_options`). Bitwise the field :func:`field_from_options` makes of
-    ``world``."""
+def virtual_moved(before: World, after: World) -> bool:
+    """Whether a virtual shape of ``after`` (``before`` posed otherwise) stands elsewhere."""
+    return not all(np.array_equal(a.to_world, b.to_world)
+                   for a, b in zip(before.shapes, after.shapes, strict=True) if b.is_virtual)
+
+
+def pose_field(field: OcclusionField | None, world: World, options,
+               before: World | None = None) -> OcclusionField | None:
+    """``field`` (of ``before``, this world in another pose) for ``world``: the object-space
+    field looked up through the new pose, or, for a world-space field, sampled again
+    (:func:`field_from_options`) — kept as it is when no virtual shape moved (the first
+    frame of a fresh state with several virtual shapes re-sampled it: about 1 s). Bitwise
+    the field :func:`field_from_options` makes of ``world``."""
     if field is None:
         return None
+    if field.frame is None and before is not None and not virtual_moved(before, world):
+        return field
     frame = object_frame(world)
     if field.frame is not None and frame is not None:
         return field.posed(frame)
@@ -733,4 +743,4 @@ __all__ = ["OOF_OPTIONS", "GBufferOptions", "OcclusionField", "Occluder", "Posed
            "move_virtual_scene",
            "object_frame", "occlusion_rays", "octahedral_index", "octahedral_normals",
            "pose_field", "render_layers", "shade_real", "shadow_factor", "shell_samples",
-           "similarity", "virtual_scene"]
+           "similarity", "virtual_moved", "virtual_scene"]

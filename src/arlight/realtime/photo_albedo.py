@@ -18,6 +18,11 @@ AR-OOF shadow factor (:func:`arlight.realtime.oof.shadow_factor`, ``B (f − 1)`
 physical albedo where the model misses light that reaches the surface (its bounce, say:
 then ``E_r`` is too small) and makes a shadow remove at most the pixel's own radiance.
 Where the model gives the surface no light at all the proxy's albedo is kept.
+
+It is the path tracers' photo-consistent change (option ``delta = ratio``) written for a
+model irradiance: with ``I_r = ρ E_r / π``, ``ρ̂ = ρ s`` for
+``s = clip(B / I_r, 0, 1/ρ)`` of :func:`arlight.layers.photo_scale`, the one function both
+use (here on Dr.Jit lanes).
 """
 
 from __future__ import annotations
@@ -30,11 +35,9 @@ import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView
 from arlight.jit import aligned
+from arlight.layers import photo_scale
 from arlight.realtime.light_reduction import LightSet
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance, on_active
-
-E_MIN = 1e-6
-"""Model irradiance (W/m²) below which a channel keeps the proxy's albedo."""
 
 
 def model_irradiance(real: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
@@ -50,15 +53,20 @@ def model_irradiance(real: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Vec
 
 def photo_albedo(real: SceneView, lights: LightSet, frame: np.ndarray, pixel: mi.UInt32,
                  p: mi.Point3f, n: mi.Vector3f, proxy_albedo: mi.Color3f,
-                 active: mi.Bool) -> mi.Color3f:
+                 active: mi.Bool, extra: mi.Color3f | None = None) -> mi.Color3f:
     """Per lane ``ρ̂ = clip(π B / E_r, 0, 1)`` (module docstring): ``B`` the photograph
     ``frame`` (``(H, W, 3)`` linear radiance) at the lane's ``pixel`` (row-major index),
-    ``E_r`` :func:`model_irradiance`; ``proxy_albedo`` on inactive lanes and in channels
-    where ``E_r`` < :data:`E_MIN`."""
+    ``E_r`` :func:`model_irradiance`; computed as ``ρ s`` with ``s`` =
+    :func:`arlight.layers.photo_scale` of ``I_r = ρ E_r / π`` (``ρ`` = ``proxy_albedo``,
+    kept on inactive lanes and in channels where ``I_r`` < :data:`arlight.layers.RATIO_MIN`).
+    ``extra``: irradiance (W/m²) the caller's model adds to ``E_r`` (``dir``: the real
+    scene's indirect light from its VPLs), None: none."""
     b = dr.gather(mi.Color3f, mi.Float(aligned(np.reshape(frame, -1), np.float32)), pixel)
     e_r = model_irradiance(real, lights, p, n, active)
-    est = dr.clip(math.pi * b / dr.maximum(e_r, E_MIN), 0.0, 1.0)
-    return dr.select(active & (e_r >= E_MIN), est, proxy_albedo)
+    if extra is not None:
+        e_r += dr.select(active, extra, mi.Color3f(0.0))
+    s = photo_scale(b, proxy_albedo * e_r * (1.0 / math.pi), proxy_albedo, dr)
+    return dr.select(active, proxy_albedo * s, proxy_albedo)
 
 
-__all__ = ["E_MIN", "model_irradiance", "photo_albedo"]
+__all__ = ["model_irradiance", "photo_albedo"]

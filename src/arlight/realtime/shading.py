@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.mitsuba_scene import SceneView
+from arlight.backend.mitsuba_scene import SceneView, SceneViews
 from arlight.jit import opaques
 from arlight.realtime.light_reduction import LightSet, ReducedLight
 from arlight.scene.model import World
@@ -60,27 +60,116 @@ def direct_light(view: SceneView, lights: LightSet, p: mi.Point3f, n: mi.Vector3
     shadow rays (None without ``specular``)."""
     out = mi.Color3f(0.0)
     spec = mi.Color3f(0.0) if specular is not None else None
+    for _, w, e, ray, lit in light_terms(lights, p, n, active):
+        if shadows:
+            lit &= ~view.scene.ray_test(ray, lit)
+        out += dr.select(lit, e * dr.dot(n, w), mi.Color3f(0.0))
+        if spec is not None:
+            spec += dr.select(lit, e * specular(w), mi.Color3f(0.0))
+    return out, spec
+
+
+def light_terms(lights: LightSet, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool):
+    """Per reduced light: ``(light, ω, E⊥, shadow ray, lit)`` at points ``p`` (normals
+    ``n``): the unit direction towards the light, the irradiance (W/m²) it gives a surface
+    facing it (directional: its intensity; else ``I(−ω)/d²``), the shadow ray from ``p``
+    (offset :data:`SHADOW_EPS` along ``n``, ending just before the light, :func:`shadow_ray`)
+    and the ``active`` lanes that face it (``<n, ω> > 0``)."""
     origin = p + n * SHADOW_EPS
     for lt in lights.lights:
         if lt.kind == "directional":
             w = -mi.Vector3f(*opaques(lt.axis))
             e = mi.Color3f(*opaques(lt.intensity))
-            dist = mi.Float(dr.inf)
         else:
             to = mi.Point3f(*opaques(lt.position)) - origin
             dist = dr.norm(to)
             w = to / dr.maximum(dist, 1e-12)
             e = emitted_intensity(lt, -w) / dr.maximum(dist * dist, 1e-12)
-        cos = dr.maximum(dr.dot(n, w), 0.0)
-        lit = active & (cos > 0.0)
-        if shadows:
-            ray = mi.Ray3f(origin, w)
-            ray.maxt = dr.select(dr.isinf(dist), dr.largest(mi.Float), dist * (1.0 - 1e-4))
-            lit &= ~view.scene.ray_test(ray, lit)
-        out += dr.select(lit, e * cos, mi.Color3f(0.0))
-        if spec is not None:
-            spec += dr.select(lit, e * specular(w), mi.Color3f(0.0))
-    return out, spec
+        yield lt, w, e, shadow_ray(lt, origin), active & (dr.dot(n, w) > 0.0)
+
+
+def shadow_ray(light: ReducedLight, origin: mi.Point3f,
+               u: tuple[mi.Float, mi.Float] | None = None) -> mi.Ray3f:
+    """The shadow ray from ``origin`` to ``light``: to its position (ending just before it)
+    or along its direction, or with ``u ∈ [0, 1)²`` to a point of its extent: a direction
+    uniform in the cone of half angle ``spread`` around a directional light's (solid angle
+    ``2π(1 − cos spread)``), a point uniform on the patch ``position ± extent`` of a
+    ``cosine`` light (:class:`~arlight.realtime.light_reduction.ReducedLight`)."""
+    if light.kind == "directional":
+        w = -mi.Vector3f(*opaques(light.axis))
+        if u is not None and light.spread > 0.0:
+            cos_t = 1.0 - u[0] * dr.opaque(mi.Float, 1.0 - math.cos(light.spread))
+            sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+            phi = 2.0 * math.pi * u[1]
+            w = mi.Frame3f(w).to_world(mi.Vector3f(sin_t * dr.cos(phi), sin_t * dr.sin(phi),
+                                                   cos_t))
+        ray = mi.Ray3f(origin, w)
+        ray.maxt = dr.largest(mi.Float)
+        return ray
+    target = mi.Point3f(*opaques(light.position))
+    if u is not None and np.any(light.extent):
+        a, b = (mi.Vector3f(*opaques(e)) for e in light.extent)
+        target = target + a * (2.0 * u[0] - 1.0) + b * (2.0 * u[1] - 1.0)
+    to = target - origin
+    dist = dr.norm(to)
+    ray = mi.Ray3f(origin, to / dr.maximum(dist, 1e-12))
+    ray.maxt = dist * (1.0 - 1e-4)
+    return ray
+
+
+def extended(light: ReducedLight) -> bool:
+    """Whether ``light`` has a size for soft shadows (``spread`` or ``extent``)."""
+    return (light.kind == "directional" and light.spread > 0.0) or bool(np.any(light.extent))
+
+
+def direct_change(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
+                  active: mi.Bool, samples: int = 1) -> mi.Color3f:
+    """The virtual objects' change of the reduced lights' direct irradiance (W/m²) at real
+    points ``p`` (normals ``n``): ``ΔE_d = Σ_i E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (Franke
+    Eq. 5.14 in the mixed scene minus the same in the real one: Knecht 2010's differential
+    of the direct light), with the visibilities ``V_ρ`` in the mixed view and ``V_µ`` in the
+    real one traced by shadow rays. The mixed scene holds the real one, so ``V_ρ ≤ V_µ``:
+    the real-scene ray is traced only where the mixed one is blocked, and ``ΔE_d ≤ 0``
+    (zero on inactive lanes).
+
+    With ``samples = K > 1`` an extended light (:func:`extended`: a directional light
+    standing for a region of sky, a cosine point for a patch of an area light) casts a soft
+    shadow: ``V`` is the fraction of ``K`` shadow rays to points of its extent
+    (:func:`shadow_ray`) that arrive — the visible fraction of an area light, as ray-traced
+    soft shadows compute it (Cook et al. 1984), with the unshadowed irradiance kept at
+    the reduced light's. The ``K`` points are a rank-1 lattice (the R2 sequence) rotated
+    per lane by a hash of its index (Cranley–Patterson), so neighbouring pixels sample the
+    extent differently and a penumbra shows noise, not ``K`` copies of a hard shadow."""
+    out = mi.Color3f(0.0)
+    rot = None
+    for lt, w, e, ray, lit in light_terms(lights, p, n, active):
+        k = samples if samples > 1 and extended(lt) else 1
+        if k == 1:
+            rays = [ray]
+        else:
+            if rot is None:
+                rng = mi.PCG32(dr.width(p), dr.arange(mi.UInt64, dr.width(p)))
+                rot = (rng.next_float32(), rng.next_float32())
+            origin = p + n * SHADOW_EPS
+            rays = [shadow_ray(lt, origin, tuple(_frac(r + c) for r, c in zip(
+                rot, r2_point(j), strict=True))) for j in range(k)]
+        lost = mi.Float(0.0)
+        for r in rays:
+            blocked = lit & views.mixed.scene.ray_test(r, lit)
+            lost += dr.select(blocked & ~views.real.scene.ray_test(r, blocked), 1.0, 0.0)
+        out -= e * (dr.dot(n, w) * lost * (1.0 / k))
+    return out
+
+
+def _frac(x: mi.Float) -> mi.Float:
+    return x - dr.floor(x)
+
+
+def r2_point(j: int) -> tuple[float, float]:
+    """Point ``j`` of the R2 rank-1 lattice in ``[0, 1)²`` (Roberts 2018: ``frac(0.5 + j
+    (1/φ₂, 1/φ₂²))``, ``φ₂`` the plastic number 1.3247…)."""
+    g = 1.32471795724474602596
+    return (0.5 + j / g) % 1.0, (0.5 + j / (g * g)) % 1.0
 
 
 def split_lights(world: World, lights: LightSet) -> tuple[LightSet, LightSet]:
@@ -170,6 +259,7 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
     return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
 
 
-__all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_irradiance",
-           "direct_irradiance_compact", "direct_light", "emitted_intensity", "on_active",
+__all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_change", "direct_irradiance",
+           "direct_irradiance_compact", "direct_light", "emitted_intensity", "extended",
+           "light_terms", "on_active", "r2_point", "shadow_ray",
            "scene_bounds", "split_lights", "spot_falloff", "virtual_bounds"]
