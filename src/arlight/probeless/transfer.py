@@ -115,49 +115,116 @@ def compute_transfer(views: SceneViews, points: np.ndarray, normals: np.ndarray,
     ``need_real (M,)``: points that need ``T_real`` (real pixels; default all). Elsewhere no
     real-scene ray is cast and ``T_real`` is the unoccluded sum: not meaningful, unused.
     """
-    points = np.asarray(points, np.float64).reshape(-1, 3)
-    normals = np.asarray(normals, np.float64).reshape(-1, 3)
-    m = len(points)
-    idx = np.arange(directions.n) if subset is None else np.asarray(subset)
-    if m == 0 or len(idx) == 0:
-        return Transfer.zeros(m)
-    if m > _POINTS:  # bound the (points × directions) matrices; each chunk is one batch
-        parts = [compute_transfer(views, points[a:a + _POINTS], normals[a:a + _POINTS],
-                                  directions, idx, None if need_real is None else
-                                  np.asarray(need_real)[a:a + _POINTS], max_distance,
-                                  ray_offset) for a in range(0, m, _POINTS)]
-        return Transfer(np.concatenate([p.real for p in parts]),
-                        np.concatenate([p.mixed for p in parts]),
-                        np.concatenate([p.cast for p in parts]),
-                        np.concatenate([p.blocked for p in parts]),
-                        sum(p.rays for p in parts))
-    d = directions.directions[idx]
-    Y = directions.basis[idx]
-    ii, jj, cos = _lanes(normals, d)
-    origins = points[ii] + ray_offset * normals[ii]
-    dirs = d[jj]
-    occ_m = _ray_test(views.mixed, origins, dirs, max_distance)
-    rays = len(ii)
-    if views.real is views.mixed:
-        occ_r = occ_m
-    else:
+    return compute_transfers(views, [(points, normals, subset, need_real)], directions,
+                             max_distance, ray_offset)[0]
+
+
+Group = tuple[np.ndarray, np.ndarray, "np.ndarray | None", "np.ndarray | None"]
+"""``(points, normals, subset, need_real)``: one group of :func:`compute_transfers`."""
+
+
+@dataclass
+class _Batch:
+    """At most ``_POINTS`` points of one group and their rays: point index ``ii``, direction
+    index ``jj`` (into ``subset``) and cosine of every pair above the point's horizon."""
+
+    group: int
+    normals: np.ndarray
+    subset: np.ndarray
+    ii: np.ndarray
+    jj: np.ndarray
+    cos: np.ndarray
+    origins: np.ndarray
+    dirs: np.ndarray
+    need_real: np.ndarray | None
+
+
+def _batches(groups: list[Group], directions: DirectionSet, ray_offset: float
+             ) -> list[_Batch]:
+    """The groups split into batches of at most ``_POINTS`` points (bounding the
+    points × directions matrices), with their rays."""
+    out = []
+    for g, (points, normals, subset, need_real) in enumerate(groups):
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        normals = np.asarray(normals, np.float64).reshape(-1, 3)
+        idx = np.arange(directions.n) if subset is None else np.asarray(subset)
+        nr = None if need_real is None else np.asarray(need_real, bool)
+        if len(points) == 0 or len(idx) == 0:
+            out.append(_Batch(g, normals, idx, *(np.zeros(0, np.int64),) * 2, np.zeros(0),
+                              np.zeros((0, 3)), np.zeros((0, 3)), None))
+            continue
+        d = directions.directions[idx]
+        for a in range(0, len(points), _POINTS):
+            p, n = points[a:a + _POINTS], normals[a:a + _POINTS]
+            ii, jj, cos = _lanes(n, d)
+            out.append(_Batch(g, n, idx, ii, jj, cos, p[ii] + ray_offset * n[ii], d[jj],
+                              None if nr is None else nr[a:a + _POINTS]))
+    return out
+
+
+def compute_transfers(views: SceneViews, groups: list[Group], directions: DirectionSet,
+                      max_distance: float = MAX_DISTANCE,
+                      ray_offset: float = RAY_OFFSET) -> list[Transfer]:
+    """:func:`compute_transfer` of several groups of points, each with its own direction
+    subset, the rays of all groups cast as one batch per scene view (ART's interleaved
+    phases: the current phase of every sample and the other phases of the samples the
+    reprojection caches miss, issue #33). Each group's result is bit for bit what its own
+    :func:`compute_transfer` call gives (rays are independent; the per-point sums are the
+    same products); one batch instead of up to ``k`` saves the per-call cost of a Mitsuba
+    ray batch and of its NumPy set-up."""
+    batches = _batches(groups, directions, ray_offset)
+    origins = np.concatenate([b.origins for b in batches])
+    dirs = np.concatenate([b.dirs for b in batches])
+    occ_m = (_ray_test(views.mixed, origins, dirs, max_distance) if len(origins)
+             else np.zeros(0, bool))
+    same = views.real is views.mixed
+    occ_r = occ_m
+    ask = np.zeros(len(occ_m), bool)
+    if not same:
+        ask = occ_m.copy()
+        start = 0
+        for b in batches:
+            if b.need_real is not None:
+                ask[start:start + len(b.ii)] &= b.need_real[b.ii]
+            start += len(b.ii)
         occ_r = np.zeros_like(occ_m)
-        ask = occ_m if need_real is None else occ_m & np.asarray(need_real, bool)[ii]
         if np.any(ask):
             occ_r[ask] = _ray_test(views.real, origins[ask], dirs[ask], max_distance)
-            rays += int(ask.sum())
-    # E3 as "unoccluded minus occluded": the subset's share of the exact unoccluded
-    # transfer (E6) less the quadrature of the blocked directions
+    parts: list[list[Transfer]] = [[] for _ in groups]
+    start = 0
+    for b in batches:
+        sl = slice(start, start + len(b.ii))
+        start += len(b.ii)
+        if len(b.normals) == 0 or len(b.subset) == 0:
+            parts[b.group].append(Transfer.zeros(len(b.normals)))
+            continue
+        rays = len(b.ii) + int(ask[sl].sum())
+        parts[b.group].append(_assemble(b, directions, occ_m[sl],
+                                        occ_m[sl] if same else occ_r[sl], same, rays))
+    return [ps[0] if len(ps) == 1 else
+            Transfer(np.concatenate([p.real for p in ps]), np.concatenate([p.mixed for p in ps]),
+                     np.concatenate([p.cast for p in ps]),
+                     np.concatenate([p.blocked for p in ps]), sum(p.rays for p in ps))
+            for ps in parts]
+
+
+def _assemble(b: _Batch, directions: DirectionSet, occ_m: np.ndarray, occ_r: np.ndarray,
+              same: bool, rays: int) -> Transfer:
+    """E3 of one batch as "unoccluded minus occluded": the subset's share of the exact
+    unoccluded transfer (E6) less the quadrature of the blocked directions (``same``: no
+    virtual object, ``T_real = T_mix``)."""
+    m, ii, jj = len(b.normals), b.ii, b.jj
+    Y = directions.basis[b.subset]
     w = directions.weight
-    free = unoccluded_transfer(normals) * (len(idx) / directions.n)
-    Cm = np.zeros((m, len(idx)))
-    Cm[ii, jj] = w * cos * occ_m
+    free = unoccluded_transfer(b.normals) * (len(b.subset) / directions.n)
+    Cm = np.zeros((m, len(b.subset)))
+    Cm[ii, jj] = w * b.cos * occ_m
     mixed = free - Cm @ Y
-    if occ_r is occ_m:
+    if same:
         real = mixed.copy()
     else:
-        Cr = np.zeros((m, len(idx)))
-        Cr[ii, jj] = w * cos * occ_r
+        Cr = np.zeros((m, len(b.subset)))
+        Cr[ii, jj] = w * b.cos * occ_r
         real = free - Cr @ Y
     cast = np.bincount(ii, minlength=m)
     blocked = np.bincount(ii, weights=occ_m.astype(np.float64), minlength=m).astype(np.int64)
@@ -193,4 +260,5 @@ def real_hits_from(views: SceneViews, points: np.ndarray, normals: np.ndarray,
     return (np.concatenate(found) if found else np.zeros((0, 3))), len(ii)
 
 
-__all__ = ["MAX_DISTANCE", "RAY_OFFSET", "Transfer", "compute_transfer", "real_hits_from"]
+__all__ = ["MAX_DISTANCE", "RAY_OFFSET", "Transfer", "compute_transfer", "compute_transfers",
+           "real_hits_from"]
