@@ -18,9 +18,11 @@ Per frame (stages of thesis Table 5.6):
    the first G-buffer sample of every ``k``-th pixel), then edge-aware upsampling to every
    G-buffer sample (``gbuffer_spp`` per pixel):
 
-   * real pixels: one shadow cone per light (Eq. 5.20, aperture from the light's size), nine
-     diffuse cones into ``V_Δ`` (Eq. 5.21) and, on specular materials, one cone along the
-     reflected view direction (Eq. 5.22, aperture from the roughness);
+   * real pixels: nine diffuse cones into ``V_Δ`` (Eq. 5.21), on specular materials one cone
+     along the reflected view direction (Eq. 5.22, aperture from the roughness), and with
+     ``direct = cones`` one shadow cone per light (Eq. 5.20, aperture from the light's size;
+     by default, ``direct = rays``, the shadows are traced per G-buffer sample instead,
+     :func:`arlight.realtime.shading.direct_change`, as ``dir`` and ``dlpv``; issue #33);
    * virtual pixels: nine diffuse cones and one specular cone into ``V_ρ`` (Eq. 5.24–5.25);
 
 6. **shading and composition** (§5.4.4): real pixels ``B + ρ/π · ΔE + k_s C_Δ,spec −
@@ -74,8 +76,10 @@ from arlight.methods.base import (
     place_views,
 )
 from arlight.methods.fragments import (
-    GBUFFER_OPTIONS,
+    AA_GBUFFER_SPP,
     REDUCTION_OPTIONS,
+    drag_gbuffer_spp,
+    gbuffer_options,
     volume_grid,
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
@@ -102,11 +106,13 @@ from arlight.realtime.ibl_shading import (
 )
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, ReducedLight, reduce_lights
 from arlight.realtime.photo_albedo import photo_albedo
+from arlight.realtime.real_lane import REAL_LANE_OPTIONS
 from arlight.realtime.rsm import RealMaps, RSMPair, moved_maps, real_maps, rsm_pair, same_grid
 from arlight.realtime.rsm import check_memory as check_rsm_memory
 from arlight.realtime.sh_volume import Grid, cell_index
 from arlight.realtime.shading import (
     ambient_irradiance_dr,
+    direct_change_compact,
     direct_irradiance,
     direct_irradiance_compact,
     split_lights,
@@ -184,15 +190,34 @@ OPTIONS: dict[str, Field] = {
                                     "own bounce 0.52 → 0.67 of Mitsuba's; on, as Franke: "
                                     "off with the other issue-#33 options lost 0.15 dB "
                                     "median on 6 training worlds)"),
-    "photo_albedo": Field("bool", False, "real pixels change by ρ̂/π ΔE with the albedo "
+    "photo_albedo": Field("bool", True, "real pixels change by ρ̂/π ΔE with the albedo "
                           "read from the photograph, ρ̂ = clip(π B / E_r, 0, 1) "
                           "(arlight.realtime.photo_albedo; issue #33: the shadow as a ratio of "
                           "the light the pixel receives, right on textures the proxy "
-                          "averaged: held-out world-1000027 +7.0 dB, 1000031 +3.6). Off "
-                          "(training:24: median +0.02 dB changed_psnr, 9 of 11 gain, worst "
-                          "−0.59; E_r lacks the real interreflection, so in closed rooms ρ̂ "
-                          "runs high: cornell-near-field's ring 2× worse): the proxy's "
-                          "albedo, as Franke"),
+                          "averaged). On since the shadows come from rays and V_Δ holds no "
+                          "−R_µ (training:24, 11 dvct worlds: with direct = rays and "
+                          "lost_bounce off +0.40 dB median changed_psnr, 10 of 11 gain, worst "
+                          "±0; alone, before, +0.02 and worst −0.59: the floor's negative "
+                          "self-bounce, scaled by a high ρ̂, made shadows too deep); off: the "
+                          "proxy's albedo, as Franke"),
+    "direct": Field("choice", "rays", "the reduced lights' direct change on real pixels (the "
+                    "virtual objects' shadows): `rays`: shadow rays in the mixed and the real "
+                    "scene per G-buffer sample, soft over an extended light with "
+                    "shadow_samples (arlight.realtime.shading.direct_change, as dir and dlpv; "
+                    "issue #33); `cones`: one shadow cone per light through V_η (Eq. 5.20, "
+                    "Franke), at the cones' resolution", choices=("rays", "cones")),
+    "shadow_samples": REAL_LANE_OPTIONS["shadow_samples"],
+    "lost_bounce": Field("bool", False, "inject the −R_µ VPLs into V_Δ (Eq. 5.17, Franke): "
+                         "the real surfaces' bounce the virtual objects take away; off: V_Δ "
+                         "holds the objects' own bounce (+R_ρ) alone (issue #33: a real "
+                         "receiver's diffuse cones read the −R_µ VPLs of its own shadowed "
+                         "surface — a floor cannot light itself, yet its shadow came out "
+                         "20–40 % too deep, held-out world-1000002 −4.6 dB against 2f93175; "
+                         "as dlpv's lost_bounce)"),
+    "surround_rays": Field("int", 0, "rays per virtual pixel that find the real proxy "
+                           "around it for the SH remainder (arlight.methods.dvct."
+                           "real_surround), cosine-distributed (Vogel's spiral); 0: one ray "
+                           "along each of the nine diffuse cones' axes", "", min=0, max=1024),
     "back_faces": Field("bool", False, "dim V_Δ/V_ρ cells seen from behind their V_η normal "
                         "(costs a third more cone gathers; no gain on the suite)"),
     "diffuse_cones": Field("bool", True, "trace the 9 diffuse cones (T_Δ², Eq. 5.21; "
@@ -222,7 +247,7 @@ OPTIONS: dict[str, Field] = {
                            "world-axis bounding box as Franke (changes as the object turns)",
                            choices=("frame", "box")),
     **REDUCTION_OPTIONS,
-    **GBUFFER_OPTIONS,
+    **gbuffer_options(AA_GBUFFER_SPP),
 }
 
 
@@ -244,9 +269,12 @@ def drag_options(options: Options, factor: int) -> dict[str, int]:
     """Options of a studio frame at 1/``factor`` of the size while dragging (issue #32): the
     RSM side and the volume's cells per edge divided by ``factor`` (at least 64 texels, 32
     cells; the volume stays a power of two): RSMs, voxelisation, injection and the mip
-    filter do not shrink with the image otherwise."""
+    filter do not shrink with the image otherwise; one G-buffer sample per pixel
+    (:func:`~arlight.methods.fragments.drag_gbuffer_spp`, as dir and dlpv: the upsampling
+    filters wider than the AA samples would)."""
     return {"rsm_size": max(64, options.rsm_size // factor),
-            "volume_size": max(32, options.volume_size // factor)}
+            "volume_size": max(32, options.volume_size // factor),
+            **drag_gbuffer_spp(options, factor)}
 
 
 SPEC = MethodSpec(
@@ -533,12 +561,14 @@ def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f
     return int(dr.count(act)[0]) if dr.width(act) else 0
 
 
-def inject_split(grid: Grid, pairs: list[RSMPair], channels: int = 3
+def inject_split(grid: Grid, pairs: list[RSMPair], channels: int = 3, lost: bool = True
                  ) -> tuple[mi.Float, mi.Float, int]:
     """Split injection (thesis §5.4.1, Eq. 5.17): packed finest levels of ``V_Δ`` (only the
     texels whose mixed hit is virtual: ``+R_ρ`` there, ``−R_µ`` at what the real scene shows
     there) and ``V_ρ`` (every ``R_ρ`` texel); ``channels`` 3 (isotropic) or
-    :data:`~arlight.realtime.voxels.ANISO_CHANNELS`."""
+    :data:`~arlight.realtime.voxels.ANISO_CHANNELS`. ``lost`` False (option
+    ``lost_bounce`` off): without the ``−R_µ`` VPLs, ``V_Δ`` holds the virtual objects'
+    own bounce alone."""
     m = grid.n ** 3 * channels
     delta, rho = dr.zeros(mi.Float, m), dr.zeros(mi.Float, m)
     count = 0
@@ -549,7 +579,8 @@ def inject_split(grid: Grid, pairs: list[RSMPair], channels: int = 3
             continue
         rc, mc = pair.rho_changed(), pair.mu_changed
         count += _inject(delta, grid, rc.position, rc.normal, rc.flux_out, rc.valid, 1.0)
-        _inject(delta, grid, mc.position, mc.normal, mc.flux_out, mc.valid, -1.0)
+        if lost:
+            _inject(delta, grid, mc.position, mc.normal, mc.flux_out, mc.valid, -1.0)
     dr.eval(delta, rho)
     return delta, rho, count
 
@@ -589,7 +620,7 @@ def build_volumes(data: DVCTData, options: Options, timer: StageTimer | None = N
     ch = light_channels(options)
     with timer.stage("inject"):
         if pairs:
-            d0, r0, count = inject_split(grid, pairs, ch)
+            d0, r0, count = inject_split(grid, pairs, ch, options.lost_bounce)
         else:
             d0 = r0 = dr.zeros(mi.Float, grid.n ** 3 * ch)
             count = 0
@@ -642,6 +673,24 @@ def diffuse_cone_set(aperture_deg: float) -> tuple[np.ndarray, np.ndarray, float
                      math.cos(RING_POLAR)])
     w = np.array([cap] + [(math.pi - cap) / 8.0] * 8)
     return np.array(dirs), w, math.tan(half)
+
+
+def surround_set(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` cosine-distributed unit directions in the normal's local frame (z =
+    normal), ``(count, 3)``, and their weights ``(count,)``, each ``π / count`` (``Σ w =
+    π``, as :func:`diffuse_cone_set`): Vogel's spiral on the unit disk (radius
+    ``√((i + ½)/count)``, angle ``i`` × the golden angle ``π(3 − √5)``) lifted onto the
+    hemisphere (Malley's method: a uniform disk point projects to a cosine-weighted
+    direction), so ``Σ_i w_i f(d_i)`` is a quasi-Monte Carlo estimate of ``∫ f(ω) <n, ω>+
+    dω``. :func:`real_surround`'s rays (issue #33): the nine cone axes, one ray each, turned
+    a smooth surface's sky visibility into steps (a quarter of it flips with the central
+    ray where the normal crosses the horizon: a band across a bevelled cube's face)."""
+    i = np.arange(count) + 0.5
+    r = np.sqrt(i / count)
+    phi = np.arange(count) * math.pi * (3.0 - math.sqrt(5.0))
+    dirs = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - r * r, 0.0))],
+                    1)
+    return dirs, np.full(count, math.pi / count)
 
 
 @dataclass
@@ -865,7 +914,7 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
                 xs = e - amb * (math.pi * added)
             else:
                 xs, zs = e, added
-        if role == ROLE_REAL and data.lights.lights:
+        if role == ROLE_REAL and data.lights.lights and options.direct == "cones":
             xs = xs + shadow_cones(data, ConeVolumes(vols.alpha), sub, **knobs)
         ys = dr.zeros(mi.Color3f, dr.width(idx))
         if options.specular_cones:
@@ -1053,19 +1102,19 @@ def remainder_radiance(lights: LightSet, d: mi.Vector3f) -> mi.Color3f:
 
 
 def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_deg: float,
-                  active: mi.Bool) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
-    """The SH remainder's visibility through the *real* proxy on the ``active`` (virtual)
-    lanes, for the nine diffuse cone directions (:func:`diffuse_cone_set`, weights ``w_k``,
-    ``Σ w_k = π``) with one ray each — the volume's cones see only the real geometry inside
-    it (issue #33: a sphere in a room lit through an opening was lit as if the sky were
-    open). Returns ``(V, E_r)``: ``V = Σ_k w_k miss_k / π`` the cosine-weighted share of
-    open sky, ``E_o = Σ_k w_k miss_k L_a(d_k)`` (W/m²) the remainder through it
-    (:func:`remainder_radiance`: the sky the real proxy leaves is not the hemisphere's
-    mean), and ``E_r = Σ_k w_k hit_k L_k`` (W/m²) the irradiance from the real surfaces
-    hit instead — beyond the volume the photograph at the hit's projection (all of its
-    light: no cone reached it), where the camera does not see it or inside the volume (where
-    ``V_ρ`` holds its reduced lights' first bounce) its ambient part ``ρ_r L̄``
-    (:func:`real_fill`). Zero on other lanes."""
+                  active: mi.Bool, rays: int = 0) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
+    """The SH remainder's visibility through the *real* proxy on the ``active`` (virtual) lanes,
+    for the nine diffuse cone directions (:func:`diffuse_cone_set`, weights ``w_k``, ``Σ w_k =
+    π``) with one ray each — or, with ``rays`` > 0 (option ``surround_rays``), that many
+    cosine-distributed rays (:func:`surround_set`) — the volume's cones see only the real
+    geometry inside it (issue #33: a sphere in a room lit through an opening was lit as if the
+    sky were open). Returns ``(V, E_r)``: ``V = Σ_k w_k miss_k / π`` the cosine-weighted share
+    of open sky, ``E_o = Σ_k w_k miss_k L_a(d_k)`` (W/m²) the remainder through it
+    (:func:`remainder_radiance`: the sky the real proxy leaves is not the hemisphere's mean),
+    and ``E_r = Σ_k w_k hit_k L_k`` (W/m²) the irradiance from the real surfaces hit instead —
+    beyond the volume the photograph at the hit's projection (all of its light: no cone reached
+    it), where the camera does not see it or inside the volume (where ``V_ρ`` holds its reduced
+    lights' first bounce) its ambient part ``ρ_r L̄`` (:func:`real_fill`). Zero on other lanes."""
     from arlight.tracing.onepass import _Reprojector as Reprojector
 
     n_l = dr.width(gb.role)
@@ -1074,7 +1123,7 @@ def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_
     idx = dr.compress(active)
     if dr.width(idx) == 0:
         return e_o, vis, e_r
-    dirs, w, _ = diffuse_cone_set(aperture_deg)
+    dirs, w = surround_set(rays) if rays > 0 else diffuse_cone_set(aperture_deg)[:2]
     p = dr.gather(mi.Point3f, gb.position, idx)
     frame = mi.Frame3f(dr.gather(mi.Vector3f, gb.normal, idx))
     fill = real_fill(data, gb)
@@ -1105,11 +1154,18 @@ def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_
 
 def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
           frame: np.ndarray | None = None, view: FrameView | None = None,
-          aperture_deg: float = 60.0) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
+          aperture_deg: float = 60.0, shadow_rays: int | None = None,
+          surround_rays: int = 0) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
     """Per lane ``(mixed radiance on virtual lanes, delta radiance on real lanes, hidden
     fraction h·a of the background on real lanes)`` (§5.4.4). With the photograph ``frame``
     (option ``photo_albedo``) real lanes use the albedo read from it
-    (:func:`arlight.realtime.photo_albedo.photo_albedo`) instead of the proxy's."""
+    (:func:`arlight.realtime.photo_albedo.photo_albedo`) instead of the proxy's.
+
+    ``shadow_rays`` (option ``direct = rays``): the real lanes' direct change ``ΔE_d = Σ_i
+    E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (W/m², ``≤ 0``) is traced per G-buffer sample, that
+    many shadow rays over an extended light (:func:`~arlight.realtime.shading.
+    direct_change`), and added to the cones' ``ΔE`` (``terms.x`` then holds no shadow
+    cones); None (``direct = cones``): ``terms.x`` holds Eq. 5.20's shadow cones."""
     virt = gb.virtual
     real = gb.valid & ~virt
     n_l = dr.width(gb.role)
@@ -1118,12 +1174,16 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
         return z, z, dr.zeros(mi.Float, n_l)
     spec, rough, hide = data.materials.at(gb.shape, gb.valid)
     # real pixels: ρ/π ΔE + k_s C_Δ,spec, and −h a_spec B (applied by the caller)
+    e_delta = terms.x
+    if shadow_rays is not None:
+        e_delta = e_delta + direct_change_compact(data.views, data.lights, gb.position,
+                                                  gb.normal, real, shadow_rays)
     rho = gb.albedo
     if frame is not None:
-        changed = real & (dr.max(dr.abs(terms.x)) > 0.0)
+        changed = real & (dr.max(dr.abs(e_delta)) > 0.0)
         rho = photo_albedo(data.views.real, data.lights, frame, gb.pixel, gb.position,
                            gb.normal, gb.albedo, changed)
-    delta = rho * (1.0 / math.pi) * terms.x + spec * terms.y
+    delta = rho * (1.0 / math.pi) * e_delta + spec * terms.y
     delta = dr.select(real, delta, mi.Color3f(0.0))
     hidden = dr.select(real, hide * terms.z, 0.0)
     # virtual pixels (Eq. 5.23–5.25)
@@ -1132,7 +1192,7 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     e_amb = ambient_irradiance_dr(data.lights, gb.normal)
     if np.any(data.lights.ambient_sh):  # Σ_k w_k (open sky, virtual object, real surface)
         # the virtual objects' occlusion z taken from the open directions (a share z / V)
-        e_o, vis, e_r = real_surround(data, gb, view, aperture_deg, virt)
+        e_o, vis, e_r = real_surround(data, gb, view, aperture_deg, virt, surround_rays)
         e_amb = (e_o * dr.maximum(1.0 - terms.z / dr.maximum(vis, 1e-3), 0.0)
                  + ambient_fill(data) * (math.pi * terms.z) + e_r)
     diffuse = gb.albedo * (1.0 / math.pi) * (e_dir + terms.x + e_amb)
@@ -1178,7 +1238,9 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
     with timer.stage("shade"):
         mixed, delta, hidden = shade(data, gb, terms,
                                      view.frame if options.photo_albedo else None, view,
-                                     options.diffuse_aperture_deg)
+                                     options.diffuse_aperture_deg,
+                                     options.shadow_samples if options.direct == "rays"
+                                     else None, options.surround_rays)
     with timer.stage("assemble"):
         if terms is not None:
             h = resolve_scalar(gb, hidden)

@@ -161,6 +161,17 @@ def direct_change(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vect
     return out
 
 
+def direct_change_compact(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
+                          active: mi.Bool, samples: int = 1) -> mi.Color3f:
+    """:func:`direct_change` (W/m², ``≤ 0``) on the ``active`` lanes only (compacted with
+    :func:`on_active`, scattered back; zero elsewhere): the real pixels' shadow rays are set
+    up for the real lanes alone (``dvct``'s ``direct = rays``)."""
+    if not lights.lights:
+        return dr.zeros(mi.Color3f, dr.width(p))
+    return on_active(lambda pc, nc: direct_change(views, lights, pc, nc, mi.Bool(True),
+                                                  samples), p, n, active)
+
+
 def _frac(x: mi.Float) -> mi.Float:
     return x - dr.floor(x)
 
@@ -259,7 +270,8 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
     return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
 
 
-__all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_change", "direct_irradiance",
+__all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_change",
+           "direct_change_compact", "direct_irradiance",
            "direct_irradiance_compact", "direct_light", "emitted_intensity", "extended",
            "light_terms", "on_active", "r2_point", "shadow_ray",
            "scene_bounds", "split_lights", "spot_falloff", "virtual_bounds"]
