@@ -150,9 +150,12 @@ def test_one_vpl_gives_the_inverse_square_law_after_the_point_normalisation():
     defaults): receivers at 2/3/4 cells and 0°/30°/60° from its normal, facing it, read
     ``E / point_response`` within 0.7–1.35 of the analytic ``Φ cos θ / (π r²)`` (W/m²,
     NumPy); nothing behind the emitter; at 8 cells the LPV has lost most of it (0.21, the
-    known limit: its wavefront spreads). Rejects the intensity normalisation Φ/4π instead of
-    Φ/π (4× too little), a missing 1/s², the lit plane's 1.92 applied to indirect light (the
-    calibration issue #33 found: 0.5×), and a lobe read with +n."""
+    known limit: its wavefront spreads). Rejects a missing 1/s² (mutation-checked). The
+    divisor is the mean of this very ratio over these receivers, and the VPL is built here in
+    NumPy, so the scale, the injection's Φ/π and the factor dlpv injects VPLs with are not
+    tested here (a Φ/4π lobe, the plane's 1.92 on VPLs and a lobe read with +n pass it,
+    mutation-checked): tests/realtime/test_lpv_reference.py checks the first three against
+    the inverse-square law; the +n read fails the plane/point response test below."""
     n, s = 32, 0.05
     c = np.array([10, 10, 10])
     vol = sv.propagate(_one_vpl(n, s, c, [1.0, 0.0, 0.0]), 32, dampening=True)
