@@ -396,3 +396,14 @@ def test_quality_against_ground_truth(name):
     assert r["all"] < 0.97 and r["virtual"] < 0.7, r
     if name != "mirror-dragon":
         assert r["ring"] < 1.15, r
+
+
+def test_drag_frames_take_one_gbuffer_sample():
+    """4 G-buffer samples per pixel by default (issue #33, chosen on training worlds), one in
+    a frame rendered at reduced size and upsampled (studio drags: the upsampling filters
+    wider than the AA samples would), as dir and dlpv. Rejects drag options that keep the 4
+    samples (mutation-checked: ``drag_gbuffer_spp`` left out of ``drag_options``)."""
+    opts = SPEC.parse_options({})
+    assert opts.gbuffer_spp == 4
+    assert SPEC.drag_options(opts, 2)["gbuffer_spp"] == 1
+    assert SPEC.drag_options(opts, 1)["gbuffer_spp"] == 4
