@@ -175,6 +175,42 @@ def test_several_gbuffer_samples_per_pixel():
     assert four.delta.sum() == pytest.approx(one.delta.sum(), rel=0.15)
 
 
+def test_gbuffer_samples_split_the_pixel_subset_and_count_every_vpl_once():
+    """With ``n`` G-buffer samples per pixel each sample gathers every ``n``-th VPL of the
+    pixel's subset at ``n`` × the weight: on a G-buffer whose ``n`` samples of a pixel lie
+    at one point, the pixel's mean over its samples equals the one-sample gather (interleave
+    1: every VPL at every pixel) to float rounding, with the same shadow rays (each
+    pixel–VPL pair once). Rejects every sample gathering the whole subset (n × the rays, or
+    n × too bright without the 1/n), samples gathering the same part (VPLs missed), and a
+    split that drops the remainder when the subset does not divide by n (38 VPLs, n = 4)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from arlight.methods.dir import gather
+
+    scene = make(box_scene(w=24, h=18))
+    opts = {"vpls": 38, "interleave": 1, "clamp_distance": 0.3, "real_albedo": "proxy",
+            "gbuffer_spp": 1}
+    method = get_method("dir")
+    settings = RenderSettings(options=opts)
+    data = method.prepare(scene.world, settings).data
+    one = render_gbuffer(data.views.mixed, scene.camera, 1, 0)
+    vp = frame_vpls(data, one, SPEC.parse_options(opts), settings.seed)
+    n = 4
+    lane = dr.arange(mi.UInt32, dr.width(one.pixel) * n) // n
+    rep = GBuffer(*(dr.gather(type(a), a, lane) for a in (
+        one.position, one.normal, one.albedo, one.role, one.depth, one.pixel,
+        one.to_camera)), n, one.width, one.height)
+    e_mix1, e_delta1, rays1 = gather(data, one, vp, 1, 1.0 / 0.3 ** 2)
+    e_mixn, e_deltan, raysn = gather(data, rep, vp, 1, 1.0 / 0.3 ** 2)
+    for a, b in ((e_mix1, e_mixn), (e_delta1, e_deltan)):
+        want = _np(a)
+        got = _np(b).reshape(-1, n, 3).mean(axis=1)
+        assert np.abs(want).max() > 1e-3
+        assert np.allclose(got, want, atol=1e-5 * np.abs(want).max(), rtol=1e-5)
+    assert raysn == rays1
+
+
 def test_shadow_negative_bleeding_red():
     """Rejects an inverted delta: the cube's shadow is negative, its bounce red."""
     layers = run(make(box_scene(w=80, h=60)))

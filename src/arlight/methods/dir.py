@@ -33,8 +33,10 @@ choice in place of Knecht's imperfect shadow maps) pixel ``(x, y)`` gathers only
 ``j ≡ (x mod k) + k (y mod k) (mod k²)`` at ``k²`` × their flux, and a ``k × k``
 geometry-aware box filter (depth within 5 %, normals within 37°) recombines the subsets.
 ``interleave = 1`` gathers every VPL at every pixel (exact instant radiosity). With
-``gbuffer_spp = n > 1`` every sample of a pixel gathers the pixel's subset and the filter
-averages the same sample ``k`` of the neighbouring pixels.
+``gbuffer_spp = n > 1`` the pixel's subset is split once more over its samples (sample ``s``
+gathers the subset's VPLs ``s, s + n, …`` at ``n k²`` × their flux) and the filter averages
+the same sample of the neighbouring pixels: the pixel's mean over its samples counts every
+VPL of the ``k × k`` block once, and the gather costs what one sample per pixel costs.
 A VPL pair seen identically in both maps needs the real-scene ray only where the mixed one is
 blocked (the mixed scene contains the real one).
 
@@ -353,15 +355,20 @@ def gather(data: DIRData, gb: GBuffer, vpls: VPLs, k: int, bound: float,
     x, nx = gb.position, gb.normal
     col = gb.pixel % gb.width
     row = gb.pixel // gb.width
-    group = (col % k) + k * (row % k)
+    # lane p·spp + s gathers the s-th of every spp-th VPL of pixel p's subset: each VPL is
+    # gathered by one sample of one pixel in every k × k block, whatever gbuffer_spp is
+    spp = max(gb.spp, 1)
+    sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % spp if spp > 1 else mi.UInt32(0)
     subsets = k * k
-    per = int(math.ceil(vpls.count / subsets))
-    weight = float(subsets)
+    group = (col % k) + k * (row % k) + subsets * sample
+    stride = subsets * spp
+    per = int(math.ceil(vpls.count / stride))
+    weight = float(stride)
     e_mix = mi.Color3f(0.0)
     e_delta = mi.Color3f(0.0)
     rays = 0
     for i in range(per):
-        idx = group + subsets * i
+        idx = group + stride * i
         have = gb.valid & (idx < vpls.count)
         idx = dr.select(have, idx, 0)
         shared = dr.gather(mi.Bool, vpls.shared, idx, have)
