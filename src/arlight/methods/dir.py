@@ -100,8 +100,7 @@ from arlight.realtime.rsm import (
 )
 from arlight.realtime.shading import (
     SHADOW_EPS,
-    direct_change,
-    on_active,
+    direct_change_gbuffer,
     scene_bounds,
     virtual_bounds,
 )
@@ -503,10 +502,9 @@ class DIRMethod(BaseMethod):
             # the real lanes' direct change: shadow rays in the mixed scene, in the real one
             # where those are blocked (soft for extended lights with shadow_samples > 1);
             # none without virtual objects (the two views' BVHs may round a grazing ray apart)
-            e_dd = on_active(lambda p, n: direct_change(data.views, data.lights, p, n,
-                                                        mi.Bool(True), options.shadow_samples),
-                             gb.position, gb.normal, real) if data.world.has_virtual \
-                else mi.Color3f(0.0)
+            e_dd = direct_change_gbuffer(data.views, data.lights, gb, real,
+                                         options.shadow_samples) \
+                if data.world.has_virtual else mi.Color3f(0.0)
             dr.eval(e_dd)
         rays = 0
         with timer.stage("rsm"):

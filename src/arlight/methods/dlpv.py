@@ -110,8 +110,7 @@ from arlight.realtime.sh_volume import (
     transmittance_dr,
 )
 from arlight.realtime.shading import (
-    direct_change,
-    on_active,
+    direct_change_gbuffer,
     virtual_bounds,
 )
 from arlight.realtime.voxels import blocking_potential, shape_triangles
@@ -456,9 +455,8 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes, frame: np.ndarray | None =
                           gb, None if vols.rho is None else v_rho, data.ao_rays)
     e_delta = -real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal, real)
     if data.direct == "rays":
-        e_delta += on_active(lambda p, n: direct_change(data.views, data.lights, p, n,
-                                                        mi.Bool(True), data.shadow_samples),
-                             gb.position, gb.normal, real)
+        e_delta += direct_change_gbuffer(data.views, data.lights, gb, real,
+                                         data.shadow_samples)
     if vols.delta is not None:
         q = gb.position + gb.normal * half
         e_delta += k * query_irradiance_compact(vols.delta, q, gb.normal, real)

@@ -112,7 +112,7 @@ from arlight.realtime.rsm import check_memory as check_rsm_memory
 from arlight.realtime.sh_volume import Grid, cell_index
 from arlight.realtime.shading import (
     ambient_irradiance_dr,
-    direct_change_compact,
+    direct_change_gbuffer,
     direct_irradiance,
     direct_irradiance_compact,
     split_lights,
@@ -1176,8 +1176,8 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     # real pixels: ρ/π ΔE + k_s C_Δ,spec, and −h a_spec B (applied by the caller)
     e_delta = terms.x
     if shadow_rays is not None:
-        e_delta = e_delta + direct_change_compact(data.views, data.lights, gb.position,
-                                                  gb.normal, real, shadow_rays)
+        e_delta = e_delta + direct_change_gbuffer(data.views, data.lights, gb, real,
+                                                  shadow_rays)
     rho = gb.albedo
     if frame is not None:
         changed = real & (dr.max(dr.abs(e_delta)) > 0.0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
@@ -14,6 +15,9 @@ from arlight.backend.mitsuba_scene import SceneView, SceneViews
 from arlight.jit import opaques
 from arlight.realtime.light_reduction import LightSet, ReducedLight
 from arlight.scene.model import World
+
+if TYPE_CHECKING:
+    from arlight.realtime.gbuffer import GBuffer
 
 SHADOW_EPS = 1e-4
 """Offset of shadow-ray origins along the normal, metres."""
@@ -123,7 +127,8 @@ def extended(light: ReducedLight) -> bool:
 
 
 def direct_change(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
-                  active: mi.Bool, samples: int = 1) -> mi.Color3f:
+                  active: mi.Bool, samples: int = 1,
+                  strata: tuple[mi.UInt32, mi.UInt32, int] | None = None) -> mi.Color3f:
     """The virtual objects' change of the reduced lights' direct irradiance (W/m²) at real
     points ``p`` (normals ``n``): ``ΔE_d = Σ_i E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (Franke
     Eq. 5.14 in the mixed scene minus the same in the real one: Knecht 2010's differential
@@ -138,38 +143,70 @@ def direct_change(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vect
     (:func:`shadow_ray`) that arrive — the visible fraction of an area light, as ray-traced
     soft shadows compute it (Cook et al. 1984), with the unshadowed irradiance kept at
     the reduced light's. The ``K`` points are a rank-1 lattice (the R2 sequence) rotated
-    per lane by a hash of its index (Cranley–Patterson), so neighbouring pixels sample the
-    extent differently and a penumbra shows noise, not ``K`` copies of a hard shadow."""
+    per lane by a hash of its index (TEA; Cranley–Patterson), so neighbouring pixels sample the
+    extent differently and a penumbra shows noise, not ``K`` copies of a hard shadow.
+
+    ``strata = (pixel, sample, n)`` (a G-buffer with ``n`` samples per pixel,
+    :func:`direct_change_gbuffer`): the ``K`` points are split over a pixel's samples —
+    sample ``s`` casts points ``s, s + n, …`` of one lattice rotated by a hash of the pixel —
+    so the pixel's ``n`` samples cast ``K`` rays together, not ``n K``; each sample's ``V`` is
+    the fraction of its own points that arrive."""
     out = mi.Color3f(0.0)
     rot = None
     for lt, w, e, ray, lit in light_terms(lights, p, n, active):
         k = samples if samples > 1 and extended(lt) else 1
-        if k == 1:
-            rays = [ray]
-        else:
-            if rot is None:
-                rng = mi.PCG32(dr.width(p), dr.arange(mi.UInt64, dr.width(p)))
-                rot = (rng.next_float32(), rng.next_float32())
-            origin = p + n * SHADOW_EPS
-            rays = [shadow_ray(lt, origin, tuple(_frac(r + c) for r, c in zip(
-                rot, r2_point(j), strict=True))) for j in range(k)]
+        if rot is None and k > 1:
+            key = dr.arange(mi.UInt32, dr.width(p)) if strata is None else strata[0]
+            rot = (mi.sample_tea_float32(key, 0), mi.sample_tea_float32(key, 1))
+        origin = p + n * SHADOW_EPS
         lost = mi.Float(0.0)
-        for r in rays:
-            blocked = lit & views.mixed.scene.ray_test(r, lit)
+        cast = mi.Float(0.0)
+        for r, on in _extent_rays(lt, ray, origin, rot, k, strata):
+            on = lit & on
+            blocked = on & views.mixed.scene.ray_test(r, on)
             lost += dr.select(blocked & ~views.real.scene.ray_test(r, blocked), 1.0, 0.0)
-        out -= e * (dr.dot(n, w) * lost * (1.0 / k))
+            cast += dr.select(on, 1.0, 0.0)
+        out -= e * (dr.dot(n, w) * lost / dr.maximum(cast, 1.0))
     return out
 
 
-def direct_change_compact(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
-                          active: mi.Bool, samples: int = 1) -> mi.Color3f:
-    """:func:`direct_change` (W/m², ``≤ 0``) on the ``active`` lanes only (compacted with
-    :func:`on_active`, scattered back; zero elsewhere): the real pixels' shadow rays are set
-    up for the real lanes alone (``dvct``'s ``direct = rays``)."""
+def _extent_rays(light: ReducedLight, ray: mi.Ray3f, origin: mi.Point3f, rot, k: int,
+                 strata: tuple[mi.UInt32, mi.UInt32, int] | None):
+    """``(shadow ray, lanes that cast it)`` pairs of :func:`direct_change`: the one ray to
+    the light (``k`` 1), the ``k`` lattice points rotated by ``rot``, or with ``strata`` a
+    sample's share of them (point ``s + n t``; lanes whose share has fewer points skip the
+    last)."""
+    if k == 1:
+        yield ray, mi.Bool(True)
+        return
+    if strata is None or strata[2] <= 1:
+        for j in range(k):
+            yield shadow_ray(light, origin, tuple(_frac(r + c) for r, c in zip(
+                rot, r2_point(j), strict=True))), mi.Bool(True)
+        return
+    _, sample, spp = strata
+    g = 1.32471795724474602596
+    for t in range(-(-k // spp)):
+        j = mi.Float(sample + spp * t)  # the R2 point j per lane (r2_point in Dr.Jit)
+        u = (_frac(rot[0] + 0.5 + j * (1.0 / g)), _frac(rot[1] + 0.5 + j * (1.0 / (g * g))))
+        yield shadow_ray(light, origin, u), (sample + spp * t) < k
+
+
+def direct_change_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
+                          samples: int = 1) -> mi.Color3f:
+    """:func:`direct_change` (W/m², ``≤ 0``) at the G-buffer's ``active`` lanes only
+    (compacted with :func:`on_active`, scattered back; zero elsewhere), the ``samples``
+    points of an extended light split over each pixel's ``gb.spp`` samples (``strata``):
+    the real pixels' direct change of ``dir``, ``dlpv`` and ``dvct``."""
     if not lights.lights:
-        return dr.zeros(mi.Color3f, dr.width(p))
-    return on_active(lambda pc, nc: direct_change(views, lights, pc, nc, mi.Bool(True),
-                                                  samples), p, n, active)
+        return dr.zeros(mi.Color3f, dr.width(gb.position))
+    sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % gb.spp
+
+    def change(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32) -> mi.Color3f:
+        return direct_change(views, lights, p, n, mi.Bool(True), samples,
+                             (pixel, s, gb.spp))
+
+    return on_active(change, gb.position, gb.normal, active, gb.pixel, sample)
 
 
 def _frac(x: mi.Float) -> mi.Float:
@@ -204,16 +241,17 @@ def direct_irradiance_compact(view: SceneView, lights: LightSet, p: mi.Point3f,
                      p, n, active)
 
 
-def on_active(fn, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool) -> mi.Color3f:
-    """``fn(p, n)`` evaluated on the ``active`` lanes only (compacted with ``dr.compress``,
-    scattered back; zero elsewhere): pays off for costly per-lane work on few lanes."""
+def on_active(fn, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool, *extra) -> mi.Color3f:
+    """``fn(p, n, *extra)`` evaluated on the ``active`` lanes only (compacted with
+    ``dr.compress``, scattered back; zero elsewhere): pays off for costly per-lane work on
+    few lanes. ``extra``: more per-lane arrays, compacted alike."""
     idx = dr.compress(active)
     out = dr.zeros(mi.Color3f, dr.width(p))
     if dr.width(idx) == 0:
         return out
     pc = mi.Point3f(dr.gather(type(p), p, idx))
     nc = mi.Vector3f(dr.gather(type(n), n, idx))
-    dr.scatter(out, fn(pc, nc), idx)
+    dr.scatter(out, fn(pc, nc, *(dr.gather(type(a), a, idx) for a in extra)), idx)
     return out
 
 
@@ -271,7 +309,7 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
 
 
 __all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_change",
-           "direct_change_compact", "direct_irradiance",
+           "direct_change_gbuffer", "direct_irradiance",
            "direct_irradiance_compact", "direct_light", "emitted_intensity", "extended",
            "light_terms", "on_active", "r2_point", "shadow_ray",
            "scene_bounds", "split_lights", "spot_falloff", "virtual_bounds"]
