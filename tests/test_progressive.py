@@ -172,6 +172,7 @@ def test_refinement_refuses_methods_that_are_not_progressive():
         unregister("test-not-progressive")
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_rmse_falls_as_inverse_sqrt_n():
     scene = small_scene()
     gt = get_method("onepass")(scene, RenderSettings(spp=2048, seed=999)).composite

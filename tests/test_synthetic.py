@@ -67,6 +67,7 @@ def test_mean_and_stderr_weight_batches_by_their_spp(monkeypatch, tmp_path):
     assert np.all(p.mask == 0.25)
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_stderr_matches_the_scatter_of_independent_photos(tmp_path):
     """Two photos with different seeds differ by about their combined standard error
     (mean z² near 1): catches standard errors off by a factor (per-batch instead of
@@ -413,6 +414,7 @@ def test_key_follows_the_sampler():
         world, spp=64, batches=16, sampler=syn.DEFAULT_SAMPLER)
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_low_discrepancy_photos_are_closer_to_the_truth_with_honest_stderr():
     """Photos of a diffuse room at 64 spp in 16 batches, against a 4096-spp `independent`
     render: (a) with the default low-discrepancy sampler the squared errors average to the

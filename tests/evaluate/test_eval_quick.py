@@ -2,11 +2,14 @@
 
 import json
 
+import pytest
+
 from arlight.cli import main
 from arlight.evaluate.suite import list_scenes
 from arlight.methods import available_methods
 
 
+@pytest.mark.slow  # ~2 min on 2 cores; each method's contract on a scene is in test_contract.py
 def test_eval_quick_default_runs_every_method_on_every_scene(tmp_path, eval_cache,
                                                            monkeypatch):
     """The methods run with the defaults; the ground truth is the session's 64-spp photograph

@@ -81,6 +81,7 @@ def mitsuba_indirect(scene, uv: np.ndarray, n: int, seed: int, max_depth: int,
     return mean, se
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_indirect_term_converges_to_mitsubas_path_tracer():
     """A record at every pixel (tile 1) that reaches only its own pixel (κ → large): the
     splatted indirect term ρ/π·E is the record's path-traced estimate and must agree with
@@ -127,6 +128,7 @@ def test_indirect_term_converges_to_mitsubas_path_tracer():
     assert pm.max() > 0.02 and dic["delta"][0].min() < -0.01
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_silhouette_pixels_read_the_irradiance_of_the_surface_they_hit():
     """Pixels on the virtual ball's silhouette, 64 camera samples each: a sample that hits
     the floor while the pixel centre (the splat G-buffer) is on the ball, or the reverse,
@@ -156,6 +158,7 @@ def test_silhouette_pixels_read_the_irradiance_of_the_surface_they_hit():
     assert np.median(rel) < 0.2, np.median(rel)
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_a_rough_metal_reflects_indirect_light_as_mitsuba_traces_it():
     """A virtual rough-conductor ball (α 0.3, no diffuse lobe: nothing of it is cached): its
     indirect light — the lit room reflected in it, paths of 3 minus 2 vertices, same camera

@@ -54,6 +54,7 @@ def test_reference_standard_errors_are_small(reference):
     reference[1].assert_precise()
 
 
+@pytest.mark.slow  # 10–40 s on 2 cores: the fast tier stays under ~15 min (./dev test-all runs it)
 def test_one_bounce_matches_path_traced_reference(reference):
     """dir at its defaults (aimed RSMs, VPLs by importance; 256 VPLs, every VPL at every
     pixel, no G clamp — the clamp is a documented bias), for each of 8 selection offsets ξ:
