@@ -198,7 +198,8 @@ def _browser_drags(page, box: dict, engine, names: list[str], rounds: int,
     def client(x, y):
         return box["x"] + x / w * box["width"], box["y"] + y / h * box["height"]
 
-    full = " && window.studio.header.factor === 1" if to_rest else ""
+    full = (" && window.studio.header.factor === 1 && !window.studio.header.preview"
+            if to_rest else "")
     for r in range(rounds + 1):
         for name in names:
             page.select_option("#method", name)
@@ -220,10 +221,10 @@ def _browser_drags(page, box: dict, engine, names: list[str], rounds: int,
                 if move_ms:
                     page.wait_for_timeout(move_ms)
             last = page.evaluate("window.studio.lastSent")
-            if to_rest:
+            if to_rest:  # the antialiased full-size frame (after a one-sample preview)
                 page.wait_for_function(
                     f"window.studio.shownLog.some(f => f.seq >= {last['seq']} && "
-                    "f.factor === 1)", timeout=900_000)
+                    "f.factor === 1 && !f.preview)", timeout=900_000)
             else:
                 page.wait_for_function(f"window.studio.latencies.length > {n0}",
                                        timeout=900_000)
@@ -303,6 +304,7 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     lat = {n: [] for n in names}  # (ms, factor) per frame shown while dragging
     first = {n: [] for n in names}  # the first frame of each drag, ms
     settle = {n: [] for n in names}  # last pointer event -> full-size frame drawn, ms
+    final = {n: [] for n in names}  # ... -> the antialiased full-size frame (after a preview)
     renders = {n: [] for n in names}  # (factor, render_s, pose_s) of the frames shown
     stages = {n: [] for n in names}  # the server's stage times (s) of the frames shown
     log_drags: list[dict] = []  # per drag: its last seq, (seq, factor, ms) of its frames
@@ -312,10 +314,11 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
         for d in _browser_drags(page, box, engine, names, drags, rng, moves, move_ms,
                                 to_rest=True):
             name, last, log = d["method"], d["last"], d["log"]
-            done = min(f["at"] for f in log
-                       if f["seq"] is not None and f["seq"] >= last["seq"]
-                       and f["factor"] == 1)
-            settle[name].append(done - last["t"])
+            full = [f for f in log if f["seq"] is not None and f["seq"] >= last["seq"]
+                    and f["factor"] == 1]
+            settle[name].append(min(f["at"] for f in full) - last["t"])
+            final[name].append(min(f["at"] for f in full if not f.get("preview"))
+                               - last["t"])
             drag = [x for x in d["records"] if x["type"] == "drag"]
             log_drags.append({"method": name, "last": last["seq"], "frames": [
                 (x["seq"], x["factor"], round(x["ms"])) for x in drag]})
@@ -331,6 +334,7 @@ def run_video(drags: int, moves: int, move_ms: float, resolution: tuple[int, int
     return {"drags": drags, "moves": moves, "move_ms": move_ms, "resolution": resolution,
             "budget_ms": engine.config.frame_budget_ms, "rest_ms": engine.config.rest_ms,
             "factors": engine.factors, "latency": lat, "first": first, "settle": settle,
+            "final": final,
             "renders": renders, "per_scale": per_scale, "load": [load0, load1],
             "stages": stages, "drag_threads": drag_threads, "drag_calls": drag_calls,
             "openblas": os.environ.get("OPENBLAS_NUM_THREADS"),
@@ -363,20 +367,24 @@ def video_report(v: dict) -> str:
              "apart (methods interleaved, after a warm-up round). *drag → composite*: every "
              "frame drawn during a drag, from the pointer event it shows to its draw on the "
              "canvas. *rest → full size*: from the last pointer event to the full-size frame "
-             "drawn (includes the rest interval). Machine load — " + loads + ".", "",
+             "drawn (includes the rest interval); *antialiased*: to the full-size frame with "
+             "the method's G-buffer samples, after a one-sample preview where it takes "
+             "several (dir, dlpv, dvct: `DragStates.preview`). Machine load — " + loads + ".",
+             "",
              "| method | frames | drag → composite p50 (ms) | p95 (ms) | first frame of a "
              "drag p50 (ms) | factors used (share of frames) | rest → full size p50 / max "
-             "(ms) |", "|---|---|---|---|---|---|---|"]
+             "(ms) | rest → antialiased p50 / max (ms) |", "|---|---|---|---|---|---|---|---|"]
     for name, xs in v["latency"].items():
         ms = [m for m, _ in xs]
         used = collections.Counter(k for _, k in xs)
         share = ", ".join(f"1/{k}: {c / max(len(xs), 1):.0%}" if k > 1 else
                           f"full: {c / max(len(xs), 1):.0%}" for k, c in sorted(used.items()))
-        st = v["settle"][name]
+        st, fin = v["settle"][name], v.get("final", {}).get(name, [])
         lines.append(f"| {name} | {len(ms)} | {_percentile(ms, 50):.0f} | "
                      f"{_percentile(ms, 95):.0f} | {_percentile(v['first'][name], 50):.0f} | "
                      f"{share} | {_percentile(st, 50):.0f} / "
-                     f"{max(st) if st else float('nan'):.0f} |")
+                     f"{max(st) if st else float('nan'):.0f} | {_percentile(fin, 50):.0f} / "
+                     f"{max(fin) if fin else float('nan'):.0f} |")
     facs = v["factors"]
     lines += ["", "Options of the drag frames (each method's `drag_options`, issue #32: "
               "per-frame work that does not shrink with the image scaled too; full size at "

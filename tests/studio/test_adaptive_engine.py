@@ -22,7 +22,9 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     studio that never goes back to full size at rest, or keeps re-rendering it; a drag
     frame not rendered with ``drag_threads`` Dr.Jit workers and evaluated calls, or a
     full-size frame left with them; an evaluated-call drag frame that is not bit for bit
-    the symbolic render."""
+    the symbolic render; a rest that shows the antialiased frame without the one-sample
+    full-size preview first (dir takes 4 G-buffer samples), a preview rendered with more
+    than one sample, or a preview left on screen (no antialiased frame after it)."""
     import drjit as dr
 
     from arlight.methods import get_method
@@ -33,9 +35,12 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
     threads = []  # (width rendered, Dr.Jit workers) of each dir frame
     plain = DIRMethod.render
 
+    spps = []  # (width rendered, gbuffer_spp) of each dir frame
+
     def render(self, state, view, settings=None):
         threads.append((view.camera.width, dr.thread_count(),
                         dr.flag(dr.JitFlag.SymbolicCalls)))
+        spps.append((view.camera.width, self.options(settings).gbuffer_spp))
         return plain(self, state, view, settings)
 
     monkeypatch.setattr(DIRMethod, "render", render)
@@ -57,15 +62,19 @@ def test_drag_frames_are_downscaled_then_refined_once_at_rest(studio_server, stu
         small, img = await a.wait_frame(lambda h: h["seq"] == 7)
         s = max(eng.sessions, key=lambda s: s.id)
         shown = eng.call(lambda: (dict(s.poses), s.images["composite"].copy())).result(60)
-        full, _ = await a.wait_frame(lambda h: h["seq"] == 7 and h["factor"] == 1,
-                                     timeout=60)
-        try:  # nothing more: one full-size frame at rest, not a loop
+        first, _ = await a.wait_frame(lambda h: h["seq"] == 7 and h["factor"] == 1,
+                                      timeout=60)
+        full, _ = await a.wait_frame(lambda h: h["seq"] == 7 and h["factor"] == 1
+                                     and not h["preview"], timeout=60)
+        try:  # nothing more: the preview and one antialiased frame at rest, not a loop
             extra = await a.next(timeout=1.0)
         except TimeoutError:
             extra = None
-        return small, img, shown, full, extra
+        return small, img, shown, first, full, extra
 
-    small, img, (poses, composite), full, extra = run_clients(studio_server, go)
+    small, img, (poses, composite), first, full, extra = run_clients(studio_server, go)
+    assert first["preview"] and not small["preview"]
+    assert [spp for w, spp in spps if w == SIZE[0]][-2:] == [1, 4]
     assert (small["factor"], small["width"], small["height"]) == (2, SIZE[0] // 2,
                                                                   SIZE[1] // 2)
     assert np.asarray(Image.open(io.BytesIO(img))).shape == (SIZE[1], SIZE[0], 3)

@@ -64,6 +64,7 @@ from arlight.methods.base import (
 )
 from arlight.methods.fragments import (
     AA_GBUFFER_SPP,
+    GBUFFER_FRAME_OPTIONS,
     REDUCTION_OPTIONS,
     drag_gbuffer_spp,
     gbuffer_options,
@@ -167,6 +168,7 @@ SPEC = MethodSpec(
                               lights=REDUCIBLE_LIGHTS),
     check=_check,
     drag_options=drag_options,
+    frame_options=GBUFFER_FRAME_OPTIONS,
 )
 
 

@@ -61,6 +61,7 @@ from arlight.methods.base import (
 )
 from arlight.methods.fragments import (
     AA_GBUFFER_SPP,
+    GBUFFER_FRAME_OPTIONS,
     LATTICE_OPTIONS,
     REDUCTION_OPTIONS,
     drag_gbuffer_spp,
@@ -194,6 +195,7 @@ SPEC = MethodSpec(
     capabilities=Capabilities(interactive=True, materials=frozenset({"diffuse", "phong"}),
                               lights=REDUCIBLE_LIGHTS),
     drag_options=drag_options,
+    frame_options=GBUFFER_FRAME_OPTIONS,
 )
 
 

@@ -77,6 +77,7 @@ from arlight.methods.base import (
 )
 from arlight.methods.fragments import (
     AA_GBUFFER_SPP,
+    GBUFFER_FRAME_OPTIONS,
     REDUCTION_OPTIONS,
     drag_gbuffer_spp,
     gbuffer_options,
@@ -286,6 +287,7 @@ SPEC = MethodSpec(
         {"diffuse", "phong", "mirror", "roughconductor"}), lights=REDUCIBLE_LIGHTS),
     check=_check,
     drag_options=drag_options,
+    frame_options=GBUFFER_FRAME_OPTIONS,
 )
 
 LUM = np.array([0.2126, 0.7152, 0.0722])

@@ -33,6 +33,11 @@ GBUFFER_OPTIONS: dict[str, Field] = {
 """``gbuffer_spp``: primary samples per pixel of :func:`arlight.realtime.gbuffer.
 render_gbuffer` (1: the rasteriser's G-buffer)."""
 
+GBUFFER_FRAME_OPTIONS = frozenset(GBUFFER_OPTIONS)
+"""The G-buffer option as a :attr:`~arlight.methods.spec.MethodSpec.frame_options` entry of
+methods whose preparation does not read it (``dir``, ``dlpv``, ``dvct``): one prepared state
+renders any ``gbuffer_spp`` (the studio's one-sample preview at rest uses it)."""
+
 
 AA_GBUFFER_SPP = 4
 """``dir``'s and ``dlpv``'s default ``gbuffer_spp`` (issue #33): the ground truth is
@@ -139,4 +144,5 @@ LATTICE_OPTIONS: dict[str, Field] = {
 
 __all__ = ["GBUFFER_OPTIONS", "LATTICE_OPTIONS", "PathScenesMethod", "REDUCTION_OPTIONS",
            "drag_gbuffer_spp", "follow_volume", "gbuffer_options", "AA_GBUFFER_SPP",
+           "GBUFFER_FRAME_OPTIONS",
            "place_occluded", "volume_grid"]

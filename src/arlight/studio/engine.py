@@ -30,7 +30,9 @@
   from the measured render times against :attr:`StudioConfig.frame_budget_ms`, and its
   layers are upsampled (bilinear) and composited over the full-size photo; once no motion
   message came for :attr:`StudioConfig.rest_ms` the frame is rendered at full size once
-  (progressive methods then refine as before). Each frame's header gives its rendered
+  (progressive methods then refine as before; methods with several G-buffer samples per
+  pixel show full size at one sample first, then the antialiased frame:
+  :attr:`DragStates.preview`). Each frame's header gives its rendered
   ``width``/``height``, ``factor`` and ``latency_ms`` (newest change → frame posted).
   Per-frame work that does not shrink with the image (RSMs, volumes, propagation, VPLs)
   is scaled through the options the method's spec declares for drag frames
@@ -187,6 +189,7 @@ class Session:
     stats: dict[str, float] = field(default_factory=dict)
     accumulators: dict[str, Accumulator] = field(default_factory=dict)
     refine: int = 0  # frames accumulated for the current version (progressive methods)
+    preview: bool = False  # the full-size frame shown is DragStates.preview's (one sample)
     closed: bool = False
     last_message: float = 0.0  # time.monotonic() of the newest client message
     holding: bool = False  # the pointer holds the picked object (pick .. release)
@@ -284,11 +287,17 @@ class DragStates:
         full: the full-size frame's state.
         base: the studio's settings.
         by_factor: factor -> (state, settings) of the factors that differ from ``full``.
+        preview: the settings of the first full-size frame at rest when the method takes
+            several G-buffer samples per pixel (``gbuffer_spp`` > 1, a frame option of its
+            spec): one sample, with ``full``'s state — the pointer's rest shows full size
+            at a fraction of the cost, and the antialiased frame follows (None: no such
+            option).
     """
 
     full: Prepared
     base: RenderSettings
     by_factor: dict[int, tuple[Prepared, RenderSettings]] = field(default_factory=dict)
+    preview: RenderSettings | None = None
 
     @classmethod
     def prepare(cls, fn: Method, world, full: Prepared, base: RenderSettings,
@@ -312,6 +321,11 @@ class DragStates:
                     shared[key] = fn.prepare(world, settings)
                 state = shared[key]
             out.by_factor[k] = (state, settings)
+        if "gbuffer_spp" in opts and opts["gbuffer_spp"] > 1:
+            preview = replace(base, options={**base.options, "gbuffer_spp": 1})
+            if (spec.preparation_options(spec.parse_options(preview.options))
+                    == spec.preparation_options(opts)):  # the full state renders it
+                out.preview = preview
         return out
 
     def state(self, factor: int) -> Prepared:
@@ -599,7 +613,7 @@ class Engine:
                 return None
             if s.display_version != s.displayed_version:
                 return "display"
-            if s.factor > 1:  # shown downscaled: full size once the pointer rests
+            if s.factor > 1 or s.preview:  # downscaled or one-sample: full once at rest
                 now = time.monotonic()
                 if at_rest(now, s.motion_at, self.rest_s):
                     return "settle"
@@ -894,6 +908,12 @@ class Engine:
         settings = drag.settings(factor) if drag is not None else self.settings
         if drag is not None:
             state = drag.state(factor)
+        # at rest after a downscaled frame: full size at one G-buffer sample first, then the
+        # antialiased frame (the next settle)
+        preview = (settle and factor == 1 and drag is not None and drag.preview is not None
+                   and s.factor > 1)
+        if preview:
+            settings = drag.preview
         if progressive:  # frame n of the refinement (onepass: samples continue one sequence)
             settings = frame_settings(fn, settings, n)
         denoise = denoise and self.catalogue[method].noisy
@@ -931,10 +951,11 @@ class Engine:
                 s.images, s.refine = self._fold(s, layers, n, progressive)
                 s.window = None
             s.factor = factor
+            s.preview = preview
             s.shown = {"seq": seq, "version": version, "method": method,
                        "objects": {k: p.to_json() for k, p in poses.items()},
                        "width": self.width // factor, "height": self.height // factor,
-                       "factor": factor}
+                       "factor": factor, "preview": preview}
             s.stats = {**{k: float(v) for k, v in layers.stats.items()
                           if k.startswith("time_")},
                        "time_place": t_place, "render_s": t_render,

@@ -132,7 +132,8 @@ function shown(h) {
   if ($("status").textContent.startsWith("preparing")) setStatus("", false);
   studio.header = h;
   studio.frames += 1;
-  studio.shownLog.push({at: now, seq: h.seq, factor: h.factor, refine: h.refine});
+  studio.shownLog.push({at: now, seq: h.seq, factor: h.factor, refine: h.refine,
+                       preview: !!h.preview});
   if (studio.shownLog.length > 256) studio.shownLog.shift();  // the benchmark reads it
   frameTimes.push(now);
   while (frameTimes.length && now - frameTimes[0] > 2000) frameTimes.shift();
