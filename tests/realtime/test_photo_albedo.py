@@ -18,6 +18,8 @@ from arlight.methods import RenderSettings, get_method
 from arlight.realtime.gbuffer import render_gbuffer
 from arlight.realtime.light_reduction import LightSet, ReducedLight
 from arlight.realtime.photo_albedo import photo_albedo
+from arlight.realtime.real_lane import real_albedo
+from arlight.realtime.shading import direct_terms_gbuffer
 from arlight.scene.load import parse_scene
 from arlight.synthetic import synthesize
 
@@ -98,6 +100,32 @@ def test_reads_the_texture_the_proxy_lost(checker_world):
                                    np.median(truth[sel], axis=0), rtol=0.05)
     assert math.isclose(np.median(np.array(gb.albedo, np.float64)), (DARK + BRIGHT) / 2,
                         rel_tol=1e-3)
+
+
+def test_shared_shadow_rays_give_the_same_albedo(checker_world):
+    """``real_albedo`` with ``direct`` (E_r's direct part from the direct change's own
+    shadow rays, :func:`~arlight.realtime.shading.direct_terms_gbuffer`, as ``dir`` passes
+    it) equals ``real_albedo`` tracing its own ray per light, on every real lane — under a
+    point light both are one ray to the point, the real scene's visibility — in the cube's
+    shadow too (where a shared ray is blocked in the mixed scene and traced again in the
+    real one). Rejects sharing the mixed scene's visibility (E_r = 0 in the shadow: the
+    proxy's albedo kept there) and an E_r without the shared part (ρ̂ clipped to 1);
+    mutation-checked."""
+    _, proxy, photo, _ = checker_world
+    views = build_views(proxy.world)
+    gb = render_gbuffer(views.mixed, proxy.camera, 1, 0)
+    pos = np.array(LIGHT["position"], np.float64)
+    lights = LightSet([ReducedLight(kind="point", position=pos, axis=np.zeros(3),
+                                    intensity=np.full(3, LIGHT["intensity"]), source="l0")])
+    real = gb.valid & ~gb.virtual
+    terms = direct_terms_gbuffer(views, lights, gb, real, 8)
+    own = np.array(real_albedo("photo", views, lights, proxy.frame, gb, real), np.float64)
+    shared = np.array(real_albedo("photo", views, lights, proxy.frame, gb, real,
+                                  direct=terms.real), np.float64)
+    sel = np.array(real, bool)
+    shadow = sel & (np.array(terms.change, np.float64)[0] < 0.0)
+    assert shadow.sum() > 50
+    np.testing.assert_allclose(shared[:, sel], own[:, sel], rtol=1e-5, atol=1e-7)
 
 
 def test_dvct_shadow_on_a_texture_the_proxy_averaged(checker_world):

@@ -101,7 +101,7 @@ from arlight.realtime.rsm import (
 )
 from arlight.realtime.shading import (
     SHADOW_EPS,
-    direct_change_gbuffer,
+    direct_terms_gbuffer,
     scene_bounds,
     virtual_bounds,
 )
@@ -504,10 +504,12 @@ class DIRMethod(BaseMethod):
             # the real lanes' direct change: shadow rays in the mixed scene, in the real one
             # where those are blocked (soft for extended lights with shadow_samples > 1);
             # none without virtual objects (the two views' BVHs may round a grazing ray apart)
-            e_dd = direct_change_gbuffer(data.views, data.lights, gb, real,
+            # (and through the same rays the real scene's direct irradiance, E_r's for ρ̂)
+            terms = direct_terms_gbuffer(data.views, data.lights, gb, real,
                                          options.shadow_samples) \
-                if data.world.has_virtual else mi.Color3f(0.0)
-            dr.eval(e_dd)
+                if data.world.has_virtual else None
+            e_dd = terms.change if terms is not None else mi.Color3f(0.0)
+            dr.eval(e_dd, terms.real if terms is not None else e_dd)
         rays = 0
         with timer.stage("rsm"):
             vpls = frame_vpls(data, gb, options, settings.seed) \
@@ -531,7 +533,8 @@ class DIRMethod(BaseMethod):
             # ρ̂ from the photograph under E_r with the real solution's indirect light: on
             # real lanes e_im − e_id is R_µ's gather (arlight.realtime.real_lane)
             rho_real = real_albedo(options.real_albedo, data.views, data.lights, view.frame,
-                                   gb, real, e_im - e_id) * (1.0 / math.pi)
+                                   gb, real, e_im - e_id,
+                                   terms.real if terms is not None else None) * (1.0 / math.pi)
             delta = dr.select(real, rho_real * (e_dd + e_id - e_loss),
                               mi.Color3f(0.0))
             # the objects' own shading (arlight.realtime.object_shading), with the VPLs'

@@ -9,10 +9,13 @@ with the delta irradiance ``ΔE``). Option ``real_albedo``:
   irradiance ``E_r`` (:func:`arlight.realtime.photo_albedo.photo_albedo`), so the change is
   ``B ΔE / E_r``, a ratio of the light the pixel receives — right on textured and glossy
   real surfaces where the proxy's mean albedo is not. ``E_r`` holds the reduced lights
-  (shadow rays in the real proxy) and the SH remainder; ``dir`` adds the real scene's
-  indirect light from its VPLs (``R_µ``'s gather, which it computes anyway): without it a
-  room's interreflection is missing from ``E_r``, ρ̂ comes out high and shadows too deep
-  (12 training worlds: median +0.35 dB with it, +0.19 without, worst −0.26 / −0.58).
+  (shadow rays in the real proxy: the direct change's own, which give the real scene's
+  visibility where the mixed scene's ray is blocked and say it is clear elsewhere —
+  :func:`arlight.realtime.shading.direct_terms_gbuffer`) and the SH remainder; ``dir``
+  adds the real scene's indirect light from its VPLs (``R_µ``'s gather, which it computes
+  anyway): without it a room's interreflection is missing from ``E_r``, ρ̂ comes out high
+  and shadows too deep (12 training worlds: median +0.35 dB with it, +0.19 without, worst
+  −0.26 / −0.58).
 
 Option ``shadow_samples``: shadow rays per extended reduced light for the direct change
 (:func:`arlight.realtime.shading.direct_change`): a reduced light stands for a region of sky
@@ -47,12 +50,15 @@ REAL_LANE_OPTIONS: dict[str, Field] = {
 
 
 def real_albedo(mode: str, views: SceneViews, lights: LightSet, frame: np.ndarray,
-                gb: GBuffer, real: mi.Bool, indirect: mi.Color3f | None = None
-                ) -> mi.Color3f:
+                gb: GBuffer, real: mi.Bool, indirect: mi.Color3f | None = None,
+                direct: mi.Color3f | None = None) -> mi.Color3f:
     """Per-lane albedo of the real lanes' change (module docstring): the G-buffer's
     (``proxy``) or the photograph's (``photo``, computed on the ``real`` lanes; the proxy's
     elsewhere). ``frame``: ``(H, W, 3)`` linear radiance; ``indirect``: the real scene's
-    indirect irradiance (W/m²) where the method has it, added to ``E_r``."""
+    indirect irradiance (W/m²) where the method has it, added to ``E_r``; ``direct``:
+    ``E_r``'s direct part where the method has traced it with its direct change
+    (:func:`arlight.realtime.shading.direct_terms_gbuffer`'s ``real``: no shadow rays of
+    ``E_r``'s own), None: traced here (one ray per light)."""
     if mode == "proxy":
         return gb.albedo
     if mode != "photo":
@@ -60,7 +66,7 @@ def real_albedo(mode: str, views: SceneViews, lights: LightSet, frame: np.ndarra
     from arlight.realtime.photo_albedo import photo_albedo
 
     return photo_albedo(views.real, lights, frame, gb.pixel, gb.position, gb.normal,
-                        gb.albedo, real, indirect)
+                        gb.albedo, real, indirect, direct)
 
 
 __all__ = ["ALBEDO_MODES", "REAL_LANE_OPTIONS", "real_albedo"]

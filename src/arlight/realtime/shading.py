@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import drjit as dr
 import mitsuba as mi
@@ -126,98 +126,137 @@ def extended(light: ReducedLight) -> bool:
     return (light.kind == "directional" and light.spread > 0.0) or bool(np.any(light.extent))
 
 
-def direct_change(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
-                  active: mi.Bool, samples: int = 1,
-                  strata: tuple[mi.UInt32, mi.UInt32, int] | None = None) -> mi.Color3f:
-    """The virtual objects' change of the reduced lights' direct irradiance (W/m²) at real
-    points ``p`` (normals ``n``): ``ΔE_d = Σ_i E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (Franke
-    Eq. 5.14 in the mixed scene minus the same in the real one: Knecht 2010's differential
-    of the direct light), with the visibilities ``V_ρ`` in the mixed view and ``V_µ`` in the
-    real one traced by shadow rays. The mixed scene holds the real one, so ``V_ρ ≤ V_µ``:
-    the real-scene ray is traced only where the mixed one is blocked, and ``ΔE_d ≤ 0``
-    (zero on inactive lanes).
+class DirectTerms(NamedTuple):
+    """The reduced lights' direct irradiance at real points through one set of shadow rays
+    (:func:`direct_terms`), both W/m²."""
+
+    change: mi.Color3f
+    """``ΔE_d = Σ_i E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (``≤ 0``): the virtual objects' change."""
+    real: mi.Color3f
+    """``E_µ,d = Σ_i E⊥_i <n, ω_i>+ V_µ,i``: the real scene's own direct irradiance (the
+    direct part of the photograph's model irradiance ``E_r``,
+    :func:`arlight.realtime.photo_albedo.model_irradiance`)."""
+
+
+def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
+                 active: mi.Bool, samples: int = 1,
+                 strata: tuple[mi.UInt32, mi.UInt32, int] | None = None) -> DirectTerms:
+    """The virtual objects' change of the reduced lights' direct irradiance at real points
+    ``p`` (normals ``n``) and the real scene's direct irradiance, through the same shadow
+    rays (:class:`DirectTerms`; zero on inactive lanes).
+
+    ``ΔE_d = Σ_i E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (Franke Eq. 5.14 in the mixed scene minus
+    the same in the real one: Knecht 2010's differential of the direct light), with the
+    visibilities ``V_ρ`` in the mixed view and ``V_µ`` in the real one traced by shadow
+    rays. The mixed scene holds the real one, so a ray the mixed scene lets through
+    arrives in the real one too (``V_ρ ≤ V_µ``): the real-scene ray is traced only where
+    the mixed one is blocked, and that one test gives both ``V_ρ − V_µ`` (``ΔE_d ≤ 0``) and
+    ``V_µ`` — ``E_µ,d = Σ_i E⊥_i <n, ω_i>+ V_µ,i``, the real scene's direct irradiance of
+    the photograph's albedo, comes without rays of its own.
 
     With ``samples = K > 1`` an extended light (:func:`extended`: a directional light
     standing for a region of sky, a cosine point for a patch of an area light) casts a soft
     shadow: ``V`` is the fraction of ``K`` shadow rays to points of its extent
     (:func:`shadow_ray`) that arrive — the visible fraction of an area light, as ray-traced
     soft shadows compute it (Cook et al. 1984), with the unshadowed irradiance kept at
-    the reduced light's. The ``K`` points are a rank-1 lattice (the R2 sequence) rotated
-    per lane by a hash of its index (TEA; Cranley–Patterson), so neighbouring pixels sample the
-    extent differently and a penumbra shows noise, not ``K`` copies of a hard shadow.
+    the reduced light's (so ``E_µ,d`` holds the real scene's soft shadows too). The ``K``
+    points are a rank-1 lattice (the R2 sequence, :func:`r2_point`) rotated per pixel by a
+    hash of its index (TEA; Cranley–Patterson), so neighbouring pixels sample the extent
+    differently and a penumbra shows noise, not ``K`` copies of a hard shadow.
 
-    ``strata = (pixel, sample, n)`` (a G-buffer with ``n`` samples per pixel,
-    :func:`direct_change_gbuffer`): the ``K`` points are split over a pixel's samples —
-    sample ``s`` casts points ``s, s + n, …`` of one lattice rotated by a hash of the pixel —
-    so the pixel's ``n`` samples cast ``K`` rays together, not ``n K``; each sample's ``V`` is
-    the fraction of its own points that arrive."""
-    out = mi.Color3f(0.0)
+    ``strata = (pixel, sample, m)`` (a G-buffer with ``m`` samples per pixel,
+    :func:`direct_terms_gbuffer`): the ``K`` points are split over a pixel's samples —
+    sample ``s`` casts points ``s, s + m, …`` of one lattice rotated by a hash of the pixel —
+    so the pixel's ``m`` samples cast ``max(K, m)`` rays together, not ``m K``; each
+    sample's ``V`` is the fraction of its own points that arrive. None: each lane is its
+    own pixel (key: its index) with one sample."""
+    change = mi.Color3f(0.0)
+    real = mi.Color3f(0.0)
+    if strata is None:
+        strata = (dr.arange(mi.UInt32, dr.width(p)), mi.UInt32(0), 1)
     rot = None
     for lt, w, e, ray, lit in light_terms(lights, p, n, active):
         k = samples if samples > 1 and extended(lt) else 1
         if rot is None and k > 1:
-            key = dr.arange(mi.UInt32, dr.width(p)) if strata is None else strata[0]
-            rot = (mi.sample_tea_float32(key, 0), mi.sample_tea_float32(key, 1))
+            rot = (mi.sample_tea_float32(strata[0], 0), mi.sample_tea_float32(strata[0], 1))
         origin = p + n * SHADOW_EPS
         lost = mi.Float(0.0)
+        shaded = mi.Float(0.0)
         cast = mi.Float(0.0)
         for r, on in _extent_rays(lt, ray, origin, rot, k, strata):
             on = lit & on
             blocked = on & views.mixed.scene.ray_test(r, on)
-            lost += dr.select(blocked & ~views.real.scene.ray_test(r, blocked), 1.0, 0.0)
+            in_real = blocked & views.real.scene.ray_test(r, blocked)
+            lost += dr.select(blocked & ~in_real, 1.0, 0.0)
+            shaded += dr.select(in_real, 1.0, 0.0)
             cast += dr.select(on, 1.0, 0.0)
-        out -= e * (dr.dot(n, w) * lost / dr.maximum(cast, 1.0))
-    return out
+        per_ray = e * (dr.dot(n, w) / dr.maximum(cast, 1.0))
+        change -= per_ray * lost
+        real += per_ray * (cast - shaded)
+    return DirectTerms(change, real)
+
+
+def direct_change(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
+                  active: mi.Bool, samples: int = 1,
+                  strata: tuple[mi.UInt32, mi.UInt32, int] | None = None) -> mi.Color3f:
+    """``ΔE_d`` (W/m², ``≤ 0``) of :func:`direct_terms` alone."""
+    return direct_terms(views, lights, p, n, active, samples, strata).change
 
 
 def _extent_rays(light: ReducedLight, ray: mi.Ray3f, origin: mi.Point3f, rot, k: int,
-                 strata: tuple[mi.UInt32, mi.UInt32, int] | None):
-    """``(shadow ray, lanes that cast it)`` pairs of :func:`direct_change`: the one ray to
-    the light (``k`` 1), the ``k`` lattice points rotated by ``rot``, or with ``strata`` a
-    sample's share of them (point ``s + n t``; lanes whose share has fewer points skip the
-    last)."""
+                 strata: tuple[mi.UInt32, mi.UInt32, int]):
+    """``(shadow ray, lanes that cast it)`` pairs of :func:`direct_terms`: the one ray to
+    the light (``k`` 1), or a sample's share of ``max(k, m)`` lattice points rotated by
+    ``rot`` (``m`` samples per pixel: point ``s + m t`` for sample ``s``; lanes whose share
+    has fewer points skip the last; every sample casts at least one)."""
     if k == 1:
         yield ray, mi.Bool(True)
         return
-    if strata is None or strata[2] <= 1:
-        for j in range(k):
-            yield shadow_ray(light, origin, tuple(_frac(r + c) for r, c in zip(
-                rot, r2_point(j), strict=True))), mi.Bool(True)
-        return
     _, sample, spp = strata
-    g = 1.32471795724474602596
+    k = max(k, spp)
     for t in range(-(-k // spp)):
-        j = mi.Float(sample + spp * t)  # the R2 point j per lane (r2_point in Dr.Jit)
-        u = (_frac(rot[0] + 0.5 + j * (1.0 / g)), _frac(rot[1] + 0.5 + j * (1.0 / (g * g))))
-        yield shadow_ray(light, origin, u), (sample + spp * t) < k
+        j = sample + spp * t
+        u = r2_point(mi.Float(j))
+        yield (shadow_ray(light, origin, (_frac(rot[0] + u[0]), _frac(rot[1] + u[1]))),
+               mi.Bool(True) if k % spp == 0 else j < k)
+
+
+def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
+                         samples: int = 1) -> DirectTerms:
+    """:func:`direct_terms` (W/m²) at the G-buffer's ``active`` lanes only (compacted with
+    :func:`on_active`, scattered back; zero elsewhere), the ``samples`` points of an
+    extended light split over each pixel's ``gb.spp`` samples (``strata``): the real
+    pixels' direct change of ``dir``, ``dlpv`` and ``dvct`` and, through the same rays,
+    the direct part of their photograph's model irradiance (``real``, for
+    :func:`arlight.realtime.real_lane.real_albedo`'s ``direct``)."""
+    if not lights.lights:
+        z = dr.zeros(mi.Color3f, dr.width(gb.position))
+        return DirectTerms(z, mi.Color3f(z))
+    sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % gb.spp
+
+    def terms(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32) -> DirectTerms:
+        return direct_terms(views, lights, p, n, mi.Bool(True), samples, (pixel, s, gb.spp))
+
+    return DirectTerms(*on_active(terms, gb.position, gb.normal, active, gb.pixel, sample,
+                                 outputs=2))
 
 
 def direct_change_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
                           samples: int = 1) -> mi.Color3f:
-    """:func:`direct_change` (W/m², ``≤ 0``) at the G-buffer's ``active`` lanes only
-    (compacted with :func:`on_active`, scattered back; zero elsewhere), the ``samples``
-    points of an extended light split over each pixel's ``gb.spp`` samples (``strata``):
-    the real pixels' direct change of ``dir``, ``dlpv`` and ``dvct``."""
-    if not lights.lights:
-        return dr.zeros(mi.Color3f, dr.width(gb.position))
-    sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % gb.spp
-
-    def change(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32) -> mi.Color3f:
-        return direct_change(views, lights, p, n, mi.Bool(True), samples,
-                             (pixel, s, gb.spp))
-
-    return on_active(change, gb.position, gb.normal, active, gb.pixel, sample)
+    """``ΔE_d`` (W/m², ``≤ 0``) of :func:`direct_terms_gbuffer` alone."""
+    return direct_terms_gbuffer(views, lights, gb, active, samples).change
 
 
-def _frac(x: mi.Float) -> mi.Float:
-    return x - dr.floor(x)
+def _frac(x):
+    return x - (math.floor(x) if isinstance(x, float | int) else dr.floor(x))
 
 
-def r2_point(j: int) -> tuple[float, float]:
+def r2_point(j):
     """Point ``j`` of the R2 rank-1 lattice in ``[0, 1)²`` (Roberts 2018: ``frac(0.5 + j
-    (1/φ₂, 1/φ₂²))``, ``φ₂`` the plastic number 1.3247…)."""
+    (1/φ₂, 1/φ₂²))``, ``φ₂`` the plastic number 1.3247…), for a Python number or per lane
+    (``mi.Float``)."""
     g = 1.32471795724474602596
-    return (0.5 + j / g) % 1.0, (0.5 + j / (g * g)) % 1.0
+    return _frac(0.5 + j * (1.0 / g)), _frac(0.5 + j * (1.0 / (g * g)))
 
 
 def split_lights(world: World, lights: LightSet) -> tuple[LightSet, LightSet]:
@@ -241,18 +280,21 @@ def direct_irradiance_compact(view: SceneView, lights: LightSet, p: mi.Point3f,
                      p, n, active)
 
 
-def on_active(fn, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool, *extra) -> mi.Color3f:
+def on_active(fn, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool, *extra,
+              outputs: int = 0):
     """``fn(p, n, *extra)`` evaluated on the ``active`` lanes only (compacted with
     ``dr.compress``, scattered back; zero elsewhere): pays off for costly per-lane work on
-    few lanes. ``extra``: more per-lane arrays, compacted alike."""
+    few lanes. ``extra``: more per-lane arrays, compacted alike. ``fn`` returns an
+    ``mi.Color3f`` (``outputs`` 0) or a tuple of ``outputs`` of them (a tuple comes back)."""
     idx = dr.compress(active)
-    out = dr.zeros(mi.Color3f, dr.width(p))
-    if dr.width(idx) == 0:
-        return out
-    pc = mi.Point3f(dr.gather(type(p), p, idx))
-    nc = mi.Vector3f(dr.gather(type(n), n, idx))
-    dr.scatter(out, fn(pc, nc, *(dr.gather(type(a), a, idx) for a in extra)), idx)
-    return out
+    outs = tuple(dr.zeros(mi.Color3f, dr.width(p)) for _ in range(max(outputs, 1)))
+    if dr.width(idx) > 0:
+        pc = mi.Point3f(dr.gather(type(p), p, idx))
+        nc = mi.Vector3f(dr.gather(type(n), n, idx))
+        got = fn(pc, nc, *(dr.gather(type(a), a, idx) for a in extra))
+        for o, g in zip(outs, (got,) if outputs == 0 else got, strict=True):
+            dr.scatter(o, g, idx)
+    return outs[0] if outputs == 0 else outs
 
 
 def ambient_irradiance(lights: LightSet, n: np.ndarray) -> np.ndarray:
@@ -308,8 +350,9 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
     return (lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0)
 
 
-__all__ = ["ambient_irradiance", "ambient_irradiance_dr", "direct_change",
-           "direct_change_gbuffer", "direct_irradiance",
+__all__ = ["DirectTerms", "ambient_irradiance", "ambient_irradiance_dr", "direct_change",
+           "direct_change_gbuffer", "direct_irradiance", "direct_terms",
+           "direct_terms_gbuffer",
            "direct_irradiance_compact", "direct_light", "emitted_intensity", "extended",
            "light_terms", "on_active", "r2_point", "shadow_ray",
            "scene_bounds", "split_lights", "spot_falloff", "virtual_bounds"]
