@@ -136,13 +136,15 @@ def render(
     settings = RenderSettings(spp=spp, seed=seed, max_depth=max_depth, progress=True,
                               options=given["options"])
     check_range(time_budget, "--time", 0, MAX_SECONDS_BUDGET, lo_open=True)
+    # the scene first: loading it needs no renderer, so a bad scene is refused before the
+    # methods (and Mitsuba with them, ~1 s) are imported
+    sc = load_scene(scene, frame=frame)
     fn = get_method(method)
-    fn.spec.parse_options(settings.options)  # a bad option fails before the scene loads
+    fn.spec.parse_options(settings.options)
     if progressive:
         from arlight.progressive import progressive_method
 
         progressive_method(method)
-    sc = load_scene(scene, frame=frame)
     cam = sc.camera
     inputs = (scene,) if ground_truth is None else (scene, ground_truth)
     # progressive mode renders `frames` frames (a time-only budget is bounded by --time)
