@@ -146,20 +146,20 @@ def _irradiance(vol: sv.SHVolume, pts: np.ndarray, nrm: np.ndarray) -> np.ndarra
 
 
 def test_one_vpl_gives_the_inverse_square_law_after_the_point_normalisation():
-    """One VPL of flux Φ = 1 W in a 32³ volume of 5 cm cells, 32 damped steps (the dlpv
-    defaults): receivers at 2/3/4 cells and 0°/30°/60° from its normal, facing it, read
-    ``E / point_response`` within 0.7–1.35 of the analytic ``Φ cos θ / (π r²)`` (W/m²,
-    NumPy); nothing behind the emitter; at 8 cells the LPV has lost most of it (0.21, the
-    known limit: its wavefront spreads). Rejects a missing 1/s² (mutation-checked). The
-    divisor is the mean of this very ratio over these receivers, and the VPL is built here in
-    NumPy, so the scale, the injection's Φ/π and the factor dlpv injects VPLs with are not
-    tested here (a Φ/4π lobe, the plane's 1.92 on VPLs and a lobe read with +n pass it,
-    mutation-checked): tests/realtime/test_lpv_reference.py checks the first three against
-    the inverse-square law; the +n read fails the plane/point response test below."""
+    """One VPL of flux Φ = 1 W in a 32³ volume of 5 cm cells, 32 damped steps (the dlpv defaults):
+    receivers at 2/3/4 cells and 0°/30°/60° from its normal, facing it, read ``E /
+    point_response(offset=0)`` (the VPL at its cell centre, read in place) within 0.7–1.35 of the
+    analytic ``Φ cos θ / (π r²)`` (W/m², NumPy); nothing behind the emitter; at 8 cells the LPV has
+    lost most of it (0.21, the known limit: its wavefront spreads). Rejects a missing 1/s²
+    (mutation-checked). The divisor is the mean of this very ratio over these receivers, and the VPL
+    is built here in NumPy, so the scale, the injection's Φ/π and the factor dlpv injects VPLs with
+    are not tested here (a Φ/4π lobe, the plane's 1.92 on VPLs and a lobe read with +n pass it,
+    mutation-checked): tests/realtime/test_lpv_reference.py checks the first three against the
+    inverse-square law; the +n read fails the plane/point response test below."""
     n, s = 32, 0.05
     c = np.array([10, 10, 10])
     vol = sv.propagate(_one_vpl(n, s, c, [1.0, 0.0, 0.0]), 32, dampening=True)
-    k = sv.point_response(n, 32, True)
+    k = sv.point_response(n, 32, True, offset=0.0)
     origin = (c[::-1] + 0.5) * s  # x, y, z of the emitting cell's centre
     pts, nrm, true = [], [], []
     for th in (0.0, 30.0, 60.0):
@@ -179,12 +179,19 @@ def test_one_vpl_gives_the_inverse_square_law_after_the_point_normalisation():
 
 
 def test_plane_and_point_responses_differ_as_dense_and_isolated_emitters():
-    """A lit plane (a lobe in every cell of a layer) over-reads ~1.9×, one VPL under-reads
-    ~0.88× (both from the operator, no scene): one factor cannot serve direct and indirect
-    light. Rejects a point response computed from the plane (or the reverse)."""
+    """A lit plane (a lobe in every cell of a layer) over-reads ~1.9×, one VPL at its cell
+    centre read in place under-reads ~0.88× (both from the operator, no scene): one factor
+    cannot serve direct and indirect light. With dlpv's half-cell offsets
+    (:data:`~arlight.realtime.sh_volume.VPL_OFFSET`: the VPL's texel half a cell behind its
+    cell on average, the receiver read half a cell towards it) the one-VPL response is
+    1.6–1.8 (issue #33: 1.71). Rejects a point response computed from the plane (or the
+    reverse) and an offset response that ignores either offset (mutation-checked: the read
+    point not moved: 1.08; the texels at the cell centre: 1.38)."""
     plane = sv.plane_response(32, 32, True)
     point = sv.point_response(32, 32, True)
     assert 1.7 < plane < 2.1 and 0.8 < point < 0.95, (plane, point)
+    offset = sv.point_response(32, 32, True, offset=sv.VPL_OFFSET)
+    assert 1.6 < offset < 1.8, offset
 
 
 def test_geometry_volume_blocks_a_wall_and_not_light_along_it():

@@ -554,52 +554,104 @@ def plane_response(n: int, steps: int, dampening: bool) -> float:
     return _PLANE_RESPONSE[key]
 
 
-_POINT_RESPONSE: dict[tuple[int, int, bool], float] = {}
+_POINT_RESPONSE: dict[tuple[int, int, bool, float], float] = {}
 
 POINT_DISTANCES = (2, 3, 4)
-"""Receiver distances (cells) of :func:`point_response`: the range over which an LPV carries
-a VPL's light (beyond about 4 cells the propagated wavefront has spread: 0.41 of
-``Φ/(πr²)`` at 6 cells, 0.19 at 8)."""
+"""Receiver distances (cells from the VPL's cell centre) of :func:`point_response`: the
+range over which an LPV carries a VPL's light (beyond about 4 cells the propagated
+wavefront has spread: 0.41 of ``Φ/(πr²)`` at 6 cells, 0.19 at 8)."""
 POINT_ANGLES_DEG = (0.0, 30.0, 60.0)
 """Receiver directions of :func:`point_response`, degrees from the VPL's normal."""
+VPL_OFFSET = 0.5
+"""dlpv's ``offset`` (cells) in the sense of :func:`point_response`: it moves a VPL half a
+cell along its surface normal before choosing its cell (Franke §4.3.1) and reads a receiver
+half a cell along its normal ([KD10]; :func:`arlight.methods.dlpv.shade`)."""
+SUBCELL = 8
+"""Midpoint samples per axis of a VPL's position in its cell (``SUBCELL³``) in
+:func:`point_response`."""
 
 
-def point_response(n: int, steps: int, dampening: bool) -> float:
+def subcell_texels(normal: np.ndarray, offset: float, k: int = SUBCELL) -> np.ndarray:
+    """``(k³, 3)`` positions (cells, relative to a cell's centre) of the surface points whose
+    VPLs land in that cell: the VPL ``p + offset · n`` is uniform in the cell (midpoint rule,
+    ``k`` per axis), so the emitting texel is ``u − offset · n`` with ``u ∈ [−½, ½]³`` — on
+    average ``offset`` cells *behind* the cell centre the LPV propagates from."""
+    u = (np.stack(np.meshgrid(*[np.arange(k)] * 3, indexing="ij"), -1).reshape(-1, 3)
+         + 0.5) / k - 0.5
+    return u - float(offset) * np.asarray(normal, np.float64)
+
+
+def vpl_irradiance(texels: np.ndarray, normal: np.ndarray, x: np.ndarray,
+                   nx: np.ndarray) -> np.ndarray:
+    """The mean over ``texels`` ``(m, 3)`` (each a Lambertian emitter of unit flux with unit
+    ``normal``) of their irradiance at receivers ``x`` ``(r, 3)`` with unit normals ``nx``:
+    ``E = <n, ω>+ <n_x, −ω>+ / (π d²)`` (Franke Eq. 12's lobe ``Φ/π <n, ω>+`` seen at
+    distance ``d`` along ``ω``; same length unit as ``d``, NumPy float64)."""
+    v = np.asarray(x, np.float64)[:, None, :] - np.asarray(texels, np.float64)[None]
+    d2 = np.einsum("rmk,rmk->rm", v, v)
+    w = v / np.sqrt(d2)[..., None]
+    emit = np.maximum(w @ np.asarray(normal, np.float64), 0.0)
+    recv = np.maximum(-np.einsum("rk,rmk->rm", np.asarray(nx, np.float64), w), 0.0)
+    return (emit * recv / (math.pi * d2)).mean(axis=1)
+
+
+def point_response(n: int, steps: int, dampening: bool, offset: float = 0.0) -> float:
     """How an LPV reads one VPL (the shape of every indirect injection): the mean of
-    ``E_LPV / E_true`` over receivers at :data:`POINT_DISTANCES` cells and
-    :data:`POINT_ANGLES_DEG` from the VPL's normal, each facing the VPL, with ``E_true =
-    Φ cos θ / (π r²)`` (a Lambertian emitter of flux ``Φ``: intensity ``Φ/π cos θ``, Franke
-    Eq. 12, seen at distance ``r``). The divisor that makes the volume's indirect light
-    radiometric on average over the distances where it carries light (0.89 at 32³, 32
-    steps; individual receivers 0.67–1.16). Derived from the propagation operator alone, no
-    scene; cached per arguments."""
-    key = (int(n), int(steps), bool(dampening))
+    ``E_LPV / E_true`` over receivers at :data:`POINT_DISTANCES` cells from the VPL's cell
+    centre and :data:`POINT_ANGLES_DEG` from the VPL's normal, each facing that centre. The
+    divisor that makes the volume's indirect light radiometric on average over the
+    distances where it carries light. Derived from the propagation operator alone, no
+    scene; cached per arguments.
+
+    ``E_LPV``: a lobe ``Φ/π <n, ω>+`` (Franke Eq. 12) at the cell centre, propagated, read
+    (:func:`query_irradiance`) at the receiver moved ``offset`` cells along its normal, as
+    dlpv reads. ``E_true``: the same flux emitted from the surface point the VPL came from,
+    ``Φ cos θ_e cos θ_r / (π d²)`` averaged over the VPL's position in its cell
+    (:func:`subcell_texels`, :func:`vpl_irradiance`): the injection moved the VPL ``offset``
+    cells along ``n``, so its light really starts that far behind the cell, and the LPV,
+    which knows only the cell, sees it closer than it is. ``offset`` 0 (the default): the
+    VPL at its cell centre, read in place — 0.88 at 32³ and 32 steps, the divisor dlpv uses
+    (:func:`arlight.methods.dlpv.injection_scales`). At dlpv's own :data:`VPL_OFFSET` it is
+    1.71 (receivers 1.06–2.80): under the 0.88 one VPL reads 1.7–1.9× the inverse-square
+    law at 2.5–4 cells as dlpv injects and reads it (tests/realtime/test_lpv_reference.py).
+    dlpv keeps 0.88 (issue #33, docs/methods/dlpv.md "One VPL and the far field"): the
+    LPV also loses a VPL's light beyond 4 cells (under 1.71: 0.4 of the law at 6 cells; an
+    emitting face lights a floor 4–8 cells away at 0.3–0.5 of it, 8–16 cells at 0.07), where
+    much of an object's bounce lands, and the near-field excess of 0.88 makes up for it on
+    the training worlds (1.71: −0.09 dB) and against a path tracer (tests/methods/
+    test_dlpv_reference.py: the cube's bleed 0.92× → 0.47×).
+    """
+    key = (int(n), int(steps), bool(dampening), float(offset))
     if key not in _POINT_RESPONSE:
         m = max(int(n), 2 * max(POINT_DISTANCES) + 2)
         g = Grid(np.zeros(3), 1.0, m)
         c = m // 2 - max(POINT_DISTANCES) // 2 - 1
+        normal = np.array([1.0, 0.0, 0.0])
         a = np.zeros((m, m, m, 4, 3))
-        a[c, c, c] = (cosine_lobe(np.array([1.0, 0.0, 0.0])) / math.pi)[:, None]
+        a[c, c, c] = (cosine_lobe(normal) / math.pi)[:, None]
         vol = propagate(SHVolume.from_numpy(g, a), int(steps), bool(dampening))
-        pts, nrm, true = [], [], []
+        pts, nrm = [], []
         for th in POINT_ANGLES_DEG:
             t = math.radians(th)
             d = np.array([math.cos(t), math.sin(t), 0.0])
             for r in POINT_DISTANCES:
-                pts.append(c + 0.5 + r * d)
+                pts.append(r * d)
                 nrm.append(-d)
-                true.append(math.cos(t) / (math.pi * r * r))
-        p, q = np.asarray(pts, np.float32), np.asarray(nrm, np.float32)
+        x, nx = np.asarray(pts), np.asarray(nrm)
+        true = vpl_irradiance(subcell_texels(normal, offset, 1 if offset == 0 else SUBCELL),
+                              normal, x, nx)
+        p = np.asarray(c + 0.5 + x + float(offset) * nx, np.float32)
+        q = np.asarray(nx, np.float32)
         e = np.array(query_irradiance(vol, mi.Point3f(*(aligned(p[:, i], np.float32)
                                                         for i in range(3))),
                                       mi.Vector3f(*(aligned(q[:, i], np.float32)
                                                     for i in range(3)))))
-        _POINT_RESPONSE[key] = float(np.mean(np.asarray(e).reshape(3, -1)[0] / np.asarray(true)))
+        _POINT_RESPONSE[key] = float(np.mean(np.asarray(e).reshape(3, -1)[0] / true))
     return _POINT_RESPONSE[key]
 
 
 __all__ = ["AXES", "LATTICE_BLOCKS", "Grid", "SHVolume", "basis", "cell_index", "cosine_lobe",
-           "face_solid_angles", "inject", "propagate", "propagate_numpy",
+           "VPL_OFFSET", "face_solid_angles", "inject", "propagate", "propagate_numpy",
            "face_transmittance", "plane_response", "point_response", "propagation_matrices",
            "transmittance_dr", "query_irradiance", "query_irradiance_compact",
-           "rect_solid_angle"]
+           "rect_solid_angle", "subcell_texels", "vpl_irradiance"]
