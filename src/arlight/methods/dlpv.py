@@ -257,9 +257,18 @@ def injection_scales(options: Options) -> tuple[float, float]:
     :func:`~arlight.realtime.sh_volume.point_response` (0.88) × ``Φ cos θ/(π r²)``. Both are
     computed from the propagation operator at the options' size, steps and dampening, no
     scene. Propagation is linear (dampening depends on ratios only), so scaling the injected
-    flux is scaling what is read."""
+    flux is scaling what is read.
+
+    The VPLs' divisor is the cell-centre response (``offset`` 0), not the one derived with
+    this method's half-cell injection and read offsets (1.71, ``offset =
+    VPL_OFFSET``), under which one VPL obeys the inverse-square law at 2.5–4 cells (under
+    0.88 it reads 1.9× too bright there, tests/realtime/test_lpv_reference.py): the LPV
+    loses a VPL's light beyond 4 cells, where much of an object's bounce lands, and 0.88's
+    near-field excess makes up for it — 1.71 cost 0.09 dB on the training worlds and halved
+    the cube's bleed against a path tracer (issue #33, docs/methods/dlpv.md "One VPL and
+    the far field")."""
     n, k, d = options.volume_size, options.steps, options.dampening
-    return 1.0 / plane_response(n, k, d), 1.0 / point_response(n, k, d)
+    return 1.0 / plane_response(n, k, d), 1.0 / point_response(n, k, d, offset=0.0)
 
 
 def virtual_triangles(world: World) -> np.ndarray:
