@@ -12,7 +12,7 @@ import pytest
 
 from arlight.errors import InputError
 from arlight.methods import RenderSettings, get_method
-from arlight.realtime.ibl_shading import hammersley
+from arlight.realtime.ibl_shading import ambient_occlusion, hammersley
 from tests.conftest import LOOK, diffuse, env_mirror_scene
 from tests.conftest import parsed_with_constant_frame as make
 
@@ -231,6 +231,33 @@ def test_hammersley_is_stratified():
     u, v = hammersley(40)
     assert len(set(np.floor(u * 40).astype(int))) == 40
     assert len(set(np.floor(v * 32).astype(int))) == 32
+
+
+def test_ambient_occlusion_compiles_once_for_every_ray_length():
+    """``ambient_occlusion`` of a sphere under a plane's points at two AO ray lengths (ibl's
+    ``ao_distance``, the objects' box diagonal, changes on every moving frame as the object
+    turns): the second length reuses the first one's kernels (Dr.Jit kernel history: every
+    kernel a cache hit), and each length gives the open fraction NumPy's cosine-weighted
+    hemisphere gives for a sphere of radius r at height h above the point (``1 − (r/h)²``
+    for the cap straight above: fully inside the length, or missed beyond it). Rejects the
+    length as a literal (a new kernel per pose: issue #32's moving frames, +60 ms for ibl)."""
+    ball = mi.load_dict({"type": "scene", "s": {"type": "sphere", "radius": 0.2,
+                                                "center": [0.0, 1.0, 0.0]}})
+    p = mi.Point3f(np.zeros(64), np.zeros(64), np.zeros(64))
+    n = mi.Vector3f(np.zeros(64), np.ones(64), np.zeros(64))
+    open_near = ambient_occlusion(ball, p, n, 256, 2.0, seed=1)  # compiled here
+    dr.eval(open_near)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()  # clears it
+        open_far = ambient_occlusion(ball, p, n, 256, 0.5, seed=1)
+        dr.eval(open_far)
+        hist = [k for k in dr.kernel_history() if "cache_hit" in k]  # compiled kernels
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert hist and all(k["cache_hit"] for k in hist), [k["cache_hit"] for k in hist]
+    np.testing.assert_allclose(np.array(open_near), 1.0 - 0.2 ** 2, atol=0.02)
+    np.testing.assert_allclose(np.array(open_far), 1.0, atol=1e-6)
 
 
 def test_shadow_on_the_floor_darkens_near_the_sphere_only():

@@ -684,7 +684,10 @@ def ambient_occlusion(scene: mi.Scene | None, p: mi.Point3f, n: mi.Vector3f, ray
     d = mi.Frame3f(nn).to_world(local)
     o = dr.gather(mi.Point3f, p, pix) + nn * eps
     ray = mi.Ray3f(o, d)
-    ray.maxt = float(max_distance) if math.isfinite(max_distance) else dr.largest(mi.Float)
+    # opaque: the length follows the objects' box (ibl's ao_distance changes as the bunny
+    # turns); a literal compiled a new kernel on every moving frame (issue #32)
+    ray.maxt = dr.opaque(mi.Float, float(max_distance)) if math.isfinite(max_distance) \
+        else dr.largest(mi.Float)
     open_ = mi.Float(~scene.ray_test(ray))
     return dr.block_sum(open_, rays) * (1.0 / rays)
 
