@@ -113,12 +113,12 @@ from arlight.realtime.rsm import check_memory as check_rsm_memory
 from arlight.realtime.sh_volume import Grid, cell_index
 from arlight.realtime.shading import (
     ambient_irradiance_dr,
-    direct_change_gbuffer,
     direct_irradiance,
     direct_irradiance_compact,
     split_lights,
     virtual_bounds,
 )
+from arlight.realtime.shadow_reach import direct_change_reaching
 from arlight.realtime.voxels import (
     ANISO_CHANNELS,
     COVER_CHANNELS,
@@ -215,10 +215,21 @@ OPTIONS: dict[str, Field] = {
                          "surface — a floor cannot light itself, yet its shadow came out "
                          "20–40 % too deep, held-out world-1000002 −4.6 dB against 2f93175; "
                          "as dlpv's lost_bounce)"),
-    "surround_rays": Field("int", 0, "rays per virtual pixel that find the real proxy "
-                           "around it for the SH remainder (arlight.methods.dvct."
-                           "real_surround), cosine-distributed (Vogel's spiral); 0: one ray "
-                           "along each of the nine diffuse cones' axes", "", min=0, max=1024),
+    "surround_rays": Field("int", 16, "rays per virtual cone lane (cone_scale > 1; per "
+                           "pixel, split over its G-buffer samples, at cone_scale 1) that "
+                           "find the real proxy around it for the SH remainder and the far "
+                           "bounce (arlight.methods.dvct.real_surround), cosine-distributed "
+                           "(Vogel's spiral); 0: one ray along each of the nine diffuse "
+                           "cones' axes (chosen on training worlds, issue #33: with "
+                           "far_bounce, 16 rays +0.46 dB changed PSNR on world-0 where the "
+                           "nine axes lost 0.51)", "", min=0, max=1024),
+    "far_bounce": Field("bool", True, "virtual pixels see the real surfaces beyond the "
+                        "volume lit: a surround ray (surround_rays) that hits one where the "
+                        "camera does not see it takes its ρ/π E_direct (the reduced lights, "
+                        "shadow rays in the mixed scene) besides ρ_r L̄, and the surround is "
+                        "traced without an SH remainder too (issue #33: in a room lit by a "
+                        "small lamp a virtual object got none of the walls' bounce); off: "
+                        "ρ_r L̄ alone, and no surround without a remainder"),
     "back_faces": Field("bool", False, "dim V_Δ/V_ρ cells seen from behind their V_η normal "
                         "(costs a third more cone gathers; no gain on the suite)"),
     "diffuse_cones": Field("bool", True, "trace the 9 diffuse cones (T_Δ², Eq. 5.21; "
@@ -844,6 +855,13 @@ class ConeTerms:
     t: mi.Float | None = None
     """Virtual lanes: the specular cone's transmittance ``1 − α_all`` where it leaves the
     volume, the share of the distant light it sees (1 without a specular cone)."""
+    surround: tuple[mi.Color3f, mi.Float, mi.Color3f] | None = None
+    """Virtual lanes: :func:`real_surround`'s ``(E_o, V, E_r)`` traced on the cones' lanes
+    (None: :func:`shade` traces them per G-buffer sample)."""
+    covered: mi.Bool | None = None
+    """After :func:`upsample`: lanes with a same-role cone sample among their four (None:
+    all); :func:`shade` traces the surround of the others itself (a thin virtual part
+    between real cone samples)."""
 
 
 def cone_volumes(vols: Volumes, options: Options) -> tuple[ConeVolumes, ConeVolumes]:
@@ -995,6 +1013,7 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
     p, n, role = gb.position, gb.normal, gb.role
     acc_x, acc_y, acc_z, acc_w = mi.Color3f(0.0), mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0)
     acc_t = mi.Float(0.0)
+    acc_s = [mi.Color3f(0.0), mi.Float(0.0), mi.Color3f(0.0)]
     inv = 1.0 / cell
     for dy in (0, 1):
         for dx in (0, 1):
@@ -1016,11 +1035,16 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
             acc_z += dr.gather(mi.Float, terms.z, i) * w
             if terms.t is not None:
                 acc_t += dr.gather(mi.Float, terms.t, i) * w
+            if terms.surround is not None:
+                acc_s = [a + dr.gather(type(v), v, i) * w
+                         for a, v in zip(acc_s, terms.surround, strict=True)]
             acc_w += w
     norm = dr.select(acc_w > 0.0, dr.rcp(dr.maximum(acc_w, 1e-30)), 0.0)
     out = ConeTerms(acc_x * norm, acc_y * norm, acc_z * norm,
-                    None if terms.t is None else dr.select(acc_w > 0.0, acc_t * norm, 1.0))
-    dr.eval(out.x, out.y, out.z, out.t)
+                    None if terms.t is None else dr.select(acc_w > 0.0, acc_t * norm, 1.0),
+                    None if terms.surround is None else tuple(a * norm for a in acc_s),
+                    None if terms.surround is None else acc_w > 0.0)
+    dr.eval(out.x, out.y, out.z, out.t, *(out.surround or ()))
     return out
 
 
@@ -1103,52 +1127,103 @@ def remainder_radiance(lights: LightSet, d: mi.Vector3f) -> mi.Color3f:
     return dr.maximum(ambient_irradiance_dr(LightSet([], sh / a_hat[:, None]), d), 0.0)
 
 
+def surround_wanted(data: DVCTData, options: Options | None = None,
+                    far_bounce: bool | None = None) -> bool:
+    """Whether virtual lanes trace :func:`real_surround`: with an SH remainder, or with
+    ``far_bounce`` (the option's, or the given value) and reduced lights."""
+    far = bool(options.far_bounce) if far_bounce is None else bool(far_bounce)
+    return bool(np.any(data.lights.ambient_sh)) or (far and bool(data.lights.lights))
+
+
 def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_deg: float,
-                  active: mi.Bool, rays: int = 0) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
-    """The SH remainder's visibility through the *real* proxy on the ``active`` (virtual) lanes,
-    for the nine diffuse cone directions (:func:`diffuse_cone_set`, weights ``w_k``, ``Σ w_k =
-    π``) with one ray each — or, with ``rays`` > 0 (option ``surround_rays``), that many
-    cosine-distributed rays (:func:`surround_set`) — the volume's cones see only the real
-    geometry inside it (issue #33: a sphere in a room lit through an opening was lit as if the
-    sky were open). Returns ``(V, E_r)``: ``V = Σ_k w_k miss_k / π`` the cosine-weighted share
-    of open sky, ``E_o = Σ_k w_k miss_k L_a(d_k)`` (W/m²) the remainder through it
-    (:func:`remainder_radiance`: the sky the real proxy leaves is not the hemisphere's mean),
-    and ``E_r = Σ_k w_k hit_k L_k`` (W/m²) the irradiance from the real surfaces hit instead —
-    beyond the volume the photograph at the hit's projection (all of its light: no cone reached
-    it), where the camera does not see it or inside the volume (where ``V_ρ`` holds its reduced
-    lights' first bounce) its ambient part ``ρ_r L̄`` (:func:`real_fill`). Zero on other lanes."""
+                  active: mi.Bool, rays: int = 0, far_bounce: bool = True
+                  ) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
+    """The real proxy around the ``active`` (virtual) lanes: the SH remainder's visibility
+    through it and the light of its surfaces beyond the volume, for the nine diffuse cone
+    directions (:func:`diffuse_cone_set`, weights ``w_k``, ``Σ w_k = π``) with one ray each —
+    or, with ``rays`` > 0 (option ``surround_rays``), that many cosine-distributed rays
+    (:func:`surround_set`, each ``π / rays``) split over a pixel's ``gb.spp`` G-buffer
+    samples (sample ``s`` casts rays ``s, s + spp, …``, each weighted ``π`` / its own count:
+    the pixel's samples cast the set once together, as the shadow rays, f74ec32) — the
+    volume's cones see only the real geometry inside it (issue #33: a sphere in a room lit
+    through an opening was lit as if the sky were open). Returns ``(E_o, V, E_r)``: ``V = Σ_k
+    w_k miss_k / π`` the cosine-weighted share of open sky, ``E_o = Σ_k w_k miss_k L_a(d_k)``
+    (W/m²) the remainder through it (:func:`remainder_radiance`: the sky the real proxy leaves
+    is not the hemisphere's mean), and ``E_r = Σ_k w_k hit_k L_k`` (W/m²) the irradiance from
+    the real surfaces hit instead. ``L_k``: beyond the volume the photograph at the hit's
+    projection (all of its light: no cone reached it); beyond the volume where the camera
+    does not see it, with ``far_bounce``, the hit's diffuse radiance ``ρ/π E_direct +
+    ρ_r L̄`` (the reduced lights through shadow rays in the *mixed* scene, the objects'
+    shadows on it included; issue #33: a virtual object in a room lit by a small lamp got
+    none of the walls' bounce, the volume being twice the object), else (and inside the
+    volume, where ``V_ρ`` holds its reduced lights' first bounce) its ambient part ``ρ_r L̄``
+    (:func:`real_fill`). Zero on other lanes."""
+    return surround_at(data, Lanes(gb.position, gb.normal, gb.to_camera, gb.role, gb.shape),
+                       real_fill(data, gb), view, aperture_deg, active, rays, far_bounce,
+                       int(gb.spp))
+
+
+def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView | None,
+                aperture_deg: float, active: mi.Bool, rays: int, far_bounce: bool,
+                spp: int = 1) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
+    """:func:`real_surround` on any ``lanes`` (``spp`` consecutive lanes are one pixel's
+    samples, which split the ``rays``; ``fill`` the real surfaces' ``ρ_r L̄``): the cones'
+    reduced-resolution lanes use it with ``spp = 1`` (every lane casts every ray) before
+    the edge-aware upsampling (:func:`upsample`)."""
     from arlight.tracing.onepass import _Reprojector as Reprojector
 
-    n_l = dr.width(gb.role)
+    n_l = lanes.width
     e_o, vis, e_r = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Float, n_l), dr.zeros(mi.Color3f,
                                                                                   n_l)
     idx = dr.compress(active)
     if dr.width(idx) == 0:
         return e_o, vis, e_r
-    dirs, w = surround_set(rays) if rays > 0 else diffuse_cone_set(aperture_deg)[:2]
-    p = dr.gather(mi.Point3f, gb.position, idx)
-    frame = mi.Frame3f(dr.gather(mi.Vector3f, gb.normal, idx))
-    fill = real_fill(data, gb)
+    p = dr.gather(mi.Point3f, lanes.position, idx)
+    frame = mi.Frame3f(dr.gather(mi.Vector3f, lanes.normal, idx))
+    m = dr.width(idx)
+    if rays > 0:  # sample s of the pixel casts rays s, s + spp, … (π / its count each)
+        spp = max(1, min(int(spp), rays))
+        table, _ = surround_set(rays)
+        tab = mi.Vector3f(*(mi.Float(aligned(table[:, c], np.float32)) for c in range(3)))
+        sample = idx % spp
+        mine = mi.Float((rays - sample + spp - 1) // spp)  # ceil((rays − s) / spp)
+        picks = [(sample + spp * t, math.pi / mine) for t in range(-(-rays // spp))]
+    else:
+        dirs, w = diffuse_cone_set(aperture_deg)[:2]
+        picks = [(d_loc, float(wk)) for d_loc, wk in zip(dirs, w, strict=True)]
     reproj = None if view is None else Reprojector(
         view.camera, np.asarray(view.frame, np.float32), data.views.real)
     grid = data.grid
     lo, hi = (grid.lo(), grid.hi()) if grid is not None else (None, None)
-    m = dr.width(idx)
     o_c, v_c, e_c = dr.zeros(mi.Color3f, m), dr.zeros(mi.Float, m), dr.zeros(mi.Color3f, m)
-    for d_loc, wk in zip(dirs, w, strict=True):
-        d = frame.to_world(mi.Vector3f(*(float(x) for x in d_loc)))
-        si = data.views.real.scene.ray_intersect(mi.Ray3f(p + frame.n * 1e-4, d))
-        hit = si.is_valid()
+    for pick, wk in picks:
+        if rays > 0:
+            on = pick < rays
+            d = frame.to_world(dr.gather(mi.Vector3f, tab, dr.minimum(pick, rays - 1)))
+            wk = dr.select(on, wk, 0.0)
+        else:
+            on = mi.Bool(True)
+            d = frame.to_world(mi.Vector3f(*(float(x) for x in pick)))
+        si = data.views.real.scene.ray_intersect(mi.Ray3f(p + frame.n * 1e-4, d), on)
+        hit = on & si.is_valid()
         radiance = mi.Color3f(fill)
+        outside = mi.Bool(True) if lo is None else ~(
+            (si.p.x > lo[0]) & (si.p.y > lo[1]) & (si.p.z > lo[2])
+            & (si.p.x < hi[0]) & (si.p.y < hi[1]) & (si.p.z < hi[2]))
+        far = hit & outside
+        ok = mi.Bool(False)
         if reproj is not None:
-            outside = mi.Bool(True) if lo is None else ~(
-                (si.p.x > lo[0]) & (si.p.y > lo[1]) & (si.p.z > lo[2])
-                & (si.p.x < hi[0]) & (si.p.y < hi[1]) & (si.p.z < hi[2]))
-            seen, ok, _ = reproj.lookup(si.p, hit & outside)
+            seen, ok, _ = reproj.lookup(si.p, far)
             radiance = dr.select(ok, seen, radiance)
-        v_c += dr.select(hit, 0.0, float(wk / math.pi))
-        o_c += dr.select(hit, mi.Color3f(0.0), remainder_radiance(data.lights, d) * float(wk))
-        e_c += dr.select(hit, radiance * float(wk), mi.Color3f(0.0))
+        if far_bounce and data.lights.lights:
+            unseen = far & ~ok
+            nh = facing(mi.Vector3f(si.n), -d)
+            lit = direct_irradiance_compact(data.views.mixed, data.lights, si.p, nh, unseen)
+            radiance = dr.select(unseen, radiance + surface_albedo(si, unseen) * (
+                1.0 / math.pi) * lit, radiance)
+        v_c += dr.select(hit | ~on, 0.0, wk * (1.0 / math.pi))
+        o_c += dr.select(hit | ~on, mi.Color3f(0.0), remainder_radiance(data.lights, d) * wk)
+        e_c += dr.select(hit, radiance * wk, mi.Color3f(0.0))
     for dst, src in ((e_o, o_c), (vis, v_c), (e_r, e_c)):
         dr.scatter(dst, src, idx)
     return e_o, vis, e_r
@@ -1157,7 +1232,8 @@ def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_
 def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
           frame: np.ndarray | None = None, view: FrameView | None = None,
           aperture_deg: float = 60.0, shadow_rays: int | None = None,
-          surround_rays: int = 0) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
+          surround_rays: int = 0, far_bounce: bool = False
+          ) -> tuple[mi.Color3f, mi.Color3f, mi.Float]:
     """Per lane ``(mixed radiance on virtual lanes, delta radiance on real lanes, hidden
     fraction h·a of the background on real lanes)`` (§5.4.4). With the photograph ``frame``
     (option ``photo_albedo``) real lanes use the albedo read from it
@@ -1178,8 +1254,9 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     # real pixels: ρ/π ΔE + k_s C_Δ,spec, and −h a_spec B (applied by the caller)
     e_delta = terms.x
     if shadow_rays is not None:
-        e_delta = e_delta + direct_change_gbuffer(data.views, data.lights, gb, real,
-                                                  shadow_rays)
+        # light by light, only the lanes whose shadow rays can meet the objects (exact)
+        e_delta = e_delta + direct_change_reaching(data.views, data.world, data.lights, gb,
+                                                   real, shadow_rays)
     rho = gb.albedo
     if frame is not None:
         changed = real & (dr.max(dr.abs(e_delta)) > 0.0)
@@ -1192,9 +1269,14 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
                                       virt)
     e_amb = ambient_irradiance_dr(data.lights, gb.normal)
-    if np.any(data.lights.ambient_sh):  # Σ_k w_k (open sky, virtual object, real surface)
+    if terms.surround is not None or surround_wanted(data, far_bounce=far_bounce):
+        # Σ_k w_k (open sky, virtual object, real surface)
         # the virtual objects' occlusion z taken from the open directions (a share z / V)
-        e_o, vis, e_r = real_surround(data, gb, view, aperture_deg, virt, surround_rays)
+        todo = virt if terms.surround is None else (
+            virt if terms.covered is None else virt & ~terms.covered)
+        own = real_surround(data, gb, view, aperture_deg, todo, surround_rays, far_bounce)
+        e_o, vis, e_r = own if terms.surround is None else (
+            dr.select(todo, a, b) for a, b in zip(own, terms.surround, strict=True))
         e_amb = (e_o * dr.maximum(1.0 - terms.z / dr.maximum(vis, 1e-3), 0.0)
                  + ambient_fill(data) * (math.pi * terms.z) + e_r)
     diffuse = gb.albedo * (1.0 / math.pi) * (e_dir + terms.x + e_amb)
@@ -1232,6 +1314,10 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
             full = Lanes(gb.position, gb.normal, gb.to_camera, gb.role, gb.shape)
             low = full.subset(idx) if k > 1 else full
             terms = cone_terms(data, vols, low, options, stats)
+            if k > 1 and surround_wanted(data, options):  # the surround at the cones' lanes
+                terms = replace(terms, surround=surround_at(
+                    data, low, real_fill(data, gb), view, options.diffuse_aperture_deg,
+                    low.role == ROLE_VIRTUAL, options.surround_rays, options.far_bounce))
         if k > 1:
             with timer.stage("upsample"):
                 terms = upsample(gb, k, low, terms, vols.alpha.grid.cell)
@@ -1242,7 +1328,7 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
                                      view.frame if options.photo_albedo else None, view,
                                      options.diffuse_aperture_deg,
                                      options.shadow_samples if options.direct == "rays"
-                                     else None, options.surround_rays)
+                                     else None, options.surround_rays, options.far_bounce)
     with timer.stage("assemble"):
         if terms is not None:
             h = resolve_scalar(gb, hidden)
