@@ -1193,8 +1193,8 @@ def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView 
         picks = [(d_loc, float(wk)) for d_loc, wk in zip(dirs, w, strict=True)]
     reproj = None if view is None else Reprojector(
         view.camera, np.asarray(view.frame, np.float32), data.views.real)
-    grid = data.grid
-    lo, hi = (grid.lo(), grid.hi()) if grid is not None else (None, None)
+    grid = data.grid  # the box's corners opaque: it moves with the objects (issue #32)
+    lo, hi = (opaques(grid.lo()), opaques(grid.hi())) if grid is not None else (None, None)
     o_c, v_c, e_c = dr.zeros(mi.Color3f, m), dr.zeros(mi.Float, m), dr.zeros(mi.Color3f, m)
     for pick, wk in picks:
         if rays > 0:
@@ -1218,7 +1218,9 @@ def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView 
         if far_bounce and data.lights.lights:
             unseen = far & ~ok
             nh = facing(mi.Vector3f(si.n), -d)
-            lit = direct_irradiance_compact(data.views.mixed, data.lights, si.p, nh, unseen)
+            # masked, not compacted: how many hits are unseen changes with the pose, and a
+            # compacted call's kernels with it (none at all, one lane; issue #32)
+            lit = direct_irradiance(data.views.mixed, data.lights, si.p, nh, unseen)
             radiance = dr.select(unseen, radiance + surface_albedo(si, unseen) * (
                 1.0 / math.pi) * lit, radiance)
         v_c += dr.select(hit | ~on, 0.0, wk * (1.0 / math.pi))

@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.jit import opaques
+from arlight.jit import opaque, opaques
 from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.light_reduction import LightSet, ReducedLight
 from arlight.realtime.shading import direct_change_gbuffer, virtual_bounds
@@ -61,8 +61,8 @@ def _half_angle(radius: float | mi.Float, dist: mi.Float) -> mi.Float:
                      math.pi)
 
 
-def light_reach(light: ReducedLight, p: mi.Point3f, centre: mi.Point3f, radius: float
-                ) -> mi.Bool:
+def light_reach(light: ReducedLight, p: mi.Point3f, centre: mi.Point3f,
+                radius: float | mi.Float) -> mi.Bool:
     """Whether a shadow ray from ``p`` to ``light`` (any point of its extent) can meet the
     ball ``(centre, radius)`` (module docstring; True may be a false positive, False never a
     false negative)."""
@@ -71,10 +71,10 @@ def light_reach(light: ReducedLight, p: mi.Point3f, centre: mi.Point3f, radius: 
     ball = _half_angle(radius, d_c)
     if light.kind == "directional":
         w0 = -mi.Vector3f(*opaques(light.axis))
-        return _angle(to_c, w0) <= ball + float(light.spread)
+        return _angle(to_c, w0) <= ball + opaque(light.spread)
     q = mi.Point3f(*opaques(light.position))
     ext = np.asarray(light.extent, np.float64).reshape(-1, 3)
-    r_e = float(np.linalg.norm(ext, axis=1).sum()) if ext.size else 0.0
+    r_e = opaque(float(np.linalg.norm(ext, axis=1).sum()) if ext.size else 0.0)
     to_q = q - p
     d_q = dr.norm(to_q)
     return ((_angle(to_c, to_q) <= ball + _half_angle(r_e, d_q))
@@ -85,10 +85,10 @@ def shadow_reach(lights: LightSet, p: mi.Point3f, ball: tuple[np.ndarray, float]
                  ) -> mi.Bool:
     """Lanes where some light's shadow rays can meet the virtual objects' bounding ``ball``
     (:func:`bounding_ball`): the only lanes whose direct change can be non-zero."""
-    centre = mi.Point3f(*(float(x) for x in ball[0]))
+    centre, radius = mi.Point3f(*opaques(ball[0])), opaque(ball[1])
     out = dr.zeros(mi.Bool, dr.width(p))
     for lt in lights.lights:
-        out |= light_reach(lt, p, centre, float(ball[1]))
+        out |= light_reach(lt, p, centre, radius)
     return out
 
 
@@ -106,10 +106,11 @@ def direct_change_reaching(views, world, lights: LightSet, gb: GBuffer, active: 
     if box is None or not lights.lights:
         return direct_change_gbuffer(views, lights, gb, active, samples)
     centre, radius = bounding_ball(box)
-    c = mi.Point3f(*(float(x) for x in centre))
+    # opaque: the ball moves with the objects, one kernel for every pose (issue #32)
+    c, r = mi.Point3f(*opaques(centre)), opaque(radius)
     out = dr.zeros(mi.Color3f, dr.width(gb.position))
     for lt in lights.lights:
-        reach = active & light_reach(lt, gb.position, c, radius)
+        reach = active & light_reach(lt, gb.position, c, r)
         out += direct_change_gbuffer(views, LightSet([lt]), gb, reach, samples)
     return out
 
