@@ -324,7 +324,8 @@ class CameraWalk:
     """
 
     def __init__(self, views: SceneViews, lookup: SplatLookup, max_depth: int,
-                 selection: LightSelection | None = None, glossy: bool = False):
+                 selection: LightSelection | None = None, glossy: bool = False,
+                 trace_unresolved: bool = False):
         self.mixed, self.real = views.mixed, views.real
         self.same_views = views.mixed is views.real
         self.rules = HitRules(views.mixed, views.real)
@@ -332,6 +333,7 @@ class CameraWalk:
         self.lookup = lookup
         self.max_depth = max_depth
         self.glossy = glossy
+        self.trace_unresolved = trace_unresolved
         self.ctx = mi.BSDFContext()
 
     def _limit(self, depth: mi.UInt32, extra: int) -> mi.Bool | bool:
@@ -465,6 +467,13 @@ class CameraWalk:
             c["lookups"] += dr.select(gather, 1, 0)
             c["lookups_rejected"] += dr.select(look.rejected, 1, 0)
             c["lookups_unresolved"] += dr.select(look.unresolved, 1, 0)
+        # an unresolved lookup (neither the pixel nor any record serves the point: a surface
+        # the camera does not see, e.g. reflected in a glossy floor) would read another
+        # surface's irradiance; with trace_unresolved the walk path traces on from it
+        # instead (along the BSDF sample below: emission MIS-weighted here, the next vertex
+        # shades and gathers as this one) — the rendering equation's own estimator
+        unres = gather & look.unresolved if self.trace_unresolved else mi.Bool(False)
+        gather &= ~unres
         ind_m = beta * alb * e_m * (1.0 / math.pi)
         ind_r = beta * alb * (e_m - e_d) * (1.0 / math.pi)
         if to_mixed:
@@ -494,11 +503,12 @@ class CameraWalk:
         # lobe (metals, rough glass: nothing of theirs is cached), along the BSDF sample
         # whose emission was just counted, where the next vertex can still take light
         cont = act & delta & self._limit(depth, 1) & (dr.max(weight) > 0)
+        gl = unres & ~delta & (dr.max(weight) > 0)  # (gather implies smooth, depth + 2 < max)
         if self.glossy:
-            gl = (smooth & ~delta & self._limit(depth, 2) & (dr.max(weight) > 0)
-                  & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.DiffuseReflection))
-            emit = dr.select(gl, False, dr.select(cont, True, emit))
-            cont |= gl
+            gl |= (smooth & ~delta & self._limit(depth, 2) & (dr.max(weight) > 0)
+                   & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.DiffuseReflection))
+        emit = dr.select(gl, False, dr.select(cont, True, emit))
+        cont |= gl
         ray = dr.select(cont, ray_b, ray)
         beta = dr.select(cont, beta * weight, beta)
         return ray, beta, cont, lm, lr, emit
