@@ -111,7 +111,7 @@ from arlight.realtime.sh_volume import (
     transmittance_dr,
 )
 from arlight.realtime.shading import (
-    direct_change_gbuffer,
+    direct_terms_gbuffer,
     virtual_bounds,
 )
 from arlight.realtime.voxels import blocking_potential, shape_triangles
@@ -465,9 +465,11 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes, frame: np.ndarray | None =
     mixed = shade_objects(data.objects, data.world, data.views, data.lights, data.ambient,
                           gb, None if vols.rho is None else v_rho, data.ao_rays)
     e_delta = -real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal, real)
-    if data.direct == "rays":
-        e_delta += direct_change_gbuffer(data.views, data.lights, gb, real,
-                                         data.shadow_samples)
+    # the direct change's shadow rays also give E_r's direct part (no rays of its own)
+    terms = direct_terms_gbuffer(data.views, data.lights, gb, real, data.shadow_samples) \
+        if data.direct == "rays" else None
+    if terms is not None:
+        e_delta += terms.change
     if vols.delta is not None:
         q = gb.position + gb.normal * half
         e_delta += k * query_irradiance_compact(vols.delta, q, gb.normal, real)
@@ -476,7 +478,8 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes, frame: np.ndarray | None =
     # no shadow rays for E_r outside the volume and the shadows)
     rho_real = rho if frame is None else real_albedo(
         data.real_albedo, data.views, data.lights, frame, gb,
-        real & dr.any(e_delta != 0.0)) * (1.0 / np.pi)
+        real & dr.any(e_delta != 0.0), None,
+        None if terms is None else terms.real) * (1.0 / np.pi)
     delta = dr.select(real, rho_real * e_delta, mi.Color3f(0.0))
     dr.eval(mixed, delta)
     return mixed, delta
