@@ -121,3 +121,19 @@ def with_constant_frame(scene, value: float = 0.25):
 
 def load(d: dict, tmp_path=None):
     return parse_scene(d, base_dir=tmp_path or ".")
+
+
+@pytest.fixture(scope="session")
+def point_world(eval_cache):
+    """:func:`tests.shadow_worlds.shadow_world` under a point light: (scene, photograph)."""
+    from tests.shadow_worlds import POINT, shadow_world
+
+    return shadow_world(POINT, eval_cache)
+
+
+@pytest.fixture(scope="session")
+def area_world(eval_cache):
+    """:func:`tests.shadow_worlds.shadow_world` under an area light: (scene, photograph)."""
+    from tests.shadow_worlds import AREA, shadow_world
+
+    return shadow_world(AREA, eval_cache)

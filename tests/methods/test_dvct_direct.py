@@ -17,32 +17,22 @@ import pytest
 from arlight.methods import RenderSettings, get_method
 from arlight.methods.dvct import diffuse_cone_set, surround_set
 from arlight.scene.load import parse_scene
-from tests.realtime.test_shading_shadows import AREA, POINT, _scene, _shadow_error, _world
+from tests.shadow_worlds import POINT, shadow_error, shadow_scene
 
 SMALL = {"volume_size": 32, "rsm_size": 64, "gbuffer_spp": 4}
 
 
-@pytest.fixture(scope="module")
-def point_world(eval_cache):
-    return _world(POINT, eval_cache)
-
-
-@pytest.fixture(scope="module")
-def area_world(eval_cache):
-    return _world(AREA, eval_cache)
-
-
 def test_point_shadow_from_rays_matches_mitsuba(point_world):
     """Under a point light dvct's change of the floor (``direct = rays``, ``lost_bounce``
-    off) is within 10 % of Mitsuba's on the changed floor pixels (:func:`_shadow_error`,
+    off) is within 10 % of Mitsuba's on the changed floor pixels (:func:`shadow_error`,
     measured 0.04). Rejects Franke's shadow cone through ``V_η`` (``direct = cones``: 0.12,
     the voxelised cube's blurred, shifted outline) and the ``−R_µ`` VPLs of the shadowed
     floor read back by the floor's own diffuse cones (``lost_bounce`` on: 0.10 — a plane
     cannot light itself, the true lost bounce here is zero); with both, 0.19."""
     scene, photo = point_world
-    rays = _shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=False)
-    cones = _shadow_error(scene, photo, "dvct", **SMALL, direct="cones", lost_bounce=False)
-    lost = _shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=True)
+    rays = shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=False)
+    cones = shadow_error(scene, photo, "dvct", **SMALL, direct="cones", lost_bounce=False)
+    lost = shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=True)
     assert rays < 0.06, (rays, cones, lost)
     assert cones > 0.09 and lost > 0.08, (rays, cones, lost)
 
@@ -54,10 +44,10 @@ def test_area_light_soft_shadow_from_rays_matches_mitsuba(area_world):
     the shadow cone (``direct = cones``: 0.73, the cone's aperture from the patch's area
     disk cannot follow the penumbra) are the wrong implementations this rejects."""
     scene, photo = area_world
-    soft = _shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=False)
-    hard = _shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=False,
+    soft = shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=False)
+    hard = shadow_error(scene, photo, "dvct", **SMALL, direct="rays", lost_bounce=False,
                          shadow_samples=1)
-    cones = _shadow_error(scene, photo, "dvct", **SMALL, direct="cones", lost_bounce=False)
+    cones = shadow_error(scene, photo, "dvct", **SMALL, direct="cones", lost_bounce=False)
     assert soft < 0.25, (soft, hard, cones)
     assert hard > 0.4 and cones > 0.4, (soft, hard, cones)
 
@@ -68,7 +58,7 @@ def test_frame_unchanged_without_a_virtual_object(direct):
     composite is the photograph bit for bit and the delta zero, with either direct mode.
     Rejects a direct change that is not a difference of the mixed and the real scene
     (e.g. the real box's shadow removed again)."""
-    d = _scene(POINT, 48, 36)
+    d = shadow_scene(POINT, 48, 36)
     d["shapes"][1]["role"] = "real"
     d["shapes"][1]["material"]["albedo"] = 0.5
     frame = np.random.default_rng(0).random((36, 48, 3)).astype(np.float32)

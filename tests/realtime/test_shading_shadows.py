@@ -11,10 +11,8 @@ import math
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-import pytest
 
 from arlight.backend.mitsuba_scene import build_views
-from arlight.methods import RenderSettings, get_method
 from arlight.realtime.gbuffer import render_gbuffer
 from arlight.realtime.light_reduction import ReducedLight, reduce_lights
 from arlight.realtime.shading import (
@@ -26,40 +24,7 @@ from arlight.realtime.shading import (
     shadow_ray,
 )
 from arlight.scene.load import parse_scene
-from arlight.synthetic import synthesize
-
-LUM = np.array([0.2126, 0.7152, 0.0722])
-LOOK = {"origin": [0.6, 0.9, 1.6], "target": [0.0, 0.0, 0.0]}
-POINT = {"type": "point", "position": [-0.3, 1.3, -0.2], "intensity": 3.0}
-AREA = {"type": "area", "size": [0.6, 0.6], "normal": [0, -1, 0],
-        "transform": {"translate": [-0.3, 1.0, -0.2]}, "radiance": 12.0}
-
-
-def _scene(light: dict, w: int = 96, h: int = 72) -> dict:
-    return {"camera": {"resolution": [w, h], "fov_y_deg": 40, "look_at": LOOK},
-            "shapes": [
-                {"name": "floor", "role": "real", "type": "rectangle", "size": [2.5, 2.5],
-                 "normal": [0, 1, 0], "material": {"type": "diffuse", "albedo": 0.5}},
-                {"name": "cube", "role": "virtual", "type": "box", "size": [0.3] * 3,
-                 "transform": {"translate": [0.0, 0.15, 0.0]},
-                 "material": {"type": "diffuse", "albedo": 0.0}}],
-            "lights": [light]}
-
-
-def _world(light: dict, eval_cache):
-    scene = parse_scene(_scene(light))
-    photo = synthesize(scene, spp=256, max_depth=2, cache_dir=eval_cache)
-    return scene.with_frame(photo.frame), photo
-
-
-@pytest.fixture(scope="module")
-def point_world(eval_cache):
-    return _world(POINT, eval_cache)
-
-
-@pytest.fixture(scope="module")
-def area_world(eval_cache):
-    return _world(AREA, eval_cache)
+from tests.shadow_worlds import AREA, LUM, shadow_error, shadow_scene
 
 
 def _removed(scene, photo, samples: int, area_grid: int = 1):
@@ -212,7 +177,7 @@ def test_shared_rays_give_the_real_occluders_soft_shadow(area_world):
     ``real`` that drops the rays blocked in the real scene from the share cast (then it
     would be unshadowed) or counts only the last ray; mutation-checked."""
     scene, photo = area_world
-    data = _scene(AREA)
+    data = shadow_scene(AREA)
     data["shapes"][1]["role"] = "real"
     solid = parse_scene(data)
     views = build_views(solid.world)
@@ -271,29 +236,16 @@ def test_cone_samples_cover_the_spread():
     assert dr.width(ray.d) == n
 
 
-def _shadow_error(scene, photo, method: str, **opts) -> float:
-    """The method's error on the floor pixels the cube changes (Mitsuba's render changes
-    them by > 5 % of the frame): mean ``|composite − GT|`` over the mean ``|frame − GT|``
-    (luminance), 0 for the truth and 1 for the frame left as it is."""
-    out = get_method(method)(scene, RenderSettings(options=opts))
-    fr = np.asarray(photo.frame, np.float64) @ LUM
-    gt = np.asarray(photo.ground_truth, np.float64) @ LUM
-    comp = np.asarray(out.composite, np.float64) @ LUM
-    sel = (np.abs(fr - gt) > 0.05 * fr) & (np.asarray(photo.mask).reshape(fr.shape) < 1e-6)
-    assert sel.sum() > 100
-    return float(np.abs(comp - gt)[sel].mean() / np.abs(fr - gt)[sel].mean())
-
-
 def test_dlpv_shadow_from_rays_matches_mitsuba(point_world):
     """dlpv's shadow with ``direct = rays`` (``lost_bounce`` off) against Mitsuba's
     direct-only render: its error on the changed floor pixels below 10 % of the change
-    (:func:`_shadow_error`; measured 0.04 at 4 G-buffer samples per pixel — at one, 0.14
+    (:func:`shadow_error`; measured 0.04 at 4 G-buffer samples per pixel — at one, 0.14
     is the aliased shadow edge), as dir's; Franke's direct lobes in ``V_Δ`` (``direct =
     volume``: the thesis's "blurry circular blob", the wrong implementation this rejects)
     above 20 % (0.26), and no direct change (``none``) 0.68."""
     scene, photo = point_world
     small = {"volume_size": 16, "steps": 16, "rsm_size": 128, "gbuffer_spp": 4}
-    rays = _shadow_error(scene, photo, "dlpv", **small, direct="rays", lost_bounce=False)
-    blob = _shadow_error(scene, photo, "dlpv", **small, direct="volume")
-    knecht = _shadow_error(scene, photo, "dir", gbuffer_spp=4, vpls=64)
+    rays = shadow_error(scene, photo, "dlpv", **small, direct="rays", lost_bounce=False)
+    blob = shadow_error(scene, photo, "dlpv", **small, direct="volume")
+    knecht = shadow_error(scene, photo, "dir", gbuffer_spp=4, vpls=64)
     assert rays < 0.1 and knecht < 0.1 and blob > 0.2, (rays, knecht, blob)
