@@ -1,9 +1,10 @@
 """Every interactive method compiles its kernels once per world: frames with the virtual
-object moved, the camera moved and a new seed reuse them (issue #32: a kernel compiled per
-frame costs seconds on the CPU). Rejects per-frame values compiled into a kernel as literals
-— seeds, camera poses, volume origins that follow the object, light SH measured from the
-object's new centre, lamp positions — and NumPy buffers of varying alignment
-(:func:`arlight.jit.aligned`)."""
+object moved and turned, the camera moved and a new seed reuse them (issue #32: a kernel
+compiled per frame costs seconds on the CPU). Rejects per-frame values compiled into a
+kernel as literals — seeds, camera poses, volume origins that follow the object, light SH
+measured from the object's new centre, the AO rays' length from the turned object's box
+(ibl, bench_motion 1.40 before bb06628), lamp positions — and NumPy buffers of varying
+alignment (:func:`arlight.jit.aligned`)."""
 
 from __future__ import annotations
 
@@ -43,7 +44,9 @@ def test_moving_frames_reuse_the_compiled_kernels(demo, name):
     view = demo.view
     obj = next(s.name for s in demo.world.shapes if s.is_virtual)
     for k in range(4):
-        t = np.eye(4)
+        t = np.eye(4)  # moved and turned 2° a frame (bench_motion's turn): its box changes
+        c, s = np.cos(np.radians(2.0 * k)), np.sin(np.radians(2.0 * k))
+        t[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
         t[0, 3], t[2, 3] = 0.01 * k, 0.005 * k
         pose = view.camera.world_from_camera.copy()
         pose[:3, 3] += [0.003 * k, 0.0, 0.0]
