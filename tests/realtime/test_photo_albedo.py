@@ -76,6 +76,13 @@ def _texels(truth: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, np.ndarr
                  for v in (DARK, BRIGHT))
 
 
+def _point_light() -> LightSet:
+    """The world's point light as the one reduced light of a LightSet."""
+    pos = np.array(LIGHT["position"], np.float64)
+    return LightSet([ReducedLight(kind="point", position=pos, axis=np.zeros(3),
+                                  intensity=np.full(3, LIGHT["intensity"]), source="l0")])
+
+
 def test_reads_the_texture_the_proxy_lost(checker_world):
     """On the lit floor ρ̂ is each texel's own albedo within 5 % (the photograph's noise at
     256 spp), dark and bright alike. Rejects the proxy's albedo (the mean: 2.5× the dark
@@ -84,9 +91,7 @@ def test_reads_the_texture_the_proxy_lost(checker_world):
     world, proxy, photo, truth = checker_world
     views = build_views(proxy.world)
     gb = render_gbuffer(views.real, proxy.camera, 1, 0)
-    pos = np.array(LIGHT["position"], np.float64)
-    lights = LightSet([ReducedLight(kind="point", position=pos, axis=np.zeros(3),
-                                    intensity=np.full(3, LIGHT["intensity"]), source="l0")])
+    lights = _point_light()
     real = gb.valid & ~gb.virtual
     rho = photo_albedo(views.real, lights, proxy.frame, gb.pixel, gb.position, gb.normal,
                        gb.albedo, real)
@@ -114,9 +119,7 @@ def test_shared_shadow_rays_give_the_same_albedo(checker_world):
     _, proxy, photo, _ = checker_world
     views = build_views(proxy.world)
     gb = render_gbuffer(views.mixed, proxy.camera, 1, 0)
-    pos = np.array(LIGHT["position"], np.float64)
-    lights = LightSet([ReducedLight(kind="point", position=pos, axis=np.zeros(3),
-                                    intensity=np.full(3, LIGHT["intensity"]), source="l0")])
+    lights = _point_light()
     real = gb.valid & ~gb.virtual
     terms = direct_terms_gbuffer(views, lights, gb, real, 8)
     own = np.array(real_albedo("photo", views, lights, proxy.frame, gb, real), np.float64)
