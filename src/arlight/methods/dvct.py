@@ -1170,6 +1170,17 @@ def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView 
     samples, which split the ``rays``; ``fill`` the real surfaces' ``ρ_r L̄``): the cones'
     reduced-resolution lanes use it with ``spp = 1`` (every lane casts every ray) before
     the edge-aware upsampling (:func:`upsample`)."""
+    # symbolic calls even where the studio's drag frames evaluate them (issue #32): the
+    # rays' shape and BSDF calls, evaluated per ray, launched kernels per instance and ray
+    # (an 80×60 drag frame 2–4 s instead of 0.15)
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, True):
+        return _surround_at(data, lanes, fill, view, aperture_deg, active, rays, far_bounce,
+                            spp)
+
+
+def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView | None,
+                 aperture_deg: float, active: mi.Bool, rays: int, far_bounce: bool,
+                 spp: int) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
     from arlight.tracing.onepass import _Reprojector as Reprojector
 
     n_l = lanes.width
