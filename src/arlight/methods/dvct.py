@@ -283,9 +283,12 @@ def drag_options(options: Options, factor: int) -> dict[str, int]:
     cells; the volume stays a power of two): RSMs, voxelisation, injection and the mip
     filter do not shrink with the image otherwise; one G-buffer sample per pixel
     (:func:`~arlight.methods.fragments.drag_gbuffer_spp`, as dir and dlpv: the upsampling
-    filters wider than the AA samples would)."""
+    filters wider than the AA samples would); the surround along the nine cones' axes
+    (``surround_rays`` 0) and no far bounce: 16 rays per lane and shadow rays per hit
+    doubled an 80×60 drag frame (the frame at rest has them)."""
     return {"rsm_size": max(64, options.rsm_size // factor),
             "volume_size": max(32, options.volume_size // factor),
+            "surround_rays": 0, "far_bounce": False,
             **drag_gbuffer_spp(options, factor)}
 
 
