@@ -50,8 +50,7 @@ from arlight.methods.base import (
     Prepared,
     RenderSettings,
 )
-from arlight.methods.fragments import PathScenesMethod
-from arlight.methods.onepass import OPTIONS as ONEPASS_OPTIONS
+from arlight.methods.fragments import SAMPLER_OPTIONS, PathScenesMethod
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.shading import virtual_bounds
 from arlight.scene.model import FrameView, World
@@ -105,11 +104,8 @@ OPTIONS: dict[str, Field] = {
                               "see, e.g. reflected in a glossy floor), the camera walk path "
                               "traces on from the point instead of reading the pixel's "
                               "irradiance (validate only); false: keep the pixel's value"),
-    # the camera walk draws its numbers as onepass does (the same Field, the same default):
-    # with `independent` keys dic's direct light had 3–4× onepass's variance at equal spp
-    "sampler": ONEPASS_OPTIONS["sampler"],
-    "replicas": ONEPASS_OPTIONS["replicas"],
-    "replica_mode": ONEPASS_OPTIONS["replica_mode"],
+    # the camera walk draws its numbers as onepass does (the same fields and defaults)
+    **SAMPLER_OPTIONS,
     "invalidate_distance": Field("float", 0.3, "records this close to a moved virtual "
                                  "object's old or new bounds are dropped (DicSequence)", "m",
                                  min=0.0, max=1.0e6),

@@ -45,7 +45,7 @@ from arlight.methods.base import (
     Layers,
     RenderSettings,
 )
-from arlight.methods.fragments import PathScenesMethod
+from arlight.methods.fragments import SAMPLER_OPTIONS, PathScenesMethod
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.scene.model import FrameView
 from arlight.timing import StageTimer
@@ -71,21 +71,7 @@ OPTIONS: dict[str, Field] = {
     "mode": Field("choice", "onepass", "`onepass`: Kán's four ray types in one pass; "
                   "`twopass`: the same tracer on each view separately (baseline)",
                   choices=("onepass", "twopass")),
-    "sampler": Field("choice", "sobol", "`sobol`: shuffled Owen-scrambled Sobol points "
-                     "(Burley 2020) for the pixel, lens, light, BSDF and roulette dimensions, "
-                     "4D sets pairing each BSDF direction with the next light sample; "
-                     "`sobol2d`: 2D sets only; `independent`: hashed uniform numbers "
-                     "(docs/methods/onepass.md#sampling)",
-                     choices=("sobol", "sobol2d", "independent")),
-    "replicas": Field("int", 16, "independent randomisations whose spread gives the standard "
-                      "errors (the largest divisor of spp not above it; 1: per-sample "
-                      "variance, which overstates the error of Sobol samples)", min=1,
-                      max=4096),
-    "replica_mode": Field("choice", "blocks", "`blocks`: the replicas are blocks of one "
-                          "scrambled sequence per pixel (the lowest error: at 16 spp the "
-                          "pixel is one 16-point net, not 16 one-point ones; standard errors "
-                          "conservative, mean z² ≈ 0.8); `scrambles`: each replica its own "
-                          "Sobol scrambling (unbiased errors)", choices=("blocks", "scrambles")),
+    **SAMPLER_OPTIONS,
     "sample_offset": Field("int", 0, "first sample index drawn in every pixel (a multiple of "
                            "the replicas): progressive frames with one seed and offsets n·spp "
                            "continue one Sobol sequence", min=0, max=2**31 - 1),
