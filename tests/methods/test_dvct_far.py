@@ -1,6 +1,7 @@
 """``dvct``'s virtual objects and the real surroundings beyond the volume (issue #33): the
 far bounce (``far_bounce``, ``surround_rays``) and the shadow rays cast only where they can
-meet a virtual object (:mod:`arlight.realtime.shadow_reach`).
+meet a virtual object (:mod:`arlight.realtime.shadow_reach`, inside
+:func:`arlight.realtime.shading.direct_terms_gbuffer`).
 
 References: Mitsuba's ``path`` (the mixed world's ground truth, :func:`arlight.synthetic.
 synthesize`) and the direct change traced on every lane. Each test names the wrong
@@ -109,16 +110,17 @@ def test_shadow_reach_never_drops_a_ray_that_meets_the_ball():
     dr.eval()
 
 
-def test_direct_change_light_by_light_on_reaching_lanes_equals_every_lane(eval_cache):
-    """:func:`~arlight.realtime.shadow_reach.direct_change_reaching` (each light's shadow
-    rays cast only on the lanes whose rays can meet the objects' ball) equals
-    :func:`~arlight.realtime.shading.direct_change_gbuffer` on every real lane, bit for
-    bit, under a soft sun and an area light (8 shadow samples split over 4 G-buffer
-    samples), and drops at least a fifth of the real lanes. Rejects a cull without the
-    ball's angular radius (``asin(R/d)``: the change differs; mutation-checked)."""
+def test_direct_terms_culled_light_by_light_equal_every_lane(eval_cache):
+    """:func:`~arlight.realtime.shading.direct_terms_gbuffer` culled with dvct's world
+    (each light's mixed-scene rays cast only on the lanes whose rays can meet the objects'
+    ball, as dvct's ``shade`` calls it) equals the unculled call on every real lane, bit
+    for bit (change and ``E_µ,d``), under a soft sun and an area light (8 shadow samples
+    split over 4 G-buffer samples), and drops at least a fifth of the real lanes. Rejects
+    a cull without the ball's angular radius (``asin(R/d)``: the change differs;
+    mutation-checked)."""
     from arlight.realtime.gbuffer import render_gbuffer
-    from arlight.realtime.shading import direct_change_gbuffer, virtual_bounds
-    from arlight.realtime.shadow_reach import bounding_ball, direct_change_reaching, shadow_reach
+    from arlight.realtime.shading import direct_terms_gbuffer, virtual_bounds
+    from arlight.realtime.shadow_reach import bounding_ball, shadow_reach
 
     lights = [{"type": "directional", "direction": [0.3, -1.0, 0.2],
                "irradiance": [3.0, 3.0, 3.0]},
@@ -130,10 +132,11 @@ def test_direct_change_light_by_light_on_reaching_lanes_equals_every_lane(eval_c
     data = state.data
     gb = render_gbuffer(data.views.mixed, world.camera, 4, 0)
     real = gb.valid & ~gb.virtual
-    full = np.array(direct_change_gbuffer(data.views, data.lights, gb, real, 8))
-    cut = np.array(direct_change_reaching(data.views, data.world, data.lights, gb, real, 8))
-    assert np.abs(full).max() > 0.1
-    assert np.array_equal(full, cut)
+    full = direct_terms_gbuffer(data.views, data.lights, gb, real, 8)
+    cut = direct_terms_gbuffer(data.views, data.lights, gb, real, 8, data.world)
+    assert np.abs(np.array(full.change)).max() > 0.1
+    assert np.array_equal(np.array(full.change), np.array(cut.change))
+    assert np.array_equal(np.array(full.real), np.array(cut.real))
     box = virtual_bounds(data.world, data.views.mixed)
     kept = np.array(shadow_reach(data.lights, gb.position, bounding_ball(box)) & real, bool)
     assert kept.sum() < 0.8 * np.array(real, bool).sum()

@@ -505,8 +505,9 @@ class DIRMethod(BaseMethod):
             # where those are blocked (soft for extended lights with shadow_samples > 1);
             # none without virtual objects (the two views' BVHs may round a grazing ray apart)
             # (and through the same rays the real scene's direct irradiance, E_r's for ρ̂)
+            # (the mixed scene's rays only where they can meet the objects; exact)
             terms = direct_terms_gbuffer(data.views, data.lights, gb, real,
-                                         options.shadow_samples) \
+                                         options.shadow_samples, data.world) \
                 if data.world.has_virtual else None
             e_dd = terms.change if terms is not None else mi.Color3f(0.0)
             dr.eval(e_dd, terms.real if terms is not None else e_dd)

@@ -465,14 +465,25 @@ def shade(data: DLPVData, gb: GBuffer, vols: Volumes, frame: np.ndarray | None =
     mixed = shade_objects(data.objects, data.world, data.views, data.lights, data.ambient,
                           gb, None if vols.rho is None else v_rho, data.ao_rays)
     e_delta = -real_ambient_loss(data.ambient, data.lights, gb.position, gb.normal, real)
-    # the direct change's shadow rays also give E_r's direct part (no rays of its own)
-    terms = direct_terms_gbuffer(data.views, data.lights, gb, real, data.shadow_samples) \
-        if data.direct == "rays" else None
-    if terms is not None:
-        e_delta += terms.change
+    e_vol = None
     if vols.delta is not None:
         q = gb.position + gb.normal * half
-        e_delta += k * query_irradiance_compact(vols.delta, q, gb.normal, real)
+        e_vol = k * query_irradiance_compact(vols.delta, q, gb.normal, real)
+    # the direct change's shadow rays also give E_r's direct part (no rays of its own),
+    # the mixed scene's only where they can meet the objects (exact), the real scene's
+    # where the change may be non-zero (there, or where the other terms are)
+    if data.direct == "rays":
+        other = dr.any(e_delta != 0.0)
+        if e_vol is not None:
+            other |= dr.any(e_vol != 0.0)
+        terms = direct_terms_gbuffer(data.views, data.lights, gb, real, data.shadow_samples,
+                                     data.world,
+                                     real & other if frame is not None else mi.Bool(False))
+        e_delta += terms.change
+    else:
+        terms = None
+    if e_vol is not None:
+        e_delta += e_vol
     rho = gb.albedo * (1.0 / np.pi)
     # the photograph's albedo where the change is not zero (elsewhere it multiplies zero:
     # no shadow rays for E_r outside the volume and the shadows)

@@ -115,10 +115,10 @@ from arlight.realtime.shading import (
     ambient_irradiance_dr,
     direct_irradiance,
     direct_irradiance_compact,
+    direct_terms_gbuffer,
     split_lights,
     virtual_bounds,
 )
-from arlight.realtime.shadow_reach import direct_change_reaching
 from arlight.realtime.voxels import (
     ANISO_CHANNELS,
     COVER_CHANNELS,
@@ -1003,9 +1003,47 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
     """Edge-aware (joint bilateral) upsampling of low-res cone terms to every G-buffer lane:
     the 4 nearest low-res samples, bilinear weights × ``exp(−(<n, p_s − p>/s)²)`` (distance of
     the sample from the pixel's tangent plane in cells) × ``max(0, <n, n_s>)⁸`` × same role;
-    where every geometric weight vanishes, the same-role bilinear mean (weight 10⁻³)."""
+    where every geometric weight vanishes, the same-role bilinear mean (weight 10⁻³).
+    ``x``, ``y``, ``z`` on every lane; ``t``, ``surround`` and ``covered``, which only
+    virtual lanes read (:func:`shade`), on the virtual lanes alone (compacted: at 640×480
+    with 4 G-buffer samples most lanes are real, and the surround's seven channels were
+    half the gathers; elsewhere ``t`` 1, ``surround`` 0, ``covered`` False)."""
+    args = (gb, k, low, cell)
+    (x, y, z), _ = _bilateral(*args, gb.pixel, gb.position, gb.normal, gb.role,
+                              [terms.x, terms.y, terms.z])
+    rest = ([] if terms.t is None else [terms.t]) + list(terms.surround or ())
+    t, surround, covered = terms.t, terms.surround, None
+    if rest:
+        n = dr.width(gb.role)
+        outs = [dr.zeros(type(v), n) for v in rest]
+        if terms.t is not None:
+            outs[0] = dr.full(mi.Float, 1.0, n)
+        hit = dr.zeros(mi.Bool, n)
+        idx = dr.compress(gb.virtual)
+        if dr.width(idx):
+            got, any_w = _bilateral(*args, *(dr.gather(type(a), a, idx) for a in (
+                gb.pixel, gb.position, gb.normal, gb.role)), rest)
+            if terms.t is not None:  # no same-role sample: the whole distant light
+                got[0] = dr.select(any_w, got[0], 1.0)
+            for o, g in zip(outs, got, strict=True):
+                dr.scatter(o, g, idx)
+            dr.scatter(hit, any_w, idx)
+        if terms.t is not None:
+            t = outs.pop(0)
+        if terms.surround is not None:
+            surround, covered = tuple(outs), hit
+    out = ConeTerms(x, y, z, t, surround, covered)
+    dr.eval(out.x, out.y, out.z, out.t, *(out.surround or ()), out.covered)
+    return out
+
+
+def _bilateral(gb: GBuffer, k: int, low: Lanes, cell: float, pix: mi.UInt32,
+               p: mi.Point3f, n: mi.Vector3f, role: mi.Int32, values: list
+               ) -> tuple[list, mi.Bool]:
+    """:func:`upsample`'s filter of the low-res ``values`` at lanes of G-buffer pixel
+    ``pix`` (position ``p``, normal ``n``, ``role``): the normalised weighted sums and
+    whether any weight was non-zero (a same-role sample among the four)."""
     hl, wl = -(-gb.height // k), -(-gb.width // k)
-    pix = gb.pixel
     row = mi.Float(pix // gb.width)
     col = mi.Float(pix % gb.width)
     fy = (row - float(k // 2)) * (1.0 / k)
@@ -1013,10 +1051,8 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
     y0 = dr.floor(fy)
     x0 = dr.floor(fx)
     ty, tx = fy - y0, fx - x0
-    p, n, role = gb.position, gb.normal, gb.role
-    acc_x, acc_y, acc_z, acc_w = mi.Color3f(0.0), mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0)
-    acc_t = mi.Float(0.0)
-    acc_s = [mi.Color3f(0.0), mi.Float(0.0), mi.Color3f(0.0)]
+    acc = [dr.zeros(type(v), dr.width(pix)) for v in values]
+    acc_w = mi.Float(0.0)
     inv = 1.0 / cell
     for dy in (0, 1):
         for dx in (0, 1):
@@ -1033,22 +1069,10 @@ def upsample(gb: GBuffer, k: int, low: Lanes, terms: ConeTerms, cell: float) -> 
             cos8 = cos2 * cos2 * cos2 * cos2
             w = bil * (dr.exp(-plane * plane) * cos8 + 1e-3)
             w = dr.select(rs == role, w, 0.0)
-            acc_x += dr.gather(mi.Color3f, terms.x, i) * w
-            acc_y += dr.gather(mi.Color3f, terms.y, i) * w
-            acc_z += dr.gather(mi.Float, terms.z, i) * w
-            if terms.t is not None:
-                acc_t += dr.gather(mi.Float, terms.t, i) * w
-            if terms.surround is not None:
-                acc_s = [a + dr.gather(type(v), v, i) * w
-                         for a, v in zip(acc_s, terms.surround, strict=True)]
+            acc = [a + dr.gather(type(v), v, i) * w for a, v in zip(acc, values, strict=True)]
             acc_w += w
     norm = dr.select(acc_w > 0.0, dr.rcp(dr.maximum(acc_w, 1e-30)), 0.0)
-    out = ConeTerms(acc_x * norm, acc_y * norm, acc_z * norm,
-                    None if terms.t is None else dr.select(acc_w > 0.0, acc_t * norm, 1.0),
-                    None if terms.surround is None else tuple(a * norm for a in acc_s),
-                    None if terms.surround is None else acc_w > 0.0)
-    dr.eval(out.x, out.y, out.z, out.t, *(out.surround or ()))
-    return out
+    return [a * norm for a in acc], acc_w > 0.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -1258,8 +1282,11 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     ``shadow_rays`` (option ``direct = rays``): the real lanes' direct change ``ΔE_d = Σ_i
     E⊥_i <n, ω_i>+ (V_ρ,i − V_µ,i)`` (W/m², ``≤ 0``) is traced per G-buffer sample, that
     many shadow rays over an extended light (:func:`~arlight.realtime.shading.
-    direct_change`), and added to the cones' ``ΔE`` (``terms.x`` then holds no shadow
-    cones); None (``direct = cones``): ``terms.x`` holds Eq. 5.20's shadow cones."""
+    direct_terms_gbuffer`, the mixed scene's rays only where they can meet the objects),
+    and added to the cones' ``ΔE`` (``terms.x`` then holds no shadow cones); the same rays
+    give ``E_r``'s direct part for ``ρ̂`` (the real scene's visibility, soft over an
+    extended light; no rays of its own). None (``direct = cones``): ``terms.x`` holds
+    Eq. 5.20's shadow cones, and ``E_r`` traces one ray per light."""
     virt = gb.virtual
     real = gb.valid & ~virt
     n_l = dr.width(gb.role)
@@ -1269,15 +1296,22 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     spec, rough, hide = data.materials.at(gb.shape, gb.valid)
     # real pixels: ρ/π ΔE + k_s C_Δ,spec, and −h a_spec B (applied by the caller)
     e_delta = terms.x
+    direct = None
     if shadow_rays is not None:
-        # light by light, only the lanes whose shadow rays can meet the objects (exact)
-        e_delta = e_delta + direct_change_reaching(data.views, data.world, data.lights, gb,
-                                                   real, shadow_rays)
+        # light by light, the mixed scene's rays only on the lanes whose rays can meet the
+        # objects (exact); the same rays give E_r's direct part (the real scene's soft
+        # visibility) where the cones change the pixel or the shadow can
+        cones = real & (dr.max(dr.abs(terms.x)) > 0.0) if frame is not None \
+            else mi.Bool(False)
+        shared = direct_terms_gbuffer(data.views, data.lights, gb, real, shadow_rays,
+                                      data.world, cones)
+        e_delta = e_delta + shared.change
+        direct = shared.real
     rho = gb.albedo
     if frame is not None:
         changed = real & (dr.max(dr.abs(e_delta)) > 0.0)
         rho = photo_albedo(data.views.real, data.lights, frame, gb.pixel, gb.position,
-                           gb.normal, gb.albedo, changed)
+                           gb.normal, gb.albedo, changed, direct=direct)
     delta = rho * (1.0 / math.pi) * e_delta + spec * terms.y
     delta = dr.select(real, delta, mi.Color3f(0.0))
     hidden = dr.select(real, hide * terms.z, 0.0)

@@ -12,8 +12,9 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView, SceneViews
-from arlight.jit import opaques
+from arlight.jit import opaque, opaques
 from arlight.realtime.light_reduction import LightSet, ReducedLight
+from arlight.realtime.shadow_reach import bounding_ball, light_reach
 from arlight.scene.model import World
 
 if TYPE_CHECKING:
@@ -140,7 +141,8 @@ class DirectTerms(NamedTuple):
 
 def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
                  active: mi.Bool, samples: int = 1,
-                 strata: tuple[mi.UInt32, mi.UInt32, int] | None = None) -> DirectTerms:
+                 strata: tuple[mi.UInt32, mi.UInt32, int] | None = None,
+                 reach: mi.Bool | None = None) -> DirectTerms:
     """The virtual objects' change of the reduced lights' direct irradiance at real points
     ``p`` (normals ``n``) and the real scene's direct irradiance, through the same shadow
     rays (:class:`DirectTerms`; zero on inactive lanes).
@@ -169,7 +171,13 @@ def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vecto
     sample ``s`` casts points ``s, s + m, …`` of one lattice rotated by a hash of the pixel —
     so the pixel's ``m`` samples cast ``max(K, m)`` rays together, not ``m K``; each
     sample's ``V`` is the fraction of its own points that arrive. None: each lane is its
-    own pixel (key: its index) with one sample."""
+    own pixel (key: its index) with one sample.
+
+    ``reach``: the lanes whose shadow rays can meet a virtual object
+    (:func:`arlight.realtime.shadow_reach.light_reach`), None: every lane. Elsewhere a ray
+    meets real geometry alone, so the mixed scene blocks it exactly where the real one
+    does (``V_ρ = V_µ``, no change): those lanes trace their rays in the real scene only,
+    for ``E_µ,d`` — the same rays, so the same ``V_µ`` as tracing both scenes."""
     change = mi.Color3f(0.0)
     real = mi.Color3f(0.0)
     if strata is None:
@@ -185,8 +193,11 @@ def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vecto
         cast = mi.Float(0.0)
         for r, on in _extent_rays(lt, ray, origin, rot, k, strata):
             on = lit & on
-            blocked = on & views.mixed.scene.ray_test(r, on)
-            in_real = blocked & views.real.scene.ray_test(r, blocked)
+            near = on if reach is None else on & reach
+            blocked = near & views.mixed.scene.ray_test(r, near)
+            # where the mixed scene blocks the ray, or where no virtual object can
+            test = blocked if reach is None else blocked | (on & ~reach)
+            in_real = test & views.real.scene.ray_test(r, test)
             lost += dr.select(blocked & ~in_real, 1.0, 0.0)
             shaded += dr.select(in_real, 1.0, 0.0)
             cast += dr.select(on, 1.0, 0.0)
@@ -222,23 +233,64 @@ def _extent_rays(light: ReducedLight, ray: mi.Ray3f, origin: mi.Point3f, rot, k:
 
 
 def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
-                         samples: int = 1) -> DirectTerms:
+                         samples: int = 1, world: World | None = None,
+                         real_on: mi.Bool | None = None) -> DirectTerms:
     """:func:`direct_terms` (W/m²) at the G-buffer's ``active`` lanes only (compacted with
     :func:`on_active`, scattered back; zero elsewhere), the ``samples`` points of an
     extended light split over each pixel's ``gb.spp`` samples (``strata``): the real
     pixels' direct change of ``dir``, ``dlpv`` and ``dvct`` and, through the same rays,
     the direct part of their photograph's model irradiance (``real``, for
-    :func:`arlight.realtime.real_lane.real_albedo`'s ``direct``)."""
+    :func:`arlight.realtime.photo_albedo.photo_albedo`'s ``direct``).
+
+    ``world`` (the views' world; None: no culling) culls light by light
+    (:mod:`arlight.realtime.shadow_reach`): a lane whose rays to light ``i`` cannot meet
+    the ball around the virtual objects (:func:`~arlight.realtime.shadow_reach.
+    light_reach`) has ``V_ρ,i = V_µ,i`` — no change — and traces light ``i``'s rays in
+    the real scene only, where ``real`` is wanted; the rest as without ``world``, so both
+    outputs equal the unculled ones on the lanes they are computed for (a light's rays and
+    their lattice rotation, a hash of the pixel, do not depend on the other lights).
+    ``real_on``: lanes (within ``active``) where ``real`` is wanted besides those some light
+    can reach the objects from — the only lanes whose ``change`` can be non-zero, where
+    ``real`` is always computed; None: every ``active`` lane. ``real`` is zero on the lanes
+    left out (with a caller's ``ρ/π ΔE`` they multiply a zero change). On a held-out
+    outdoor world at 640×480 with seven reduced lights 5 of 8 real lanes per light can
+    reach nothing (``dvct``'s direct stage 0.46× the time)."""
     if not lights.lights:
         z = dr.zeros(mi.Color3f, dr.width(gb.position))
         return DirectTerms(z, mi.Color3f(z))
     sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % gb.spp
+    box = None if world is None else virtual_bounds(world, views.mixed)
+    if box is None:  # every lane reaches (or none can: no virtual object, no change)
+        def terms(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32
+                  ) -> DirectTerms:
+            return direct_terms(views, lights, p, n, mi.Bool(True), samples,
+                                (pixel, s, gb.spp), None if world is None else mi.Bool(False))
 
-    def terms(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32) -> DirectTerms:
-        return direct_terms(views, lights, p, n, mi.Bool(True), samples, (pixel, s, gb.spp))
+        lanes = active if world is None or real_on is None else active & real_on
+        return DirectTerms(*on_active(terms, gb.position, gb.normal, lanes, gb.pixel, sample,
+                                      outputs=2))
+    centre, radius = bounding_ball(box)
+    # opaque: the ball moves with the objects, one kernel for every pose (issue #32)
+    c, r = mi.Point3f(*opaques(centre)), opaque(radius)
+    reach = [active & light_reach(lt, gb.position, c, r) for lt in lights.lights]
+    want = active
+    if real_on is not None:
+        want = active & real_on
+        for near in reach:
+            want |= near
+    change, real = dr.zeros(mi.Color3f, dr.width(gb.position)), \
+        dr.zeros(mi.Color3f, dr.width(gb.position))
+    for lt, near in zip(lights.lights, reach, strict=True):
+        def one(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32,
+                near_c: mi.Bool, lt: ReducedLight = lt) -> DirectTerms:
+            return direct_terms(views, LightSet([lt]), p, n, mi.Bool(True), samples,
+                                (pixel, s, gb.spp), near_c)
 
-    return DirectTerms(*on_active(terms, gb.position, gb.normal, active, gb.pixel, sample,
-                                 outputs=2))
+        ch, re = on_active(one, gb.position, gb.normal, want, gb.pixel, sample, near,
+                           outputs=2)
+        change += ch
+        real += re
+    return DirectTerms(change, real)
 
 
 def direct_change_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,

@@ -20,6 +20,9 @@ from ``p``; ``p`` inside the ball always passes), and a segment of length ``ℓ`
 rays (two scenes × ``shadow_samples`` per extended light) need not be cast. The test is
 exact in the sense that it never drops a lane whose change is non-zero (the bounding ball
 holds every virtual triangle), and costs a few flops per lane and light.
+:func:`arlight.realtime.shading.direct_terms_gbuffer` (``world=``) culls with it: a lane
+a light cannot reach traces that light's rays in the real scene only (for the real scene's
+own irradiance ``E_µ,d``, where it is wanted), and no ray where it is not.
 """
 
 from __future__ import annotations
@@ -31,9 +34,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.jit import opaque, opaques
-from arlight.realtime.gbuffer import GBuffer
 from arlight.realtime.light_reduction import LightSet, ReducedLight
-from arlight.realtime.shading import direct_change_gbuffer, virtual_bounds
 
 PAD = 1e-3
 """Relative padding of the bounding ball's radius (and ``1e-4`` m absolute): the shadow
@@ -92,27 +93,4 @@ def shadow_reach(lights: LightSet, p: mi.Point3f, ball: tuple[np.ndarray, float]
     return out
 
 
-def direct_change_reaching(views, world, lights: LightSet, gb: GBuffer, active: mi.Bool,
-                           samples: int = 1) -> mi.Color3f:
-    """:func:`~arlight.realtime.shading.direct_change_gbuffer` (``ΔE_d``, W/m², ``≤ 0``)
-    light by light, each on the ``active`` lanes its shadow rays can reach the virtual
-    objects from (:func:`light_reach`, the ball around ``views.mixed``'s virtual shapes of
-    ``world``); equal to the one call on every ``active`` lane — a light's rays and their
-    lattice rotation (a hash of the pixel) do not depend on the other lights — with the
-    rays that cannot meet a virtual object not cast (on a held-out outdoor world at
-    640×480 with seven reduced lights, 5 of 8 real lanes per light dropped, the direct
-    stage 0.46× the time)."""
-    box = virtual_bounds(world, views.mixed)
-    if box is None or not lights.lights:
-        return direct_change_gbuffer(views, lights, gb, active, samples)
-    centre, radius = bounding_ball(box)
-    # opaque: the ball moves with the objects, one kernel for every pose (issue #32)
-    c, r = mi.Point3f(*opaques(centre)), opaque(radius)
-    out = dr.zeros(mi.Color3f, dr.width(gb.position))
-    for lt in lights.lights:
-        reach = active & light_reach(lt, gb.position, c, r)
-        out += direct_change_gbuffer(views, LightSet([lt]), gb, reach, samples)
-    return out
-
-
-__all__ = ["PAD", "bounding_ball", "direct_change_reaching", "light_reach", "shadow_reach"]
+__all__ = ["PAD", "bounding_ball", "light_reach", "shadow_reach"]
