@@ -559,7 +559,8 @@ def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f
     (:data:`~arlight.realtime.voxels.ANISO_CHANNELS`, 6 directions × RGB) the Lambertian
     intensity towards each axis direction ``e``, ``Φ/π · max(0, <n, e>)`` (a cone reads
     ``Σ_a |ω_a| c_slot(a)``, exactly ``Φ/π · max(0, <n, ω>)`` for axis-aligned ``n``)."""
-    idx, inside = cell_index(grid, position + normal * (0.5 * grid.cell))
+    # opaque: the cell changes as the objects turn (a literal compiled a kernel per frame)
+    idx, inside = cell_index(grid, position + normal * opaque(0.5 * grid.cell))
     act = active & inside
     val = flux * (sign / math.pi)
     cells = grid.n ** 3
@@ -752,7 +753,9 @@ def diffuse_cones(vols: ConeVolumes, lanes: Lanes, aperture_deg: float,
     d = frame.to_world(local)
     wt = dr.gather(mi.Float, mi.Float(aligned(w, np.float32)), cone)
     s0 = vols.alpha.grid.cell
-    res = trace_cones(vols, p + nrm * (DIFFUSE_START * s0), d, tan_h, dr.inf, mi.Bool(True),
+    # opaque: the cell changes as the objects turn (a literal, a new kernel per frame)
+    res = trace_cones(vols, p + nrm * opaque(DIFFUSE_START * s0), d, tan_h, dr.inf,
+                      mi.Bool(True),
                       t_start=0.5 * s0, alpha_for_light=alpha_for_light,
                       quadrilinear=False, level_bias=level_bias, shells=shells)
     e = dr.block_sum(res.radiance * wt, k)
@@ -819,7 +822,7 @@ def shadow_cones(data: DVCTData, vols: ConeVolumes, lanes: Lanes, shells: float 
     # it compiled the cone kernel again on every moving frame)
     width = dr.opaque(mi.UInt32, n)
     src = dr.arange(mi.UInt32, n * len(lights)) % width
-    lifted = mi.Point3f(lanes.position + lanes.normal * (SHADOW_LIFT * s0))
+    lifted = mi.Point3f(lanes.position + lanes.normal * opaque(SHADOW_LIFT * s0))
     start = dr.gather(mi.Point3f, lifted, src)
     lane = dr.arange(mi.UInt32, n)
 
@@ -1053,7 +1056,7 @@ def _bilateral(gb: GBuffer, k: int, low: Lanes, cell: float, pix: mi.UInt32,
     ty, tx = fy - y0, fx - x0
     acc = [dr.zeros(type(v), dr.width(pix)) for v in values]
     acc_w = mi.Float(0.0)
-    inv = 1.0 / cell
+    inv = opaque(1.0 / cell)  # the cell changes as the objects turn: one kernel for all
     for dy in (0, 1):
         for dx in (0, 1):
             yy = dr.clip(mi.Int32(y0) + dy, 0, hl - 1)

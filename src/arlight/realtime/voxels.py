@@ -71,7 +71,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.errors import InputError
-from arlight.jit import aligned
+from arlight.jit import aligned, opaque
 from arlight.realtime.sh_volume import Grid
 from arlight.scene.model import Shape
 
@@ -717,10 +717,15 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     """
     alpha = vols.alpha
     grid = alpha.grid
-    s0 = grid.cell
+    # the cell as opaque scalars: it changes as the objects turn (with several objects the
+    # volume fits their box), and as literals it compiled new cone kernels on every moving
+    # frame (issue #32; the same float32 values, so the same results)
+    s0 = opaque(grid.cell)
+    inv_s0, inv_area = opaque(1.0 / grid.cell), opaque(1.0 / (grid.cell * grid.cell))
+    sq_cell = opaque(grid.cell * grid.cell)
     levels = alpha.levels
     t_in, t_out = box_interval(grid, origin, direction)
-    t = dr.maximum(t_in, t_start)
+    t = dr.maximum(t_in, opaque(t_start) if isinstance(t_start, float | int) else t_start)
     t_end = dr.minimum(t_out, t_max)
     tan_h = mi.Float(tan_half)
     # lanes without a direction (G-buffer samples of no surface) never leave their start
@@ -738,7 +743,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
     light_alpha = int(alpha_for_light)  # 0 α_all, 1 α_real, 2 keep (virtual occlusion only)
     max_lvl = float(levels - 1)
     quad = bool(quadrilinear)
-    far_start = FAR_START * s0
+    far_start = opaque(FAR_START * grid.cell)
     cover = vols.cover if light is not None else None
     aniso = aniso_lookup(direction) if light is not None and (
         light.channels == ANISO_CHANNELS or cover is not None) else None
@@ -753,7 +758,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
 
     def body(t, c, a_all, a_real, keep, act):
         diam = dr.maximum(s0, 2.0 * t * tan_h)
-        lvl_f = dr.clip(dr.log2(diam * (1.0 / s0)) - bias, 0.0, max_lvl)
+        lvl_f = dr.clip(dr.log2(diam * inv_s0) - bias, 0.0, max_lvl)
         p = origin + direction * t
         vs = [alpha] if light is None else (
             [alpha if cover is None else cover, light] + ([] if occ is None else [occ])
@@ -782,7 +787,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
         al_all = mix(dr.minimum(al_a[0] * ka, 1.0), dr.minimum(al_b[0] * kb, 1.0))
         al_real = mix(dr.minimum(al_a[1] * ka, 1.0), dr.minimum(al_b[1] * kb, 1.0))
         if light is not None:
-            rad = mi.Color3f(mix(s_a[1] * k_a, s_b[1] * k_b)) * (1.0 / (s0 * s0))
+            rad = mi.Color3f(mix(s_a[1] * k_a, s_b[1] * k_b)) * inv_area
             front = mi.Float(1.0)
             if vols.normal is not None:
                 nrm = mix(s_a[-1], s_b[-1])
@@ -794,7 +799,7 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
             if occ is None:
                 c = dr.select(act, c + rad * vis, c)
             else:  # Δ·keep − (1 − keep)·µ with µ = ρ − Δ (module docstring)
-                rad_o = mi.Color3f(mix(s_a[2] * k_a, s_b[2] * k_b)) * (front / (s0 * s0))
+                rad_o = mi.Color3f(mix(s_a[2] * k_a, s_b[2] * k_b)) * (front / sq_cell)
                 c = dr.select(act, c + rad - rad_o * (1.0 - keep), c)
         a_all = dr.select(act, a_all + (1.0 - a_all) * al_all, a_all)
         a_real = dr.select(act, a_real + (1.0 - a_real) * al_real, a_real)
@@ -815,6 +820,11 @@ def trace_cones(vols: ConeVolumes, origin: mi.Point3f, direction: mi.Vector3f,
 
     state = dr.while_loop((t, c, a_all, a_real, keep, act), cond, body,
                           labels=("t", "c", "a_all", "a_real", "keep", "act"), label="cone")
+    # the march once, its four outputs in one kernel: left unevaluated, every later
+    # evaluation of one of them (each of dvct's block sums, ``added = 1 − keep``) ran the
+    # whole loop again — five marches per diffuse_cones call (world-13 at 640×480: the
+    # real lanes' cones 0.55 s → 0.18 s of loop kernels)
+    dr.eval(*state[1:5])
     return ConeResult(*state[1:5])
 
 
