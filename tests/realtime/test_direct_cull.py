@@ -57,14 +57,15 @@ def _np(x) -> np.ndarray:
 
 
 def test_culled_terms_equal_every_lane_traced(occluded):
-    """With ``world`` both outputs equal the unculled call's bit for bit on every lane —
-    the change (the cube's shadows) and ``E_µ,d`` (the post's soft shadow, on lanes that no
-    light can reach the cube from, included) — while each light's mixed-scene rays run on
-    under 80 % of the real lanes. Rejects a cull that drops a lane whose rays can meet the
-    cube (``light_reach`` without the ball's angular radius ``asin(R/d)``: the change
-    differs) and culled lanes that trace no ray for ``E_µ,d`` (read unshadowed: the post's
-    shadow gone); mutation-checked. (Culled lanes tracing the mixed scene instead of the
-    real one is an equivalent mutant: neither scene's rays meet the cube there.)"""
+    """With ``world`` both outputs equal the unculled call's on every lane: the change
+    (the cube's shadows) bit for bit, ``E_µ,d`` (the post's soft shadow, on lanes that no
+    light can reach the cube from, included) to float rounding (summed in another order);
+    each light's mixed-scene rays run on under 80 % of the real lanes. Rejects a cull that
+    drops a lane whose rays can meet the cube (``light_reach`` without the ball's angular
+    radius ``asin(R/d)``: the change differs) and culled lanes that trace no ray for
+    ``E_µ,d`` (read unshadowed: the post's shadow gone); mutation-checked. (Culled lanes
+    tracing the mixed scene instead of the real one is an equivalent mutant: neither
+    scene's rays meet the cube there.)"""
     scene, views, lights, gb, real, reach = occluded
     full = direct_terms_gbuffer(views, lights, gb, real, SAMPLES)
     cut = direct_terms_gbuffer(views, lights, gb, real, SAMPLES, scene.world)
@@ -79,13 +80,14 @@ def test_culled_terms_equal_every_lane_traced(occluded):
     post = far & (f_re.sum(1) < 0.5 * bare.sum(1))
     assert post.sum() > 20, post.sum()
     assert np.array_equal(_np(cut.change), f_ch)
-    assert np.array_equal(_np(cut.real), f_re)
+    np.testing.assert_allclose(_np(cut.real), f_re, rtol=1e-6, atol=1e-7 * f_re.max())
 
 
 def test_real_only_where_wanted(occluded):
     """``real_on`` (here: nowhere beyond the reaching lanes, then one image half): ``change``
-    is still the unculled one bit for bit, ``real`` equals it on every lane some light can
-    reach the cube from and on the ``real_on`` lanes, and is zero on the rest (no rays
+    is still the unculled one bit for bit, ``real`` equals it (to float rounding) on every
+    lane some light can reach the cube from and on the ``real_on`` lanes, and is zero on the
+    rest (no rays
     traced there). Rejects ``real`` left out on a lane that one light reaches and another
     does not (the lane's ``E_µ,d`` would miss the second light, and ``ρ̂`` be too bright)
     and ``real_on`` ignored; mutation-checked."""
@@ -99,6 +101,31 @@ def test_real_only_where_wanted(occluded):
         got = direct_terms_gbuffer(views, lights, gb, real, SAMPLES, scene.world, real_on)
         wanted = np.array(real, bool) & (any_reach | extra)
         assert np.array_equal(_np(got.change), f_ch)
-        assert np.array_equal(_np(got.real)[wanted], f_re[wanted])
+        np.testing.assert_allclose(_np(got.real)[wanted], f_re[wanted], rtol=1e-6,
+                                   atol=1e-7 * f_re.max())
         assert not _np(got.real)[~wanted].any()
         assert (f_re[~wanted] > 0).any()  # a lane left out would have had light
+
+
+def test_one_far_ray_is_the_central_rays_irradiance(occluded):
+    """``far_samples = 1`` (dvct's ``E_r``): on lanes that no light can reach the cube from,
+    ``real`` is the reduced lights' irradiance through one central shadow ray each in the
+    real scene — :func:`~arlight.realtime.shading.direct_irradiance`, written apart — within
+    float rounding, the post's hard shadow included; on lanes every light reaches, the
+    soft ``E_µ,d`` of the unculled call; the change unchanged. Rejects ``far_samples``
+    ignored (the post's penumbra soft on the far lanes) and the far pass tracing the lanes
+    a light reaches again (counted twice there); mutation-checked."""
+    scene, views, lights, gb, real, reach = occluded
+    full = direct_terms_gbuffer(views, lights, gb, real, SAMPLES)
+    got = direct_terms_gbuffer(views, lights, gb, real, SAMPLES, scene.world, None, 1)
+    hard = _np(direct_irradiance(views.real, lights, gb.position, gb.normal, real))
+    sel = np.array(real, bool)
+    far = sel & ~np.any(reach, axis=0)
+    every = sel & np.all(reach, axis=0)
+    assert far.sum() > 1000 and every.sum() > 100
+    g_re = _np(got.real)
+    np.testing.assert_allclose(g_re[far], hard[far], rtol=1e-5, atol=1e-6 * hard.max())
+    assert np.abs(_np(full.real)[far] - hard[far]).max() > 0.01 * hard.max()  # soft ≠ hard
+    np.testing.assert_allclose(g_re[every], _np(full.real)[every], rtol=1e-6,
+                               atol=1e-7 * hard.max())
+    assert np.array_equal(_np(got.change), _np(full.change))

@@ -1303,11 +1303,13 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     if shadow_rays is not None:
         # light by light, the mixed scene's rays only on the lanes whose rays can meet the
         # objects (exact); the same rays give E_r's direct part (the real scene's soft
-        # visibility) where the cones change the pixel or the shadow can
+        # visibility) there, and where only the cones change the pixel one real-scene ray
+        # per light (the central ray E_r traced before: soft there, 2 rays per light and
+        # sample, cost dvct's shade stage ~0.3 s at 640×480 on a room with six lights)
         cones = real & (dr.max(dr.abs(terms.x)) > 0.0) if frame is not None \
             else mi.Bool(False)
         shared = direct_terms_gbuffer(data.views, data.lights, gb, real, shadow_rays,
-                                      data.world, cones)
+                                      data.world, cones, far_samples=1)
         e_delta = e_delta + shared.change
         direct = shared.real
     rho = gb.albedo

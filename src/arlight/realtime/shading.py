@@ -142,7 +142,7 @@ class DirectTerms(NamedTuple):
 def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vector3f,
                  active: mi.Bool, samples: int = 1,
                  strata: tuple[mi.UInt32, mi.UInt32, int] | None = None,
-                 reach: mi.Bool | None = None) -> DirectTerms:
+                 far: list[mi.Bool] | None = None) -> DirectTerms:
     """The virtual objects' change of the reduced lights' direct irradiance at real points
     ``p`` (normals ``n``) and the real scene's direct irradiance, through the same shadow
     rays (:class:`DirectTerms`; zero on inactive lanes).
@@ -173,17 +173,18 @@ def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vecto
     sample's ``V`` is the fraction of its own points that arrive. None: each lane is its
     own pixel (key: its index) with one sample.
 
-    ``reach``: the lanes whose shadow rays can meet a virtual object
-    (:func:`arlight.realtime.shadow_reach.light_reach`), None: every lane. Elsewhere a ray
-    meets real geometry alone, so the mixed scene blocks it exactly where the real one
-    does (``V_ρ = V_µ``, no change): those lanes trace their rays in the real scene only,
-    for ``E_µ,d`` — the same rays, so the same ``V_µ`` as tracing both scenes."""
+    ``far`` (one mask per light; None: every lane traces both scenes): light ``i`` is
+    traced on the lanes ``far[i]`` only, whose rays cannot meet a virtual object
+    (:func:`arlight.realtime.shadow_reach.light_reach`), and in the real scene only: such a
+    ray meets real geometry alone, so the mixed scene blocks it exactly where the real one
+    does (``V_ρ = V_µ``, no change) — ``E_µ,d`` from the same rays, so the same ``V_µ``
+    as tracing both scenes."""
     change = mi.Color3f(0.0)
     real = mi.Color3f(0.0)
     if strata is None:
         strata = (dr.arange(mi.UInt32, dr.width(p)), mi.UInt32(0), 1)
     rot = None
-    for lt, w, e, ray, lit in light_terms(lights, p, n, active):
+    for i, (lt, w, e, ray, lit) in enumerate(light_terms(lights, p, n, active)):
         k = samples if samples > 1 and extended(lt) else 1
         if rot is None and k > 1:
             rot = (mi.sample_tea_float32(strata[0], 0), mi.sample_tea_float32(strata[0], 1))
@@ -193,11 +194,13 @@ def direct_terms(views: SceneViews, lights: LightSet, p: mi.Point3f, n: mi.Vecto
         cast = mi.Float(0.0)
         for r, on in _extent_rays(lt, ray, origin, rot, k, strata):
             on = lit & on
-            near = on if reach is None else on & reach
-            blocked = near & views.mixed.scene.ray_test(r, near)
-            # where the mixed scene blocks the ray, or where no virtual object can
-            test = blocked if reach is None else blocked | (on & ~reach)
-            in_real = test & views.real.scene.ray_test(r, test)
+            if far is None:  # the real scene only where the mixed one blocks the ray
+                blocked = on & views.mixed.scene.ray_test(r, on)
+                in_real = blocked & views.real.scene.ray_test(r, blocked)
+            else:  # no virtual object on the ray: V_ρ = V_µ
+                on &= far[i]
+                blocked = mi.Bool(False)
+                in_real = on & views.real.scene.ray_test(r, on)
             lost += dr.select(blocked & ~in_real, 1.0, 0.0)
             shaded += dr.select(in_real, 1.0, 0.0)
             cast += dr.select(on, 1.0, 0.0)
@@ -234,7 +237,8 @@ def _extent_rays(light: ReducedLight, ray: mi.Ray3f, origin: mi.Point3f, rot, k:
 
 def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
                          samples: int = 1, world: World | None = None,
-                         real_on: mi.Bool | None = None) -> DirectTerms:
+                         real_on: mi.Bool | None = None, far_samples: int | None = None
+                         ) -> DirectTerms:
     """:func:`direct_terms` (W/m²) at the G-buffer's ``active`` lanes only (compacted with
     :func:`on_active`, scattered back; zero elsewhere), the ``samples`` points of an
     extended light split over each pixel's ``gb.spp`` samples (``strata``): the real
@@ -243,54 +247,65 @@ def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, activ
     :func:`arlight.realtime.photo_albedo.photo_albedo`'s ``direct``).
 
     ``world`` (the views' world; None: no culling) culls light by light
-    (:mod:`arlight.realtime.shadow_reach`): a lane whose rays to light ``i`` cannot meet
-    the ball around the virtual objects (:func:`~arlight.realtime.shadow_reach.
-    light_reach`) has ``V_ρ,i = V_µ,i`` — no change — and traces light ``i``'s rays in
-    the real scene only, where ``real`` is wanted; the rest as without ``world``, so both
-    outputs equal the unculled ones on the lanes they are computed for (a light's rays and
-    their lattice rotation, a hash of the pixel, do not depend on the other lights).
-    ``real_on``: lanes (within ``active``) where ``real`` is wanted besides those some light
-    can reach the objects from — the only lanes whose ``change`` can be non-zero, where
-    ``real`` is always computed; None: every ``active`` lane. ``real`` is zero on the lanes
-    left out (with a caller's ``ρ/π ΔE`` they multiply a zero change). On a held-out
-    outdoor world at 640×480 with seven reduced lights 5 of 8 real lanes per light can
-    reach nothing (``dvct``'s direct stage 0.46× the time)."""
+    (:mod:`arlight.realtime.shadow_reach`): each light's rays in both scenes only on the
+    lanes whose rays to it can meet the ball around the virtual objects
+    (:func:`~arlight.realtime.shadow_reach.light_reach`; compacted per light), the only
+    lanes whose change can be non-zero; on the other ``real_on`` lanes ``V_ρ,i = V_µ,i``
+    and the light's rays are traced in the real scene only, for ``E_µ,d`` (every light in
+    one pass, ``far_samples`` rays per extended light — None: ``samples``, then both
+    outputs equal the unculled ones, ``real`` to float rounding: the lights are summed in
+    another order; 1: the central ray, a hard real shadow). ``real_on``: lanes (within
+    ``active``) where ``real`` is wanted besides those some light can reach the objects
+    from, where it is always computed; None: every ``active`` lane. ``real`` is zero on
+    the lanes left out (with a caller's ``ρ/π ΔE`` they multiply a zero change). On a
+    held-out outdoor world at 640×480 with seven reduced lights 5 of 8 real lanes per light
+    can reach nothing."""
     if not lights.lights:
         z = dr.zeros(mi.Color3f, dr.width(gb.position))
         return DirectTerms(z, mi.Color3f(z))
     sample = dr.arange(mi.UInt32, dr.width(gb.pixel)) % gb.spp
     box = None if world is None else virtual_bounds(world, views.mixed)
-    if box is None:  # every lane reaches (or none can: no virtual object, no change)
+    if world is None:  # every lane in both scenes
         def terms(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32
                   ) -> DirectTerms:
             return direct_terms(views, lights, p, n, mi.Bool(True), samples,
-                                (pixel, s, gb.spp), None if world is None else mi.Bool(False))
+                                (pixel, s, gb.spp))
 
-        lanes = active if world is None or real_on is None else active & real_on
-        return DirectTerms(*on_active(terms, gb.position, gb.normal, lanes, gb.pixel, sample,
+        return DirectTerms(*on_active(terms, gb.position, gb.normal, active, gb.pixel, sample,
                                       outputs=2))
-    centre, radius = bounding_ball(box)
-    # opaque: the ball moves with the objects, one kernel for every pose (issue #32)
-    c, r = mi.Point3f(*opaques(centre)), opaque(radius)
-    reach = [active & light_reach(lt, gb.position, c, r) for lt in lights.lights]
+    if box is None:  # no virtual object: no light reaches one
+        reach = [dr.zeros(mi.Bool, dr.width(gb.position)) for _ in lights.lights]
+    else:
+        centre, radius = bounding_ball(box)
+        # opaque: the ball moves with the objects, one kernel for every pose (issue #32)
+        c, r = mi.Point3f(*opaques(centre)), opaque(radius)
+        reach = [active & light_reach(lt, gb.position, c, r) for lt in lights.lights]
+    n_l = dr.width(gb.position)
+    change, real = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Color3f, n_l)
+    for lt, near in zip(lights.lights, reach, strict=True):
+        def one(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32,
+                lt: ReducedLight = lt) -> DirectTerms:
+            return direct_terms(views, LightSet([lt]), p, n, mi.Bool(True), samples,
+                                (pixel, s, gb.spp))
+
+        ch, re = on_active(one, gb.position, gb.normal, near, gb.pixel, sample, outputs=2)
+        change += ch
+        real += re
     want = active
     if real_on is not None:
         want = active & real_on
         for near in reach:
             want |= near
-    change, real = dr.zeros(mi.Color3f, dr.width(gb.position)), \
-        dr.zeros(mi.Color3f, dr.width(gb.position))
-    for lt, near in zip(lights.lights, reach, strict=True):
-        def one(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32,
-                near_c: mi.Bool, lt: ReducedLight = lt) -> DirectTerms:
-            return direct_terms(views, LightSet([lt]), p, n, mi.Bool(True), samples,
-                                (pixel, s, gb.spp), near_c)
 
-        ch, re = on_active(one, gb.position, gb.normal, want, gb.pixel, sample, near,
-                           outputs=2)
-        change += ch
-        real += re
-    return DirectTerms(change, real)
+    def rest(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32, *near: mi.Bool
+             ) -> DirectTerms:
+        return direct_terms(views, lights, p, n, mi.Bool(True),
+                            samples if far_samples is None else far_samples,
+                            (pixel, s, gb.spp), [~x for x in near])
+
+    _, re = on_active(rest, gb.position, gb.normal, want, gb.pixel, sample, *reach,
+                      outputs=2)
+    return DirectTerms(change, real + re)
 
 
 def direct_change_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
