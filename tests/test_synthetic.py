@@ -6,6 +6,8 @@ Each test's docstring names the bug it is there to catch.
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 
@@ -241,13 +243,23 @@ def test_cache_round_trip(tmp_path, monkeypatch):
     assert b.key == a.key == content_key(world, spp=4, seed=3)
 
 
+@pytest.fixture(scope="module")
+def cached_photo(tmp_path_factory):
+    """A small world, its photograph and the cache folder that photograph was written to
+    (rendered once for the damage cases below; each damages a copy)."""
+    cache = tmp_path_factory.mktemp("synthetic-cache")
+    world = parse_scene(area_light_scene(8, 6))
+    return world, synthesize(world, spp=4, seed=3, cache_dir=cache), cache
+
+
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "missing-array", "wrong-shape"])
-def test_damaged_cache_file_is_a_miss(tmp_path, damage):
+def test_damaged_cache_file_is_a_miss(tmp_path, damage, cached_photo):
     """A truncated, corrupt or foreign cache file is rendered again and replaced, not an
     exception; the re-render is bitwise the original (same seeds)."""
-    world = parse_scene(area_light_scene(8, 6))
-    a = synthesize(world, spp=4, seed=3, cache_dir=tmp_path)
+    world, a, cache = cached_photo
+    shutil.copytree(cache, tmp_path, dirs_exist_ok=True)
     path = tmp_path / "synthetic" / f"{a.key}.npz"
+    assert path.is_file()
     data = path.read_bytes()
     if damage == "truncated":
         path.write_bytes(data[: len(data) // 2])
