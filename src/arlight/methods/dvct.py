@@ -1160,16 +1160,12 @@ def mirror_terms(data: DVCTData, gb: GBuffer, view: FrameView | None, traced: mi
     real lanes' ``delta`` and ``hidden`` of everything else: returns ``(delta, hidden,
     specular radiance of the virtual lanes)``. A real lane whose ray meets a virtual surface
     hides its reflected background (``hidden = h``) and gains that surface's reflected
-    radiance; one whose ray meets a real surface the camera sees gains the change there
-    (``delta − h a B`` of that pixel, weighted by its lobe albedo); a virtual lane shows all
-    its ray brings (the photograph at a seen real hit plus its change)."""
+    radiance; one whose ray meets a real surface the camera sees gains the change of that
+    surface's direct light (weighted by its lobe albedo); a virtual lane shows all its ray
+    brings (the photograph at a seen real hit plus that change)."""
     from arlight.realtime.mirror_rays import MirrorLight, Seen, mirror_rays
 
-    seen = None
-    if view is not None:
-        bg = np.asarray(view.frame, np.float32).reshape(-1, 3)
-        b = dr.gather(mi.Color3f, mi.Color3f(*(bg[:, c] for c in range(3))), gb.pixel)
-        seen = Seen(view.camera, view.frame, delta - b * hidden, int(gb.spp))
+    seen = None if view is None else Seen(view.camera, view.frame)
     light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
     rad, change, role = mirror_rays(light, gb.position, gb.normal, gb.to_camera, gb.shape,
                                     traced, seen)

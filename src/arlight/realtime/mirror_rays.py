@@ -16,9 +16,13 @@ proxy scene and shades what it meets as dvct shades that surface:
 * **miss**: the distant light, the split-sum ``L̃(r, α) (F0 A + F90 B)`` of the prefiltered
   environment ([Kar13]; :func:`~arlight.realtime.ibl_shading.specular_split_sum`);
 * **a real surface the camera sees** (the hit's projection unoccluded in the real proxy, as
-  onepass reprojects, Kán §5.2): the photograph there plus the change the virtual objects
-  make to it (the real lanes' ``delta − h a B`` of that pixel: their shadow on the floor the
-  mirror shows), times the lane's directional albedo ``F0 A + F90 B``;
+  onepass reprojects, Kán §5.2): the photograph ``B`` there plus the change of its direct
+  light, ``ρ̂/π (E_ρ − E_µ)`` — the reduced lights with shadow rays in the mixed and in the
+  real proxy at the hit, ``ρ̂`` the albedo read from the photograph
+  (:func:`~arlight.realtime.photo_albedo.photo_albedo`), as dvct changes its real pixels:
+  the virtual objects' shadows on the floor the mirror shows, also where the camera's own
+  lane there is covered by a virtual object — times the lane's directional albedo
+  ``F0 A + F90 B``;
 * **a real surface the camera does not see, or a virtual surface**: its radiance shaded
   locally, ``ρ/π (E_direct + E_amb)`` (the reduced lights with shadow rays in the mixed scene,
   the SH remainder unoccluded) plus its own glossy reflection of the distant light
@@ -28,7 +32,7 @@ On real lanes (a real mirror or glossy floor under a virtual object) the ray dec
 occlusion weighting of the reflection (§5.4.2): where it meets a virtual surface, the
 reflected background ``h B`` is hidden (``a = 1``) and the virtual surface's radiance times
 ``F0 A + F90 B`` takes its place; where it meets a real surface the camera sees, the
-reflection keeps the photograph and gains the change of that pixel.
+reflection keeps the photograph and gains the change there (times ``F0 A + F90 B``).
 
 The ray carries the radiance along the mirror direction only: for ``α > 0`` the lobe's
 blur of what is hit is lost (the miss keeps the prefiltered environment), which is why the
@@ -56,6 +60,7 @@ from arlight.realtime.ibl_shading import (
     specular_tables,
 )
 from arlight.realtime.light_reduction import LightSet
+from arlight.realtime.photo_albedo import photo_albedo
 from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance
 
 
@@ -87,21 +92,17 @@ class MirrorLight:
 
 @dataclass
 class Seen:
-    """The camera's frame: ``camera``, ``frame`` its photograph (``(H, W, 3)`` radiance),
-    ``change`` the change this frame makes to each of its real lanes (``delta − h a B``, per
-    G-buffer lane, ``spp`` lanes per pixel, the first lane of a pixel read; None: the
-    photograph alone)."""
+    """The camera's ``frame`` (its photograph, ``(H, W, 3)`` linear radiance) and
+    ``camera``."""
 
     camera: object
     frame: np.ndarray
-    change: mi.Color3f | None
-    spp: int
 
     def lookup(self, real: object, p: mi.Point3f, active: mi.Bool
-               ) -> tuple[mi.Color3f, mi.Color3f, mi.Bool]:
-        """``(photograph, change, seen)`` at the camera projection of ``p``: seen where the
+               ) -> tuple[mi.Color3f, mi.UInt32, mi.Bool]:
+        """``(photograph, pixel, seen)`` at the camera projection of ``p``: seen where the
         projection falls in the image and no real surface of ``real`` (a SceneView) lies
-        between the camera and ``p``."""
+        between the camera and ``p`` (as onepass's reprojection); ``pixel`` row-major."""
         pr = Projection(self.camera)
         u, v, z = pr.project(p)
         inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < mi.Float(pr.width)) & (
@@ -116,10 +117,7 @@ class Seen:
         pix = row * pr.width + col
         flat = np.ascontiguousarray(np.asarray(self.frame, np.float32).reshape(-1, 3))
         table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
-        photo = dr.gather(mi.Color3f, table, pix, ok)
-        change = mi.Color3f(0.0) if self.change is None else dr.gather(
-            mi.Color3f, self.change, pix * self.spp, ok)
-        return photo, change, ok
+        return dr.gather(mi.Color3f, table, pix, ok), pix, ok
 
 
 def lobe_albedo(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: mi.UInt32
@@ -153,7 +151,7 @@ def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
     """One reflection ray per ``active`` lane into the mixed scene (module docstring):
     ``(radiance, change, role)`` — the specular radiance the lane reflects towards the camera
     (W sr⁻¹ m⁻², the lobe's albedo applied; 0 on inactive lanes), the part of it that is the
-    change ``seen`` holds at a real hit the camera sees (0 elsewhere), and what the ray met
+    change of the direct light at a real hit the camera sees (0 elsewhere), and what the ray met
     (``ROLE_REAL``, ``ROLE_VIRTUAL``, or −1 for a miss and on inactive lanes)."""
     n_l = dr.width(active)
     out, out_change = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Color3f, n_l)
@@ -174,15 +172,19 @@ def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
     nh = facing(mi.Vector3f(si.n), -d)
     # the hit shaded locally: diffuse from the reduced lights and the remainder, and its own
     # glossy reflection of the distant light
+    e_mixed = direct_irradiance(mixed, light.lights, si.p, nh, hit)
     local = surface_albedo(si, hit) * (1.0 / math.pi) * (
-        direct_irradiance(mixed, light.lights, si.p, nh, hit)
-        + dr.maximum(ambient_irradiance_dr(light.lights, nh), 0.0))
+        e_mixed + dr.maximum(ambient_irradiance_dr(light.lights, nh), 0.0))
     local += dr.select(hit, distant_specular(light, nh, -d, hit_shape), mi.Color3f(0.0))
     value, change = local, mi.Color3f(0.0)
     if seen is not None:
-        photo, change, ok = seen.lookup(light.views.real, si.p, hit & (role == ROLE_REAL))
+        real_hit = hit & (role == ROLE_REAL)
+        photo, pix, ok = seen.lookup(light.views.real, si.p, real_hit)
+        e_real = direct_irradiance(light.views.real, light.lights, si.p, nh, ok)
+        rho = photo_albedo(light.views.real, light.lights, seen.frame, pix, si.p, nh,
+                           surface_albedo(si, ok), ok, direct=e_real)
+        change = dr.select(ok, rho * (1.0 / math.pi) * (e_mixed - e_real), mi.Color3f(0.0))
         value = dr.select(ok, dr.maximum(photo + change, 0.0), value)
-        change = dr.select(ok, change, mi.Color3f(0.0))
     w = lobe_albedo(light, n, v, sh)
     val = dr.select(hit, value * w, distant_specular(light, n, v, sh))
     dr.scatter(out, val, idx)
