@@ -22,8 +22,10 @@ SKY = 0.3
 """Radiance of the constant sky (W sr⁻¹ m⁻²)."""
 SUN = 3.0
 """Irradiance of the sun (W/m²)."""
-TRACED = {"mirror_alpha": 0.2}
-CONE = {"mirror_alpha": 0.0}
+TRACED: dict = {}
+"""The defaults: mirrors trace their reflection (``mirror_alpha``, ``mirror_alpha_real``)."""
+CONE = {"mirror_alpha": 0.0, "mirror_alpha_real": 0.0}
+"""Franke's specular cones on every lane."""
 
 
 def _mirror_normal() -> list[float]:

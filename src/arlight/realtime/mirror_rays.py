@@ -148,6 +148,16 @@ def distant_specular(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: 
 def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
                 to_camera: mi.Vector3f, shape: mi.Int32, active: mi.Bool,
                 seen: Seen | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
+    """:func:`_mirror_rays` with Dr.Jit's virtual calls symbolic also where the studio's
+    drag frames evaluate them (as dvct's surround rays, issue #32: evaluated, the hits'
+    shape and BSDF calls compiled kernels per instance on every moving frame)."""
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, True):
+        return _mirror_rays(light, position, normal, to_camera, shape, active, seen)
+
+
+def _mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
+                to_camera: mi.Vector3f, shape: mi.Int32, active: mi.Bool,
+                seen: Seen | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
     """One reflection ray per ``active`` lane into the mixed scene (module docstring):
     ``(radiance, change, role)`` — the specular radiance the lane reflects towards the camera
     (W sr⁻¹ m⁻², the lobe's albedo applied; 0 on inactive lanes), the part of it that is the
