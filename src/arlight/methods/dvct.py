@@ -242,7 +242,7 @@ OPTIONS: dict[str, Field] = {
                           "cone read the floor from V_ρ, reduced lights only, and hid its "
                           "photograph — held-out world-1000009's mirror cube black below); "
                           "0: cones everywhere, as Franke. 0.5 chosen on training worlds "
-                          "(14 with glossy materials at 160 px: 0.2 +0.7…+5.1 dB on the 8 "
+                          "(14 with glossy materials at 160 px: 0.2 +0.3…+5.1 dB on the 8 "
                           "with α ≤ 0.2, 0.5 also +0.2…+1.1 on 4 glossy ones up to α 0.39, "
                           "1.0 the same as 0.5, none lost)", "", min=0.0, max=1.0),
     "mirror_alpha_real": Field("float", 0.2, "the same for real specular lanes (a glossy "
