@@ -1,0 +1,207 @@
+"""Traced reflections of near-mirror lanes (issue #33, dvct's virtual mirror).
+
+Franke's specular cone (thesis Eq. 5.22 / 5.25) reads the voxel volume along the reflected
+view direction with a full aperture ``β = 2 atan(α)``; a mirror (GGX ``α → 0``) gets dvct's
+smallest aperture, and what the cone meets inside the volume is ``V_ρ``/``V_Δ`` — the first
+bounce of the *reduced* lights in cells a few centimetres wide. A virtual mirror that looks at
+the real floor therefore shows a blurred floor lit by the reduced lights alone (the
+environment's share of the floor's light, most of it outdoors, is in no volume), and the
+cone's transmittance ``1 − α_all`` hides the photograph of the floor beyond it: on held-out
+world-1000009 the mirror cube's lower half came out black (see docs/methods/dvct.md).
+
+For lanes whose GGX ``α`` is at most ``mirror_alpha`` (dvct's option) this module replaces
+the cone by **one ray along the mirror direction** ``r = 2 <v,n> n − v`` into the *mixed*
+proxy scene and shades what it meets as dvct shades that surface:
+
+* **miss**: the distant light, the split-sum ``L̃(r, α) (F0 A + F90 B)`` of the prefiltered
+  environment ([Kar13]; :func:`~arlight.realtime.ibl_shading.specular_split_sum`);
+* **a real surface the camera sees** (the hit's projection unoccluded in the real proxy, as
+  onepass reprojects, Kán §5.2): the photograph ``B`` there plus the change of its direct
+  light, ``ρ̂/π (E_ρ − E_µ)`` — the reduced lights with shadow rays in the mixed and in the
+  real proxy at the hit, ``ρ̂`` the albedo read from the photograph
+  (:func:`~arlight.realtime.photo_albedo.photo_albedo`), as dvct changes its real pixels:
+  the virtual objects' shadows on the floor the mirror shows, also where the camera's own
+  lane there is covered by a virtual object — times the lane's directional albedo
+  ``F0 A + F90 B``;
+* **a real surface the camera does not see, or a virtual surface**: its radiance shaded
+  locally, ``ρ/π (E_direct + E_amb)`` (the reduced lights with shadow rays in the mixed scene,
+  the SH remainder unoccluded) plus its own glossy reflection of the distant light
+  (split-sum at the hit, view ``−r``; no further rays), times ``F0 A + F90 B``.
+
+On real lanes (a real mirror or glossy floor under a virtual object) the ray decides the
+occlusion weighting of the reflection (§5.4.2): where it meets a virtual surface, the
+reflected background ``h B`` is hidden (``a = 1``) and the virtual surface's radiance times
+``F0 A + F90 B`` takes its place; where it meets a real surface the camera sees, the
+reflection keeps the photograph and gains the change there (times ``F0 A + F90 B``).
+
+The ray carries the radiance along the mirror direction only: for ``α > 0`` the lobe's
+blur of what is hit is lost (the miss keeps the prefiltered environment), which is why the
+threshold is an option chosen on training worlds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from arlight.backend.camera_rays import Projection
+from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews
+from arlight.realtime.gbuffer import facing, surface_albedo
+from arlight.realtime.ibl_shading import (
+    MipEnvironment,
+    SpecularTables,
+    dfg_lookup,
+    dfg_table,
+    specular_split_sum,
+    specular_tables,
+)
+from arlight.realtime.light_reduction import LightSet
+from arlight.realtime.photo_albedo import photo_albedo
+from arlight.realtime.shading import ambient_irradiance_dr, direct_irradiance
+
+
+@dataclass
+class MirrorLight:
+    """What a mirror ray's hit is shaded with: the ``views`` (the ray is cast in
+    ``views.mixed``), the reduced ``lights`` (direct light at hits, with shadow rays) and their
+    SH remainder, the per-shape GGX ``tables``, the split-sum ``dfg`` table and the
+    prefiltered environment ``env`` (None: no distant light, a miss sees nothing)."""
+
+    views: SceneViews
+    lights: LightSet
+    tables: SpecularTables
+    dfg: mi.Float
+    env: MipEnvironment | None
+
+
+    @staticmethod
+    def of(views: SceneViews, lights: LightSet, world: object, distant: object | None
+           ) -> MirrorLight:
+        """From dvct's :class:`~arlight.methods.dvct.DistantLight` ``distant`` (its tables,
+        DFG table and environment), or without one the tables of ``world`` and no
+        environment."""
+        if distant is not None:
+            return MirrorLight(views, lights, distant.tables, distant.dfg, distant.env)
+        return MirrorLight(views, lights, specular_tables(world),
+                           mi.Float(dfg_table().reshape(-1)), None)
+
+
+@dataclass
+class Seen:
+    """The camera's ``frame`` (its photograph, ``(H, W, 3)`` linear radiance) and
+    ``camera``."""
+
+    camera: object
+    frame: np.ndarray
+
+    def lookup(self, real: object, p: mi.Point3f, active: mi.Bool
+               ) -> tuple[mi.Color3f, mi.UInt32, mi.Bool]:
+        """``(photograph, pixel, seen)`` at the camera projection of ``p``: seen where the
+        projection falls in the image and no real surface of ``real`` (a SceneView) lies
+        between the camera and ``p`` (as onepass's reprojection); ``pixel`` row-major."""
+        pr = Projection(self.camera)
+        u, v, z = pr.project(p)
+        inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < mi.Float(pr.width)) & (
+            v < mi.Float(pr.height))
+        d = p - pr.center
+        dist = dr.norm(d)
+        ray = mi.Ray3f(pr.center, d / dist)
+        ray.maxt = dist * (1.0 - 1e-4)
+        ok = inside & ~real.scene.ray_test(ray, inside)
+        col = dr.minimum(mi.UInt32(dr.maximum(u, 0.0)), pr.width - 1)
+        row = dr.minimum(mi.UInt32(dr.maximum(v, 0.0)), pr.height - 1)
+        pix = row * pr.width + col
+        flat = np.ascontiguousarray(np.asarray(self.frame, np.float32).reshape(-1, 3))
+        table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
+        return dr.gather(mi.Color3f, table, pix, ok), pix, ok
+
+
+def lobe_albedo(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: mi.UInt32
+                ) -> mi.Color3f:
+    """The GGX lobe's directional albedo ``F0 A + F90 B`` (the split sum's second factor,
+    :func:`~arlight.realtime.ibl_shading.dfg_table`) of ``shape`` at ``<n, v>``: the weight
+    of the radiance along the mirror direction (for a perfect mirror of reflectance ``k``,
+    ``k``)."""
+    nv = dr.maximum(dr.dot(n, v), 1e-4)
+    alpha = dr.gather(mi.Float, light.tables.alpha, shape)
+    a, b = dfg_lookup(light.dfg, nv, dr.sqrt(dr.maximum(alpha, 0.0)))
+    return (dr.gather(mi.Color3f, light.tables.f0, shape) * a
+            + dr.gather(mi.Color3f, light.tables.f90, shape) * b)
+
+
+def distant_specular(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: mi.UInt32
+                     ) -> mi.Color3f:
+    """The split-sum specular radiance of the distant light at lanes of ``shape`` (0 without
+    an environment)."""
+    if light.env is None:
+        return mi.Color3f(0.0)
+    tab = light.tables
+    return specular_split_sum(light.env, light.dfg, n, v, dr.gather(mi.Float, tab.alpha, shape),
+                              dr.gather(mi.Color3f, tab.f0, shape),
+                              dr.gather(mi.Color3f, tab.f90, shape))
+
+
+def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
+                to_camera: mi.Vector3f, shape: mi.Int32, active: mi.Bool,
+                seen: Seen | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
+    """:func:`_mirror_rays` with Dr.Jit's virtual calls symbolic also where the studio's
+    drag frames evaluate them (as dvct's surround rays, issue #32: evaluated, the hits'
+    shape and BSDF calls compiled kernels per instance on every moving frame)."""
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, True):
+        return _mirror_rays(light, position, normal, to_camera, shape, active, seen)
+
+
+def _mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
+                to_camera: mi.Vector3f, shape: mi.Int32, active: mi.Bool,
+                seen: Seen | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
+    """One reflection ray per ``active`` lane into the mixed scene (module docstring):
+    ``(radiance, change, role)`` — the specular radiance the lane reflects towards the camera
+    (W sr⁻¹ m⁻², the lobe's albedo applied; 0 on inactive lanes), the part of it that is the
+    change of the direct light at a real hit the camera sees (0 elsewhere), and what the ray met
+    (``ROLE_REAL``, ``ROLE_VIRTUAL``, or −1 for a miss and on inactive lanes)."""
+    n_l = dr.width(active)
+    out, out_change = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Color3f, n_l)
+    role_out = dr.full(mi.Int32, -1, n_l)
+    idx = dr.compress(active)
+    if dr.width(idx) == 0:
+        return out, out_change, role_out
+    p = dr.gather(mi.Point3f, position, idx)
+    n = dr.gather(mi.Vector3f, normal, idx)
+    v = dr.gather(mi.Vector3f, to_camera, idx)
+    sh = mi.UInt32(dr.maximum(dr.gather(mi.Int32, shape, idx), 0))
+    d = 2.0 * dr.dot(v, n) * n - v
+    mixed = light.views.mixed
+    si = mixed.scene.ray_intersect(mi.Ray3f(p + n * 1e-4, d))
+    role = mixed.hit_role(si)
+    hit = role >= 0
+    hit_shape = mi.UInt32(dr.maximum(mixed.hit_shape(si), 0))
+    nh = facing(mi.Vector3f(si.n), -d)
+    # the hit shaded locally: diffuse from the reduced lights and the remainder, and its own
+    # glossy reflection of the distant light
+    e_mixed = direct_irradiance(mixed, light.lights, si.p, nh, hit)
+    local = surface_albedo(si, hit) * (1.0 / math.pi) * (
+        e_mixed + dr.maximum(ambient_irradiance_dr(light.lights, nh), 0.0))
+    local += dr.select(hit, distant_specular(light, nh, -d, hit_shape), mi.Color3f(0.0))
+    value, change = local, mi.Color3f(0.0)
+    if seen is not None:
+        real_hit = hit & (role == ROLE_REAL)
+        photo, pix, ok = seen.lookup(light.views.real, si.p, real_hit)
+        e_real = direct_irradiance(light.views.real, light.lights, si.p, nh, ok)
+        rho = photo_albedo(light.views.real, light.lights, seen.frame, pix, si.p, nh,
+                           surface_albedo(si, ok), ok, direct=e_real)
+        change = dr.select(ok, rho * (1.0 / math.pi) * (e_mixed - e_real), mi.Color3f(0.0))
+        value = dr.select(ok, dr.maximum(photo + change, 0.0), value)
+    w = lobe_albedo(light, n, v, sh)
+    val = dr.select(hit, value * w, distant_specular(light, n, v, sh))
+    dr.scatter(out, val, idx)
+    dr.scatter(out_change, change * w, idx)
+    dr.scatter(role_out, dr.select(hit, role, -1), idx)
+    return out, out_change, role_out
+
+
+__all__ = ["ROLE_REAL", "ROLE_VIRTUAL", "MirrorLight", "Seen", "distant_specular",
+           "lobe_albedo", "mirror_rays"]
