@@ -794,7 +794,8 @@ def specular_cone(vols: ConeVolumes, lanes: Lanes, rough: mi.Float, min_aperture
     tan_min = math.tan(math.radians(min_aperture_deg) / 2.0)
     d = reflect(lanes.to_camera, lanes.normal)
     s0 = vols.alpha.grid.cell
-    return trace_cones(vols, lanes.position + lanes.normal * (1.5 * s0), d,
+    # opaque: the cell changes as the objects turn (a literal, a new kernel per frame)
+    return trace_cones(vols, lanes.position + lanes.normal * opaque(1.5 * s0), d,
                        dr.maximum(rough, tan_min), dr.inf, active, t_start=0.5 * s0,
                        level_bias=level_bias, shells=shells)
 
