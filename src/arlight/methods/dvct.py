@@ -67,6 +67,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews, build_views
+from arlight.backend.reproject import Reprojector
 from arlight.errors import InputError
 from arlight.jit import aligned, opaque, opaques
 from arlight.methods.base import (
@@ -1138,8 +1139,6 @@ def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
     n_l = dr.width(gb.role)
     if far is None:
         return dr.zeros(mi.Color3f, n_l)
-    from arlight.tracing.onepass import _Reprojector as Reprojector
-
     idx = dr.compress(active)
     out = dr.zeros(mi.Color3f, n_l)
     if dr.width(idx) == 0:
@@ -1161,8 +1160,8 @@ def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
         + dr.maximum(ambient_irradiance_dr(data.lights, nh), 0.0))
     val = dr.select(hit, lit * f0, env)
     if view is not None:
-        seen, ok, _ = Reprojector(view.camera, np.asarray(view.frame, np.float32),
-                                  data.views.real).lookup(si.p, si.is_valid())
+        seen, ok = Reprojector(view.camera, np.asarray(view.frame, np.float32),
+                               data.views.real).lookup(si.p, si.is_valid())[:2]
         val = dr.select(ok, seen * f0, val)
     dr.scatter(out, val, idx)
     return out
@@ -1179,9 +1178,9 @@ def mirror_terms(data: DVCTData, gb: GBuffer, view: FrameView | None, traced: mi
     radiance; one whose ray meets a real surface the camera sees gains the change of that
     surface's direct light (weighted by its lobe albedo); a virtual lane shows all its ray
     brings (the photograph at a seen real hit plus that change)."""
-    from arlight.realtime.mirror_rays import MirrorLight, Seen, mirror_rays
+    from arlight.realtime.mirror_rays import MirrorLight, mirror_rays
 
-    seen = None if view is None else Seen(view.camera, view.frame)
+    seen = None if view is None else Reprojector(view.camera, view.frame, data.views.real)
     light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
     rad, change, role = mirror_rays(light, gb.position, gb.normal, gb.to_camera, gb.shape,
                                     traced, seen)
@@ -1257,8 +1256,6 @@ def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView 
 def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView | None,
                  aperture_deg: float, active: mi.Bool, rays: int, far_bounce: bool,
                  spp: int) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
-    from arlight.tracing.onepass import _Reprojector as Reprojector
-
     n_l = lanes.width
     e_o, vis, e_r = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Float, n_l), dr.zeros(mi.Color3f,
                                                                                   n_l)
@@ -1300,7 +1297,7 @@ def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView
         far = hit & outside
         ok = mi.Bool(False)
         if reproj is not None:
-            seen, ok, _ = reproj.lookup(si.p, far)
+            seen, ok = reproj.lookup(si.p, far)[:2]
             radiance = dr.select(ok, seen, radiance)
         if far_bounce and data.lights.lights:
             unseen = far & ~ok

@@ -46,10 +46,9 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
-from arlight.backend.camera_rays import Projection
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneViews
+from arlight.backend.reproject import Reprojector
 from arlight.realtime.gbuffer import facing, surface_albedo
 from arlight.realtime.ibl_shading import (
     MipEnvironment,
@@ -90,36 +89,6 @@ class MirrorLight:
                            mi.Float(dfg_table().reshape(-1)), None)
 
 
-@dataclass
-class Seen:
-    """The camera's ``frame`` (its photograph, ``(H, W, 3)`` linear radiance) and
-    ``camera``."""
-
-    camera: object
-    frame: np.ndarray
-
-    def lookup(self, real: object, p: mi.Point3f, active: mi.Bool
-               ) -> tuple[mi.Color3f, mi.UInt32, mi.Bool]:
-        """``(photograph, pixel, seen)`` at the camera projection of ``p``: seen where the
-        projection falls in the image and no real surface of ``real`` (a SceneView) lies
-        between the camera and ``p`` (as onepass's reprojection); ``pixel`` row-major."""
-        pr = Projection(self.camera)
-        u, v, z = pr.project(p)
-        inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < mi.Float(pr.width)) & (
-            v < mi.Float(pr.height))
-        d = p - pr.center
-        dist = dr.norm(d)
-        ray = mi.Ray3f(pr.center, d / dist)
-        ray.maxt = dist * (1.0 - 1e-4)
-        ok = inside & ~real.scene.ray_test(ray, inside)
-        col = dr.minimum(mi.UInt32(dr.maximum(u, 0.0)), pr.width - 1)
-        row = dr.minimum(mi.UInt32(dr.maximum(v, 0.0)), pr.height - 1)
-        pix = row * pr.width + col
-        flat = np.ascontiguousarray(np.asarray(self.frame, np.float32).reshape(-1, 3))
-        table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
-        return dr.gather(mi.Color3f, table, pix, ok), pix, ok
-
-
 def lobe_albedo(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: mi.UInt32
                 ) -> mi.Color3f:
     """The GGX lobe's directional albedo ``F0 A + F90 B`` (the split sum's second factor,
@@ -147,7 +116,7 @@ def distant_specular(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: 
 
 def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
                 to_camera: mi.Vector3f, shape: mi.Int32, active: mi.Bool,
-                seen: Seen | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
+                seen: Reprojector | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
     """:func:`_mirror_rays` with Dr.Jit's virtual calls symbolic also where the studio's
     drag frames evaluate them (as dvct's surround rays, issue #32: evaluated, the hits'
     shape and BSDF calls compiled kernels per instance on every moving frame)."""
@@ -157,7 +126,7 @@ def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
 
 def _mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
                 to_camera: mi.Vector3f, shape: mi.Int32, active: mi.Bool,
-                seen: Seen | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
+                seen: Reprojector | None) -> tuple[mi.Color3f, mi.Color3f, mi.Int32]:
     """One reflection ray per ``active`` lane into the mixed scene (module docstring):
     ``(radiance, change, role)`` — the specular radiance the lane reflects towards the camera
     (W sr⁻¹ m⁻², the lobe's albedo applied; 0 on inactive lanes), the part of it that is the
@@ -189,7 +158,7 @@ def _mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
     value, change = local, mi.Color3f(0.0)
     if seen is not None:
         real_hit = hit & (role == ROLE_REAL)
-        photo, pix, ok = seen.lookup(light.views.real, si.p, real_hit)
+        photo, ok, _, pix = seen.lookup(si.p, real_hit)
         e_real = direct_irradiance(light.views.real, light.lights, si.p, nh, ok)
         rho = photo_albedo(light.views.real, light.lights, seen.frame, pix, si.p, nh,
                            surface_albedo(si, ok), ok, direct=e_real)
@@ -203,5 +172,5 @@ def _mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
     return out, out_change, role_out
 
 
-__all__ = ["ROLE_REAL", "ROLE_VIRTUAL", "MirrorLight", "Seen", "distant_specular",
+__all__ = ["ROLE_REAL", "ROLE_VIRTUAL", "MirrorLight", "distant_specular",
            "lobe_albedo", "mirror_rays"]

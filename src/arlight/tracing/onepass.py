@@ -56,8 +56,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.backend.camera_rays import Projection
 from arlight.backend.mitsuba_scene import ROLE_REAL, ROLE_VIRTUAL, SceneView
+from arlight.backend.reproject import Reprojector
 from arlight.sampling.lights import LightSampler, light_context
 from arlight.sampling.stream import CAMERA_PIXEL, LaneSampler
 from arlight.scene.camera import Camera
@@ -352,33 +352,6 @@ class TraceResult:
     rays: dict[str, int] = field(default_factory=dict)
 
 
-class _Reprojector:
-    """Frame radiance at the camera projection of world points (Kán §5.2)."""
-
-    def __init__(self, camera: Camera, frame: np.ndarray, real: SceneView):
-        flat = np.ascontiguousarray(frame.reshape(-1, 3), dtype=np.float32)
-        self.table = mi.Color3f(flat[:, 0], flat[:, 1], flat[:, 2])
-        self.proj = Projection(camera)
-        self.real = real
-
-    def lookup(self, p: mi.Point3f, active: mi.Bool) -> tuple[mi.Color3f, mi.Bool, mi.Bool]:
-        """(frame radiance, usable, visibility ray traced) for points ``p``."""
-        pr = self.proj
-        u, v, z = pr.project(p)
-        inside = active & (z > 0) & (u >= 0) & (v >= 0) & (u < mi.Float(pr.width)) & (
-            v < mi.Float(pr.height))
-        d = p - pr.center
-        dist = dr.norm(d)
-        ray = mi.Ray3f(pr.center, d / dist)
-        ray.maxt = dist * (1.0 - 1e-4)
-        occluded = self.real.scene.ray_test(ray, inside)
-        ok = inside & ~occluded
-        col = dr.minimum(mi.UInt32(dr.maximum(u, 0.0)), pr.width - 1)
-        row = dr.minimum(mi.UInt32(dr.maximum(v, 0.0)), pr.height - 1)
-        val = dr.gather(mi.Color3f, self.table, row * pr.width + col, ok)
-        return val, ok, inside
-
-
 class OnePassTracer:
     """Traces camera rays through the mixed (ρ) and real (µ) views of an AR scene.
 
@@ -395,7 +368,7 @@ class OnePassTracer:
         self.miss_only = opts.env_mode == "miss_only"
         self.rules = HitRules(mixed, real)
         self.light_selection = LightSelection(mixed, real, opts.light_sampling)
-        self.reproj = (_Reprojector(camera, frame, real)
+        self.reproj = (Reprojector(camera, frame, real)
                        if opts.reproject and camera is not None and frame is not None
                        and not self.same_views else None)
         # profiling, summed over passes: lanes, forked lanes, seconds of phase 1 and phase 2
@@ -555,7 +528,7 @@ class OnePassTracer:
             cand = (active & st.spec_virtual & valid & (role == ROLE_REAL)
                     & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Diffuse))
             c["rays_reprojection"] += dr.select(cand, 1, 0)
-            val, ok, _ = self.reproj.lookup(si.p, cand)
+            val, ok = self.reproj.lookup(si.p, cand)[:2]
             lm = lm + dr.select(ok, st.beta * val, 0.0)
             active &= ~ok
             reproj = ok

@@ -700,7 +700,7 @@ def gather_caustics(views: SceneViews, pmap: PhotonMap, rays: mi.Ray3f, key: mi.
     lm = qf * sm
     if reprojector is not None:
         cand = found & qt & (qrole == ROLE_REAL)
-        _, ok, _ = reprojector.lookup(qp, cand)
+        ok = reprojector.lookup(qp, cand).ok
         lm = dr.select(ok, qf * (sm - sr), lm)
     if views.mixed is views.real:
         return lm, qf * sr
