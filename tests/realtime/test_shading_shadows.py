@@ -17,7 +17,6 @@ from arlight.realtime.gbuffer import render_gbuffer
 from arlight.realtime.light_reduction import ReducedLight, reduce_lights
 from arlight.realtime.shading import (
     direct_change,
-    direct_change_gbuffer,
     direct_irradiance,
     direct_terms_gbuffer,
     r2_point,
@@ -80,7 +79,7 @@ def test_area_light_soft_shadow_matches_mitsuba(area_world):
 
 
 def test_gbuffer_samples_split_the_shadow_rays_of_a_pixel(area_world):
-    """With ``n`` G-buffer samples per pixel :func:`direct_change_gbuffer` splits an extended
+    """With ``n`` G-buffer samples per pixel :func:`direct_terms_gbuffer` splits an extended
     light's ``K`` points over the pixel's samples (``K/n`` rays each, one lattice per pixel):
     on a G-buffer whose 4 samples of a pixel lie at one point, the pixel's mean change equals
     the one-sample change with all ``K`` points (float rounding of the points flips a ray
@@ -99,9 +98,9 @@ def test_gbuffer_samples_split_the_shadow_rays_of_a_pixel(area_world):
         one.position, one.normal, one.albedo, one.role, one.depth, one.pixel,
         one.to_camera)), n, one.width, one.height)
     h, w = scene.camera.height, scene.camera.width
-    full = np.array(direct_change_gbuffer(views, lights, one, one.valid & ~one.virtual, k),
+    full = np.array(direct_terms_gbuffer(views, lights, one, one.valid & ~one.virtual, k).change,
                     np.float64).T.reshape(h, w, 3) @ LUM
-    split = (np.array(direct_change_gbuffer(views, lights, rep, rep.valid & ~rep.virtual, k),
+    split = (np.array(direct_terms_gbuffer(views, lights, rep, rep.valid & ~rep.virtual, k).change,
                       np.float64).T.reshape(h, w, n, 3) @ LUM).mean(axis=2)
     want, _, floor = _removed(scene, photo, 1)
     pen = floor & (want > 0.1) & (want < 0.9)

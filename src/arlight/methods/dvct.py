@@ -964,11 +964,10 @@ def cone_terms(data: DVCTData, vols: Volumes, lanes: Lanes, options: Options,
         ys = dr.zeros(mi.Color3f, dr.width(idx))
         if options.specular_cones:
             spec, rough, _ = data.materials.at(sub.shape, mi.Bool(True))
-            has = dr.max(spec) > 0.0
             limit = float(options.mirror_alpha if role == ROLE_VIRTUAL
                           else options.mirror_alpha_real)
-            if limit > 0:  # these lanes trace a ray instead (shade, mirror_terms)
-                has &= rough > limit
+            # the lanes that trace a ray instead (shade, mirror_terms) skip the cone
+            has = (dr.max(spec) > 0.0) & ~mirror_traced(spec, rough, limit)
             sidx = dr.compress(has)
             if dr.width(sidx):
                 ss = sub.subset(sidx)
@@ -1165,6 +1164,13 @@ def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
         val = dr.select(ok, seen * f0, val)
     dr.scatter(out, val, idx)
     return out
+
+
+def mirror_traced(spec: mi.Color3f, rough: mi.Float, limit: float | mi.Float) -> mi.Bool:
+    """The specular lanes (``spec`` > 0) whose GGX ``rough`` is at most the option's
+    ``limit`` (``mirror_alpha`` / ``mirror_alpha_real``; 0: none): they take their
+    reflection from one traced ray (:func:`mirror_terms`) and skip the specular cone."""
+    return (dr.max(spec) > 0.0) & (rough <= limit) & (limit > 0.0)
 
 
 def mirror_terms(data: DVCTData, gb: GBuffer, view: FrameView | None, traced: mi.Bool,
@@ -1367,8 +1373,8 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
                            gb.normal, gb.albedo, changed, direct=direct)
     traced = mi.Bool(False)
     if max(mirror_alpha) > 0:  # the virtual lanes' limit, the real lanes'
-        limit = dr.select(virt, mirror_alpha[0], mirror_alpha[1])
-        traced = gb.valid & (dr.max(spec) > 0.0) & (rough <= limit) & (limit > 0.0)
+        traced = gb.valid & mirror_traced(spec, rough,
+                                          dr.select(virt, mirror_alpha[0], mirror_alpha[1]))
     cone = dr.select(traced, mi.Color3f(0.0), spec * terms.y)
     delta = rho * (1.0 / math.pi) * e_delta + cone
     delta = dr.select(real, delta, mi.Color3f(0.0))
@@ -1511,5 +1517,5 @@ __all__ = ["DVCTData", "DVCTMethod", "OPTIONS", "SPEC", "Volumes", "build_volume
            "directional_coverage", "place_volume", "proxy_voxels",
            "compose", "cone_error", "cone_terms", "cone_volumes", "diffuse_cone_set",
            "diffuse_cones", "diffuse_visibility", "light_channels",
-           "ggx_specular", "inject_regular", "inject_split", "prepare", "shade",
+           "ggx_specular", "inject_regular", "mirror_traced", "inject_split", "prepare", "shade",
            "shadow_cones", "specular_cone", "upsample"]

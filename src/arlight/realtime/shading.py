@@ -308,12 +308,6 @@ def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, activ
     return DirectTerms(change, real + re)
 
 
-def direct_change_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, active: mi.Bool,
-                          samples: int = 1) -> mi.Color3f:
-    """``ΔE_d`` (W/m², ``≤ 0``) of :func:`direct_terms_gbuffer` alone."""
-    return direct_terms_gbuffer(views, lights, gb, active, samples).change
-
-
 def _frac(x):
     return x - (math.floor(x) if isinstance(x, float | int) else dr.floor(x))
 
@@ -418,7 +412,7 @@ def scene_bounds(view: SceneView) -> tuple[np.ndarray, float]:
 
 
 __all__ = ["DirectTerms", "ambient_irradiance", "ambient_irradiance_dr", "direct_change",
-           "direct_change_gbuffer", "direct_irradiance", "direct_terms",
+           "direct_irradiance", "direct_terms",
            "direct_terms_gbuffer",
            "direct_irradiance_compact", "direct_light", "emitted_intensity", "extended",
            "light_terms", "on_active", "r2_point", "shadow_ray",
