@@ -99,46 +99,77 @@ def render_gbuffer(view: SceneView, camera: Camera, spp: int = 1, seed: int = 0)
     return GBuffer(pos, n, albedo, role, depth, pixel, to_cam, spp, w, h, shape)
 
 
+def lane_sum(gb: GBuffer, values: np.ndarray) -> np.ndarray:
+    """Per-pixel sum ``(H·W,)`` float32 of the ``gb.spp`` lanes of each pixel in the flat
+    per-lane array ``values`` (``(W·H·spp,)``), added in sample order as NumPy's mean adds
+    them: strided adds of one sample plane at a time, about 10× faster at 640×480×4 than
+    ``reshape(H, W, spp, 3).mean(axis=2)``, whose small inner reduction dominated dvct's
+    assemble stage."""
+    v = np.asarray(values, dtype=np.float32).reshape(-1, gb.spp)
+    total = v[:, 0].copy()
+    for k in range(1, gb.spp):
+        total += v[:, k]
+    return total
+
+
+def _channels(values: mi.Color3f) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return tuple(np.asarray(ch, dtype=np.float32) for ch in (values.x, values.y, values.z))
+
+
+def resolve_sum(gb: GBuffer, values: mi.Color3f) -> np.ndarray:
+    """Per-pixel sum ``(H, W, 3)`` float32 of per-lane values (:func:`lane_sum`)."""
+    out = np.empty((gb.height * gb.width, 3), np.float32)
+    for c, ch in enumerate(_channels(values)):
+        out[:, c] = lane_sum(gb, ch)
+    return out.reshape(gb.height, gb.width, 3)
+
+
 def resolve(gb: GBuffer, values: mi.Color3f) -> np.ndarray:
     """Per-pixel mean ``(H, W, 3)`` float32 of per-lane values."""
-    arr = np.stack([np.asarray(ch, dtype=np.float32) for ch in (values.x, values.y,
-                                                                values.z)], axis=-1)
     if gb.spp == 1:
-        return arr.reshape(gb.height, gb.width, 3)
-    return arr.reshape(gb.height, gb.width, gb.spp, 3).mean(axis=2)
+        return np.stack(_channels(values), axis=-1).reshape(gb.height, gb.width, 3)
+    return resolve_sum(gb, values) / np.float32(gb.spp)
 
 
 def resolve_scalar(gb: GBuffer, values: mi.Float) -> np.ndarray:
     """Per-pixel mean ``(H, W)`` float32 of per-lane scalars."""
-    arr = np.array(values, dtype=np.float32)
+    arr = np.asarray(values, dtype=np.float32)
     if gb.spp == 1:
         return arr.reshape(gb.height, gb.width)
-    return arr.reshape(gb.height, gb.width, gb.spp).mean(axis=2)
+    return (lane_sum(gb, arr) / np.float32(gb.spp)).reshape(gb.height, gb.width)
 
 
 def assemble(gb: GBuffer, frame: np.ndarray, mixed: mi.Color3f, delta: mi.Color3f,
-             stats: dict) -> Layers:
+             stats: dict, hidden: mi.Float | None = None) -> Layers:
     """Per-pixel layers from per-sample shading: ``mask`` = virtual fraction, ``mixed`` =
     mean over virtual samples (``B + delta`` where none), ``delta`` = mean over the other
-    samples, so the composite is the per-sample composite's mean."""
+    samples, so the composite is the per-sample composite's mean. ``mixed`` is zero on the
+    non-virtual lanes and ``delta`` on the virtual ones (as the shaders write them).
+
+    ``hidden``: per lane, the fraction of the photograph ``B`` the lane's change removes
+    (zero on virtual lanes; dvct's occlusion weighting of reflections, ``−h a B``): the
+    lane's change is ``delta − hidden · B``, averaged as ``delta``."""
     virt = resolve_scalar(gb, mi.Float(gb.virtual))
     bg = np.asarray(frame, np.float32)
     covered = virt > 0  # boolean row selection: np.where with an (H, W, 1) mask is ~20× slower
     if gb.spp == 1:
         d = resolve(gb, delta)
+        if hidden is not None:
+            d -= resolve_scalar(gb, hidden)[..., None] * bg
         m = bg + d
         m[covered] = resolve(gb, mixed)[covered]
         return Layers.assemble(bg, m, d, virt, stats=stats)
     n_v = virt * gb.spp
-    n_r = gb.spp - n_v
-    d = resolve(gb, delta) * gb.spp
+    n_r = (gb.spp - n_v)[..., None]
     real = n_r > 0
-    d[real] /= n_r[real][:, None]
-    d[~real] = 0.0
+    d = np.divide(resolve_sum(gb, delta), n_r, out=np.zeros_like(bg), where=real)
+    if hidden is not None:
+        h = lane_sum(gb, np.asarray(hidden, dtype=np.float32)).reshape(n_r.shape)
+        d -= np.divide(h, n_r, out=np.zeros_like(h), where=real) * bg
     m = bg + d
-    m[covered] = (resolve(gb, mixed) * gb.spp)[covered] / n_v[covered][:, None]
+    m[covered] = resolve_sum(gb, mixed)[covered] / n_v[covered][:, None]
     return Layers.assemble(bg, m, d, virt, stats=stats)
 
 
-__all__ = ["GBuffer", "assemble", "facing", "render_gbuffer", "resolve", "resolve_scalar",
-           "surface_albedo"]
+__all__ = ["GBuffer", "assemble", "facing", "lane_sum", "render_gbuffer", "resolve",
+           "resolve_scalar", "resolve_sum", "surface_albedo"]
