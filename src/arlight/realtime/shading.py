@@ -281,6 +281,8 @@ def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, activ
         c, r = mi.Point3f(*opaques(centre)), opaque(radius)
         reach = [active & light_reach(lt, gb.position, c, r) for lt in lights.lights]
     n_l = dr.width(gb.position)
+    # added light by light into two arrays: a sum of per-light arrays, read by the caller's
+    # shading kernel, made it read 6 arrays per light (126 inputs at 640×480 with 7 lights)
     change, real = dr.zeros(mi.Color3f, n_l), dr.zeros(mi.Color3f, n_l)
     for lt, near in zip(lights.lights, reach, strict=True):
         def one(p: mi.Point3f, n: mi.Vector3f, pixel: mi.UInt32, s: mi.UInt32,
@@ -288,9 +290,8 @@ def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, activ
             return direct_terms(views, LightSet([lt]), p, n, mi.Bool(True), samples,
                                 (pixel, s, gb.spp))
 
-        ch, re = on_active(one, gb.position, gb.normal, near, gb.pixel, sample, outputs=2)
-        change += ch
-        real += re
+        on_active(one, gb.position, gb.normal, near, gb.pixel, sample, outputs=2,
+                  into=(change, real))
     want = active
     if real_on is not None:
         want = active & real_on
@@ -303,9 +304,10 @@ def direct_terms_gbuffer(views: SceneViews, lights: LightSet, gb: GBuffer, activ
                             samples if far_samples is None else far_samples,
                             (pixel, s, gb.spp), [~x for x in near])
 
-    _, re = on_active(rest, gb.position, gb.normal, want, gb.pixel, sample, *reach,
-                      outputs=2)
-    return DirectTerms(change, real + re)
+    on_active(rest, gb.position, gb.normal, want, gb.pixel, sample, *reach, outputs=2,
+              into=(None, real))
+    dr.eval(change, real)
+    return DirectTerms(change, real)
 
 
 def _frac(x):
@@ -342,19 +344,30 @@ def direct_irradiance_compact(view: SceneView, lights: LightSet, p: mi.Point3f,
 
 
 def on_active(fn, p: mi.Point3f, n: mi.Vector3f, active: mi.Bool, *extra,
-              outputs: int = 0):
+              outputs: int = 0, into: tuple | None = None):
     """``fn(p, n, *extra)`` evaluated on the ``active`` lanes only (compacted with
     ``dr.compress``, scattered back; zero elsewhere): pays off for costly per-lane work on
     few lanes. ``extra``: more per-lane arrays, compacted alike. ``fn`` returns an
-    ``mi.Color3f`` (``outputs`` 0) or a tuple of ``outputs`` of them (a tuple comes back)."""
+    ``mi.Color3f`` (``outputs`` 0) or a tuple of ``outputs`` of them (a tuple comes back).
+    ``into``: full-width arrays, one per output (None: that output is dropped), that the
+    results are added to in place (``dr.scatter_add``) instead of being returned."""
     idx = dr.compress(active)
-    outs = tuple(dr.zeros(mi.Color3f, dr.width(p)) for _ in range(max(outputs, 1)))
+    count = max(outputs, 1)
+    outs = into if into is not None else tuple(dr.zeros(mi.Color3f, dr.width(p))
+                                               for _ in range(count))
     if dr.width(idx) > 0:
         pc = mi.Point3f(dr.gather(type(p), p, idx))
         nc = mi.Vector3f(dr.gather(type(n), n, idx))
         got = fn(pc, nc, *(dr.gather(type(a), a, idx) for a in extra))
         for o, g in zip(outs, (got,) if outputs == 0 else got, strict=True):
-            dr.scatter(o, g, idx)
+            if o is None:
+                continue
+            if into is not None:
+                dr.scatter_add(o, g, idx)
+            else:
+                dr.scatter(o, g, idx)
+    if into is not None:
+        return None
     return outs[0] if outputs == 0 else outs
 
 
