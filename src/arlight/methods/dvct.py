@@ -86,7 +86,7 @@ from arlight.methods.fragments import (
 )
 from arlight.methods.spec import Capabilities, Field, MethodSpec, Options
 from arlight.realtime.ambient import virtual_albedo
-from arlight.realtime.exact_sum import scatter_sum_exact
+from arlight.realtime.exact_sum import scatter_sums_exact
 from arlight.realtime.gbuffer import (
     GBuffer,
     assemble,
@@ -567,10 +567,14 @@ class Volumes:
     cover: MipVolume | None = None
 
 
-def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f,
-            flux: mi.Color3f, active: mi.Bool, sign: float) -> int:
-    """Add VPL intensities ``sign · Φ/π`` (Eq. 5.17) into a packed level, each at the cell of
-    its position moved half a cell along its normal. Returns the VPLs injected.
+VPLGroups = list[tuple[list[mi.Float], mi.UInt32, mi.Bool]]
+
+
+def _vpls(grid: Grid, position: mi.Point3f, normal: mi.Vector3f, flux: mi.Color3f,
+          active: mi.Bool, sign: float, channels: int) -> tuple[VPLGroups, int]:
+    """VPL intensities ``sign · Φ/π`` (Eq. 5.17) as groups ``(RGB values, slot, active)``
+    for :func:`_packed_level`, each at the cell of its position moved half a cell along its
+    normal, and the number of VPLs injected.
 
     A 3-channel level (isotropic) receives the peak intensity ``Φ/π``; an anisotropic one
     (:data:`~arlight.realtime.voxels.ANISO_CHANNELS`, 6 directions × RGB) the Lambertian
@@ -580,19 +584,27 @@ def _inject(buf: mi.Float, grid: Grid, position: mi.Point3f, normal: mi.Vector3f
     idx, inside = cell_index(grid, position + normal * opaque(0.5 * grid.cell))
     act = active & inside
     val = flux * (sign / math.pi)
-    cells = grid.n ** 3
-    if dr.width(buf) == cells * 3:
+    if channels == 3:
         parts = [(mi.UInt32(0), mi.Float(1.0), 1)]
     else:  # emission towards n: the slots a cone travelling along −n reads
         parts = [(slot, w, 6) for slot, w in aniso_lookup(-normal)]
-    for slot, w, stride in parts:
-        # order-independent sums, one per cell and slot
-        sums = scatter_sum_exact([val[0] * w, val[1] * w, val[2] * w], idx * stride + slot,
-                                 act, cells * stride)
-        for c in range(3):
-            dr.scatter_reduce(dr.ReduceOp.Add, buf, sums[c],
-                              dr.arange(mi.UInt32, cells * stride) * 3 + c)
-    return int(dr.count(act)[0]) if dr.width(act) else 0
+    groups = [([val[0] * w, val[1] * w, val[2] * w], idx * stride + slot, act)
+              for slot, w, stride in parts]
+    return groups, int(dr.count(act)[0]) if dr.width(act) else 0
+
+
+def _packed_level(grid: Grid, groups: VPLGroups, channels: int) -> mi.Float:
+    """The packed finest level (``n³ · channels``, RGB innermost) holding the sums of the
+    VPL ``groups`` per cell and slot: order-independent (fixed-point) sums over every group,
+    converted to float once per volume."""
+    slots = grid.n ** 3 * (channels // 3)
+    buf = dr.zeros(mi.Float, slots * 3)
+    if not groups:
+        return buf
+    sums = scatter_sums_exact(groups, slots)
+    for c in range(3):
+        dr.scatter(buf, sums[c], dr.arange(mi.UInt32, slots) * 3 + c)
+    return buf
 
 
 def inject_split(grid: Grid, pairs: list[RSMPair], channels: int = 3, lost: bool = True
@@ -603,20 +615,23 @@ def inject_split(grid: Grid, pairs: list[RSMPair], channels: int = 3, lost: bool
     :data:`~arlight.realtime.voxels.ANISO_CHANNELS`. ``lost`` False (option
     ``lost_bounce`` off): without the ``−R_µ`` VPLs, ``V_Δ`` holds the virtual objects'
     own bounce alone."""
-    m = grid.n ** 3 * channels
-    delta, rho = dr.zeros(mi.Float, m), dr.zeros(mi.Float, m)
+    delta, rho = [], []
     count = 0
     for pair in pairs:
         r = pair.rho
-        _inject(rho, grid, r.position, r.normal, r.flux_out, r.valid, 1.0)
+        rho += _vpls(grid, r.position, r.normal, r.flux_out, r.valid, 1.0, channels)[0]
         if dr.width(pair.changed) == 0:
             continue
         rc, mc = pair.rho_changed(), pair.mu_changed
-        count += _inject(delta, grid, rc.position, rc.normal, rc.flux_out, rc.valid, 1.0)
+        got, n = _vpls(grid, rc.position, rc.normal, rc.flux_out, rc.valid, 1.0, channels)
+        delta += got
+        count += n
         if lost:
-            _inject(delta, grid, mc.position, mc.normal, mc.flux_out, mc.valid, -1.0)
-    dr.eval(delta, rho)
-    return delta, rho, count
+            delta += _vpls(grid, mc.position, mc.normal, mc.flux_out, mc.valid, -1.0,
+                           channels)[0]
+    out = _packed_level(grid, delta, channels), _packed_level(grid, rho, channels)
+    dr.eval(out)
+    return *out, count
 
 
 def inject_regular(grid: Grid, pairs: list[RSMPair], which: int, channels: int = 3
@@ -624,10 +639,11 @@ def inject_regular(grid: Grid, pairs: list[RSMPair], which: int, channels: int =
     """Packed finest level of a regular volume: every ``R_ρ`` (``which=0``) or ``R_µ``
     (``which=1``) texel — ``V_ρ`` and ``V_µ`` of Eq. 5.26 (``channels`` as
     :func:`inject_split`)."""
-    buf = dr.zeros(mi.Float, grid.n ** 3 * channels)
+    groups = []
     for pair in pairs:
         r = pair.rho if which == 0 else pair.mu()
-        _inject(buf, grid, r.position, r.normal, r.flux_out, r.valid, 1.0)
+        groups += _vpls(grid, r.position, r.normal, r.flux_out, r.valid, 1.0, channels)[0]
+    buf = _packed_level(grid, groups, channels)
     dr.eval(buf)
     return buf
 

@@ -37,12 +37,25 @@ def scatter_sum_exact(values: Sequence[mi.Float], index: mi.UInt32, active: mi.B
     ``max_abs``: a bound on ``|value|`` over the active lanes when the caller knows one
     (saves a reduction per array); it sets the scale, so a loose bound costs precision.
     """
-    dr.eval(values, index, active)
-    lanes = dr.width(index)
-    if lanes == 0:
-        return [dr.zeros(mi.Float, size) for _ in values]
+    return scatter_sums_exact([(values, index, active)], size, max_abs)
+
+
+def scatter_sums_exact(groups: Sequence[tuple[Sequence[mi.Float], mi.UInt32, mi.Bool]],
+                       size: int, max_abs: float | None = None) -> list[mi.Float]:
+    """:func:`scatter_sum_exact` of several groups ``(values, index, active)`` (each with
+    the same number of value arrays, any widths) into one set of sums: entry ``i`` of sum
+    ``c`` adds value ``c`` of every group's active lanes with ``index == i`` — integers in
+    one fixed-point scale for all groups, converted to float once (dvct's injection of
+    every light's VPLs: one conversion per volume instead of a full-grid pass per light)."""
+    count = len(groups[0][0]) if groups else 0
+    groups = [g for g in groups if dr.width(g[1]) > 0]
+    dr.eval([g for grp in groups for g in grp])
+    if not groups:
+        return [dr.zeros(mi.Float, size) for _ in range(count)]
+    lanes = sum(dr.width(g[1]) for g in groups)
     if max_abs is None:
-        peaks = [dr.max(dr.select(active, dr.abs(v), 0.0)) for v in values]
+        peaks = [dr.max(dr.select(act, dr.abs(v), 0.0)) for vals, _, act in groups
+                 for v in vals]
         dr.eval(peaks)  # one launch, one wait
         max_abs = max(float(p[0]) for p in peaks)
     if not math.isfinite(max_abs):
@@ -51,13 +64,13 @@ def scatter_sum_exact(values: Sequence[mi.Float], index: mi.UInt32, active: mi.B
     # opaque: the scale follows the data, and a literal compiled new kernels whenever it
     # changed (every frame of a moving object, issue #32)
     up, down = dr.opaque(mi.Float, scale), dr.opaque(mi.Float, 1.0 / scale)
-    sums = []
-    for v in values:
-        acc = dr.zeros(mi.Int64, size)
-        # ``v * scale`` is exact (a power of two) and so is its rounding to an integer
-        dr.scatter_reduce(dr.ReduceOp.Add, acc, mi.Int64(dr.round(v * up)), index, active)
-        sums.append(mi.Float(acc) * down)  # one rounding, then exact scaling
-    return sums
+    accs = [dr.zeros(mi.Int64, size) for _ in range(count)]
+    for vals, index, active in groups:
+        for acc, v in zip(accs, vals, strict=True):
+            # ``v * scale`` is exact (a power of two) and so is its rounding to an integer
+            dr.scatter_reduce(dr.ReduceOp.Add, acc, mi.Int64(dr.round(v * up)), index,
+                              active)
+    return [mi.Float(acc) * down for acc in accs]  # one rounding, then exact scaling
 
 
-__all__ = ["fixed_point_scale", "scatter_sum_exact"]
+__all__ = ["fixed_point_scale", "scatter_sum_exact", "scatter_sums_exact"]
