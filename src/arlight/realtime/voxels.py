@@ -361,20 +361,24 @@ def voxelize(triangles: np.ndarray, grid: Grid, chunk: int = 1 << 20,
     total = int(starts[-1])
     flats, norms = [], []
     tri_of = np.repeat(np.arange(len(count)), count)
+    # per-column gathers (np.take of contiguous columns): fancy-indexing the (F, 3, 3) and
+    # (F, 3) arrays by triangle was most of a frame's voxelisation (50 of 95 ms for 4k
+    # triangles at 640×480)
+    lo_c = [np.ascontiguousarray(lo[:, c]) for c in range(3)]
+    ext_c = [np.ascontiguousarray(ext[:, c]) for c in range(2)]
+    local_c = [[np.ascontiguousarray(local[:, j, c]) for c in range(3)] for j in range(3)]
     for a in range(0, total, chunk):
         b = min(total, a + chunk)
         t = tri_of[a:b]
         k = np.arange(a, b) - starts[t]
-        ex = ext[t]
-        ix = lo[t, 0] + k % ex[:, 0]
-        iy = lo[t, 1] + (k // ex[:, 0]) % ex[:, 1]
-        iz = lo[t, 2] + k // (ex[:, 0] * ex[:, 1])
-        centre = (np.stack([ix, iy, iz], 1) + offset) + 0.5  # exact: integers and ½
-        v = (local[t] - centre[:, None, :]).astype(np.float32)
-        hit = np.array(_overlaps(*(mi.Vector3f(*(aligned(v[:, k, c], np.float32)
-                                                   for c in range(3))) for k in range(3)),
-                                 0.5), dtype=bool)
-        flats.append((ix + n * (iy + n * iz))[hit])
+        ex0, ex1 = (np.take(e, t) for e in ext_c)
+        ijk = (np.take(lo_c[0], t) + k % ex0, np.take(lo_c[1], t) + (k // ex0) % ex1,
+               np.take(lo_c[2], t) + k // (ex0 * ex1))
+        centre = [(ijk[c] + offset[c]) + 0.5 for c in range(3)]  # exact: integers and ½
+        corners = [mi.Vector3f(*(aligned((np.take(local_c[j][c], t) - centre[c]), np.float32)
+                                 for c in range(3))) for j in range(3)]
+        hit = np.array(_overlaps(*corners, 0.5), dtype=bool)
+        flats.append((ijk[0] + n * (ijk[1] + n * ijk[2]))[hit])
         norms.append(area_n[t[hit]])
     if not flats:
         return Voxels.empty(grid, with_cover)
