@@ -119,6 +119,7 @@ from arlight.realtime.shading import (
     split_lights,
     virtual_bounds,
 )
+from arlight.realtime.shadow_reach import bounding_ball
 from arlight.realtime.voxels import (
     ANISO_CHANNELS,
     COVER_CHANNELS,
@@ -1203,9 +1204,11 @@ def mirror_terms(data: DVCTData, gb: GBuffer, view: FrameView | None, traced: mi
 
     seen = None if view is None else Reprojector(view.camera, view.frame, data.views.real)
     light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
-    rad, change, role = mirror_rays(light, gb.position, gb.normal, gb.to_camera, gb.shape,
-                                    traced, seen)
+    box = virtual_bounds(data.world, data.views.mixed)
     real = gb.valid & ~gb.virtual & traced
+    rad, change, role = mirror_rays(light, gb.position, gb.normal, gb.to_camera, gb.shape,
+                                    traced, seen, real,
+                                    None if box is None else bounding_ball(box))
     on_virtual = real & (role == ROLE_VIRTUAL)
     delta = delta + dr.select(on_virtual, rad, dr.select(real, change, mi.Color3f(0.0)))
     hidden = dr.select(on_virtual, hide, hidden)
