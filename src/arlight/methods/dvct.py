@@ -116,6 +116,7 @@ from arlight.realtime.shading import (
     direct_irradiance,
     direct_irradiance_compact,
     direct_terms_gbuffer,
+    on_active,
     split_lights,
     virtual_bounds,
 )
@@ -1424,11 +1425,21 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     spec_direct = mi.Color3f(0.0)
     far = data.distant
     if dr.any(glossy):
-        for lt in (data.lights if far is None else far.near).lights:
-            wi, _ = light_direction(lt, gb.position)
-            e_i = direct_irradiance(data.views.mixed, LightSet([lt]), gb.position, gb.normal,
-                                    glossy)
-            spec_direct += ggx_specular(gb.normal, gb.to_camera, wi, spec, rough) * e_i
+        near = (data.lights if far is None else far.near).lights
+
+        def reflected(p: mi.Point3f, n: mi.Vector3f, v: mi.Vector3f, f0: mi.Color3f,
+                      alpha: mi.Float) -> mi.Color3f:
+            out = mi.Color3f(0.0)
+            for lt in near:
+                wi, _ = light_direction(lt, p)
+                e_i = direct_irradiance(data.views.mixed, LightSet([lt]), p, n, mi.Bool(True))
+                out += ggx_specular(n, v, wi, f0, alpha) * e_i
+            return out
+
+        # on the glossy lanes only: over every lane (masked) the lights' shadow rays and GGX
+        # made a ~750-op kernel of the whole 640×480×4 G-buffer with seven lights
+        spec_direct = on_active(reflected, gb.position, gb.normal, glossy, gb.to_camera, spec,
+                                rough)
         if far is not None:  # what the specular cone sees where it leaves the volume
             spec_direct += escape_radiance(data, gb, view, glossy & ~traced) * (
                 1.0 if terms.t is None else terms.t)
