@@ -1137,7 +1137,7 @@ def ggx_specular(n: mi.Vector3f, wo: mi.Vector3f, wi: mi.Vector3f, f0: mi.Color3
     return f * (d * smith_g1(a, cos_i) * smith_g1(a, cos_o) / (4.0 * cos_i * cos_o))
 
 
-def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
+def escape_radiance(data: DVCTData, gb: GBuffer, seen: Reprojector | None,
                     active: mi.Bool) -> mi.Color3f:
     """What a virtual object's specular cone sees where it leaves the volume (issue #33;
     the cone itself holds only ``V_ρ``, the RSMs' first bounce inside the volume), as
@@ -1146,7 +1146,7 @@ def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
     split-sum ``L̃(d, α)(F0 A + F90 B)`` of the prefiltered environment
     (:func:`~arlight.realtime.ibl_shading.specular_split_sum`, [CNS+11]'s environment
     lookup for the transmittance left at the end of a cone); a hit sees a real surface
-    whose radiance the photograph holds where the camera sees it (``view``'s frame at the
+    whose radiance the photograph holds where the camera sees it (``seen``'s frame at the
     hit's projection, as onepass reprojects, Kán §5.2), times ``F0`` as the cone's ``C_ρ``;
     where the camera does not see it (behind the camera, hidden), its diffuse radiance in
     the proxy, ``ρ/π (E_direct + E_amb)`` (the reduced lights with shadow rays, the SH
@@ -1175,10 +1175,9 @@ def escape_radiance(data: DVCTData, gb: GBuffer, view: FrameView | None,
         direct_irradiance(data.views.real, data.lights, si.p, nh, hit)
         + dr.maximum(ambient_irradiance_dr(data.lights, nh), 0.0))
     val = dr.select(hit, lit * f0, env)
-    if view is not None:
-        seen, ok = Reprojector(view.camera, np.asarray(view.frame, np.float32),
-                               data.views.real).lookup(si.p, si.is_valid())[:2]
-        val = dr.select(ok, seen * f0, val)
+    if seen is not None:
+        photo, ok = seen.lookup(si.p, si.is_valid())[:2]
+        val = dr.select(ok, photo * f0, val)
     dr.scatter(out, val, idx)
     return out
 
@@ -1190,7 +1189,7 @@ def mirror_traced(spec: mi.Color3f, rough: mi.Float, limit: float | mi.Float) ->
     return (dr.max(spec) > 0.0) & (rough <= limit) & (limit > 0.0)
 
 
-def mirror_terms(data: DVCTData, gb: GBuffer, view: FrameView | None, traced: mi.Bool,
+def mirror_terms(data: DVCTData, gb: GBuffer, seen: Reprojector | None, traced: mi.Bool,
                  delta: mi.Color3f, hidden: mi.Float, hide: mi.Float
                  ) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
     """The ``traced`` lanes' reflection from one ray each into the mixed proxy
@@ -1203,7 +1202,6 @@ def mirror_terms(data: DVCTData, gb: GBuffer, view: FrameView | None, traced: mi
     brings (the photograph at a seen real hit plus that change)."""
     from arlight.realtime.mirror_rays import MirrorLight, mirror_rays
 
-    seen = None if view is None else Reprojector(view.camera, view.frame, data.views.real)
     light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
     box = virtual_bounds(data.world, data.views.mixed)
     real = gb.valid & ~gb.virtual & traced
@@ -1235,7 +1233,7 @@ def surround_wanted(data: DVCTData, options: Options | None = None,
     return bool(np.any(data.lights.ambient_sh)) or (far and bool(data.lights.lights))
 
 
-def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_deg: float,
+def real_surround(data: DVCTData, gb: GBuffer, seen: Reprojector | None, aperture_deg: float,
                   active: mi.Bool, rays: int = 0, far_bounce: bool = True
                   ) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
     """The real proxy around the ``active`` (virtual) lanes: the SH remainder's visibility
@@ -1259,11 +1257,11 @@ def real_surround(data: DVCTData, gb: GBuffer, view: FrameView | None, aperture_
     volume, where ``V_ρ`` holds its reduced lights' first bounce) its ambient part ``ρ_r L̄``
     (:func:`real_fill`). Zero on other lanes."""
     return surround_at(data, Lanes(gb.position, gb.normal, gb.to_camera, gb.role, gb.shape),
-                       real_fill(data, gb), view, aperture_deg, active, rays, far_bounce,
+                       real_fill(data, gb), seen, aperture_deg, active, rays, far_bounce,
                        int(gb.spp))
 
 
-def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView | None,
+def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, seen: Reprojector | None,
                 aperture_deg: float, active: mi.Bool, rays: int, far_bounce: bool,
                 spp: int = 1) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
     """:func:`real_surround` on any ``lanes`` (``spp`` consecutive lanes are one pixel's
@@ -1274,11 +1272,11 @@ def surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView 
     # rays' shape and BSDF calls, evaluated per ray, launched kernels per instance and ray
     # (an 80×60 drag frame 2–4 s instead of 0.15)
     with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, True):
-        return _surround_at(data, lanes, fill, view, aperture_deg, active, rays, far_bounce,
+        return _surround_at(data, lanes, fill, seen, aperture_deg, active, rays, far_bounce,
                             spp)
 
 
-def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView | None,
+def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, reproj: Reprojector | None,
                  aperture_deg: float, active: mi.Bool, rays: int, far_bounce: bool,
                  spp: int) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
     n_l = lanes.width
@@ -1301,8 +1299,6 @@ def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView
     count = len(table)
     tab = mi.Vector3f(*(mi.Float(aligned(table[:, c], np.float32)) for c in range(3)))
     wtab = mi.Float(aligned(weights, np.float32))
-    reproj = None if view is None else Reprojector(
-        view.camera, np.asarray(view.frame, np.float32), data.views.real)
     grid = data.grid  # the box's corners opaque: it moves with the objects (issue #32)
     lo, hi = (opaques(grid.lo()), opaques(grid.hi())) if grid is not None else (None, None)
 
@@ -1347,7 +1343,7 @@ def _surround_at(data: DVCTData, lanes: Lanes, fill: mi.Color3f, view: FrameView
 
 
 def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
-          frame: np.ndarray | None = None, view: FrameView | None = None,
+          frame: np.ndarray | None = None, seen: Reprojector | None = None,
           aperture_deg: float = 60.0, shadow_rays: int | None = None,
           surround_rays: int = 0, far_bounce: bool = False,
           mirror_alpha: tuple[float, float] = (0.0, 0.0)
@@ -1405,7 +1401,7 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     delta = dr.select(real, delta, mi.Color3f(0.0))
     hidden = dr.select(real & ~traced, hide * terms.z, 0.0)
     if max(mirror_alpha) > 0:
-        delta, hidden, ray_mixed = mirror_terms(data, gb, view, traced, delta, hidden, hide)
+        delta, hidden, ray_mixed = mirror_terms(data, gb, seen, traced, delta, hidden, hide)
     # virtual pixels (Eq. 5.23–5.25)
     e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
                                       virt)
@@ -1415,7 +1411,7 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
         # the virtual objects' occlusion z taken from the open directions (a share z / V)
         todo = virt if terms.surround is None else (
             virt if terms.covered is None else virt & ~terms.covered)
-        own = real_surround(data, gb, view, aperture_deg, todo, surround_rays, far_bounce)
+        own = real_surround(data, gb, seen, aperture_deg, todo, surround_rays, far_bounce)
         e_o, vis, e_r = own if terms.surround is None else (
             dr.select(todo, a, b) for a, b in zip(own, terms.surround, strict=True))
         e_amb = (e_o * dr.maximum(1.0 - terms.z / dr.maximum(vis, 1e-3), 0.0)
@@ -1441,7 +1437,7 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
         spec_direct = on_active(reflected, gb.position, gb.normal, glossy, gb.to_camera, spec,
                                 rough)
         if far is not None:  # what the specular cone sees where it leaves the volume
-            spec_direct += escape_radiance(data, gb, view, glossy & ~traced) * (
+            spec_direct += escape_radiance(data, gb, seen, glossy & ~traced) * (
                 1.0 if terms.t is None else terms.t)
     if max(mirror_alpha) > 0:
         spec_direct += ray_mixed
@@ -1460,6 +1456,9 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
     stats: dict[str, float] = {"lights": float(len(data.lights.lights)),
                                "volume_cell": data.grid.cell if data.grid else 0.0}
     terms = None
+    # the photograph where the camera sees a real point: one per frame for the surround,
+    # mirror and escape rays
+    seen = Reprojector(view.camera, view.frame, data.views.real)
     if vols is not None:
         k = int(options.cone_scale)
         with timer.stage("cones"):
@@ -1469,7 +1468,7 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
             terms = cone_terms(data, vols, low, options, stats)
             if k > 1 and surround_wanted(data, options):  # the surround at the cones' lanes
                 terms = replace(terms, surround=surround_at(
-                    data, low, real_fill(data, gb), view, options.diffuse_aperture_deg,
+                    data, low, real_fill(data, gb), seen, options.diffuse_aperture_deg,
                     low.role == ROLE_VIRTUAL, options.surround_rays, options.far_bounce))
         if k > 1:
             with timer.stage("upsample"):
@@ -1478,7 +1477,7 @@ def compose(data: DVCTData, gb: GBuffer, vols: Volumes | None, view: FrameView,
         stats["voxels"] = float(vols.voxels)
     with timer.stage("shade"):
         mixed, delta, hidden = shade(data, gb, terms,
-                                     view.frame if options.photo_albedo else None, view,
+                                     view.frame if options.photo_albedo else None, seen,
                                      options.diffuse_aperture_deg,
                                      options.shadow_samples if options.direct == "rays"
                                      else None, options.surround_rays, options.far_bounce,
