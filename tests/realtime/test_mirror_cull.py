@@ -18,19 +18,23 @@ from arlight.realtime.shading import virtual_bounds
 from arlight.realtime.shadow_reach import bounding_ball
 from arlight.scene.load import parse_scene
 
+FLOORS = {"mirror": {"type": "mirror", "reflectance": 0.8},
+          "rough": {"type": "roughconductor", "alpha": 0.1, "reflectance": 0.8}}
 
-@pytest.fixture(scope="module")
-def floor_mirror_and_shadowed_wall():
-    """A real mirror floor that shows a real white wall, and on the wall the shadow of a
-    virtual sphere standing between it and a low sun behind the camera: floor lanes far from
-    the sphere reflect the shadow (their own shadow rays cannot meet the sphere), others
-    reflect the sphere, others lit wall or sky."""
+
+@pytest.fixture(scope="module", params=sorted(FLOORS))
+def floor_mirror_and_shadowed_wall(request):
+    """A real mirror (or rough metal, GGX α 0.1) floor that shows a real white wall, and on
+    the wall the shadow of a virtual sphere standing between it and a low sun behind the
+    camera: floor lanes far from the sphere reflect the shadow (their own shadow rays cannot
+    meet the sphere), others reflect the sphere, others lit wall or sky; the floor under the
+    sphere lies in its shadow (a rough lobe's highlight of the sun is blocked there)."""
     world = parse_scene({
         "camera": {"resolution": [48, 36], "fov_y_deg": 40,
                    "look_at": {"origin": [0.0, 0.9, 2.2], "target": [0.0, 0.2, -0.4]}},
         "shapes": [
             {"name": "floor", "role": "real", "type": "rectangle", "size": [4, 4],
-             "normal": [0, 1, 0], "material": {"type": "mirror", "reflectance": 0.8}},
+             "normal": [0, 1, 0], "material": FLOORS[request.param]},
             {"name": "wall", "role": "real", "type": "rectangle", "size": [4, 2],
              "normal": [0, 0, 1], "transform": {"translate": [0.0, 1.0, -1.2]},
              "material": {"type": "diffuse", "albedo": 0.8}},
