@@ -1190,16 +1190,20 @@ def mirror_traced(spec: mi.Color3f, rough: mi.Float, limit: float | mi.Float) ->
 
 
 def mirror_terms(data: DVCTData, gb: GBuffer, seen: Reprojector | None, traced: mi.Bool,
-                 delta: mi.Color3f, hidden: mi.Float, hide: mi.Float
+                 delta: mi.Color3f, hidden: mi.Float, hide: mi.Float, rough: mi.Float
                  ) -> tuple[mi.Color3f, mi.Float, mi.Color3f]:
     """The ``traced`` lanes' reflection from one ray each into the mixed proxy
     (:func:`arlight.realtime.mirror_rays.mirror_rays`; option ``mirror_alpha``), given the
-    real lanes' ``delta`` and ``hidden`` of everything else: returns ``(delta, hidden,
-    specular radiance of the virtual lanes)``. A real lane whose ray meets a virtual surface
-    hides its reflected background (``hidden = h``) and gains that surface's reflected
-    radiance; one whose ray meets a real surface the camera sees gains the change of that
-    surface's direct light (weighted by its lobe albedo); a virtual lane shows all its ray
-    brings (the photograph at a seen real hit plus that change)."""
+    real lanes' ``delta`` and ``hidden`` of everything else and their GGX ``rough``: returns
+    ``(delta, hidden, specular radiance of the virtual lanes)``. A real perfect mirror
+    (``rough`` 0) whose ray meets a virtual surface hides its reflected background (``hidden
+    = h``: its photograph is the radiance along the ray) and gains that surface's reflected
+    radiance; a rougher real lane keeps its photograph, which also holds light from
+    directions the one ray does not test (a lamp's glossy highlight around the object's
+    reflection), and gains the change along the ray, ``(F0 A + F90 B)(L_µ(r) − L_ρ(r))``;
+    one whose ray meets a real surface the camera sees gains the change of that surface's
+    direct light. A virtual lane shows all its ray brings (the photograph at a seen real hit
+    plus that change)."""
     from arlight.realtime.mirror_rays import MirrorLight, mirror_rays
 
     light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
@@ -1208,7 +1212,7 @@ def mirror_terms(data: DVCTData, gb: GBuffer, seen: Reprojector | None, traced: 
     rad, change, role = mirror_rays(light, gb.position, gb.normal, gb.to_camera, gb.shape,
                                     traced, seen, real,
                                     None if box is None else bounding_ball(box))
-    on_virtual = real & (role == ROLE_VIRTUAL)
+    on_virtual = real & (role == ROLE_VIRTUAL) & (rough <= 0.0)
     delta = delta + dr.select(on_virtual, rad, dr.select(real, change, mi.Color3f(0.0)))
     hidden = dr.select(on_virtual, hide, hidden)
     return delta, hidden, dr.select(gb.virtual & traced, rad, mi.Color3f(0.0))
@@ -1401,7 +1405,8 @@ def shade(data: DVCTData, gb: GBuffer, terms: ConeTerms | None,
     delta = dr.select(real, delta, mi.Color3f(0.0))
     hidden = dr.select(real & ~traced, hide * terms.z, 0.0)
     if max(mirror_alpha) > 0:
-        delta, hidden, ray_mixed = mirror_terms(data, gb, seen, traced, delta, hidden, hide)
+        delta, hidden, ray_mixed = mirror_terms(data, gb, seen, traced, delta, hidden, hide,
+                                                rough)
     # virtual pixels (Eq. 5.23–5.25)
     e_dir = direct_irradiance_compact(data.views.mixed, data.lights, gb.position, gb.normal,
                                       virt)
