@@ -248,12 +248,14 @@ OPTIONS: dict[str, Field] = {
                           "with α ≤ 0.2, 0.5 also +0.2…+1.1 on 4 glossy ones up to α 0.39, "
                           "1.0 the same as 0.5, none lost)", "", min=0.0, max=1.0),
     "mirror_alpha_real": Field("float", 0.2, "the same for real specular lanes (a glossy "
-                               "floor under the objects): the ray decides the occlusion "
-                               "weighting of their reflection and brings the virtual "
-                               "surface it meets (a real mirror floor reflected a virtual "
-                               "object black, tests/methods/test_dvct_mirror.py); 0.2: no "
-                               "training world changed at 0.2, 0.25 lost 1.9 dB on "
-                               "world-14 (a rough floor, α 0.22, its blur lost to one ray)",
+                               "floor under the objects): a mirror hides its reflection where "
+                               "the ray meets a virtual surface, a rough lane adds the change "
+                               "along the ray and the lights' highlight the objects block "
+                               "(tests/methods/test_dvct_mirror.py); 0.2 chosen on 20 training "
+                               "worlds with real glossy surfaces at 160 px (benchmarks/"
+                               "tune_mirror_real.py: +0.01…+13.3 dB on 9, −2.0 on world-276 "
+                               "and −0.2 on world-163, 0.1 and 0.15 fewer gains; 0.25 lost "
+                               "1.9 dB on world-14, α 0.22, its blur lost to one ray)",
                                "", min=0.0, max=1.0),
     "shells": Field("float", SHELLS, "coverage scale of a level-l block, α_l = min(1, "
                     "max(1, shells·2^l)·mean α): 1 exact for one sheet, 0.5 for closed "
