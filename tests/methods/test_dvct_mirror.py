@@ -214,3 +214,44 @@ def test_a_glossy_floor_loses_the_highlight_the_object_blocks(ball_before_the_la
     assert float((photo.frame[m] @ LUM).mean()) > 10.0 * want  # the highlight, blocked
     got = float((_run(scene, mirror_alpha_real=0.2).composite[m] @ LUM).mean())
     assert 0.3 * want < got < 2.0 * want
+
+
+def test_the_cull_keeps_rough_lanes_in_the_objects_shadow():
+    """The real-lane cull of :func:`~arlight.realtime.mirror_rays.mirror_rays`
+    (``change_only``, ``ball``) against the unculled rays on a rough floor (α 0.1) under a
+    virtual sphere and a sun straight above: the floor lanes in the sphere's shadow whose
+    mirror rays go up past the sphere still change (the sun's highlight the sphere blocks),
+    so the change must come out bit for bit as without culling. Rejects: a cull that tests
+    only the ray's hit (those lanes dropped: their change 0 instead of the blocked
+    highlight)."""
+    from arlight.backend.mitsuba_scene import ROLE_REAL
+    from arlight.backend.reproject import Reprojector
+    from arlight.realtime.gbuffer import render_gbuffer
+    from arlight.realtime.mirror_rays import MirrorLight, mirror_rays
+    from arlight.realtime.shading import virtual_bounds
+    from arlight.realtime.shadow_reach import bounding_ball
+
+    world = parse_scene({"camera": CAMERA, "shapes": [
+        {"name": "floor", "role": "real", "type": "rectangle", "size": [4, 4],
+         "normal": [0, 1, 0],
+         "material": {"type": "roughconductor", "alpha": 0.1, "reflectance": 0.8}},
+        {"name": "ball", "role": "virtual", "type": "sphere", "radius": 0.25,
+         "transform": {"translate": [0.0, 0.45, 0.0]},
+         "material": {"type": "diffuse", "albedo": 0.5}}],
+        "lights": _lights([0.0, -1.0, 0.0])})
+    frame = np.full((48, 64, 3), 0.3, np.float32)
+    world = world.with_frame(frame)
+    data = get_method("dvct").prepare(world, RenderSettings(options=SMALL)).data
+    gb = render_gbuffer(data.views.mixed, world.camera, 1, 0)
+    real = gb.valid & (gb.role == ROLE_REAL)
+    light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
+    args = (light, gb.position, gb.normal, gb.to_camera, gb.shape, real,
+            Reprojector(world.camera, frame, data.views.real))
+    ball = bounding_ball(virtual_bounds(data.world, data.views.mixed))
+    rad0, change0, role0 = (np.array(x) for x in mirror_rays(*args))
+    rad1, change1, _ = (np.array(x) for x in mirror_rays(*args, real, ball))
+    missed_in_shadow = (role0 == -1) & (np.abs(change0).max(0) > 0)
+    assert missed_in_shadow.sum() > 10
+    np.testing.assert_array_equal(change1, change0)
+    # lanes are culled: misses far from the shadow, not shaded (no sky radiance)
+    assert ((rad0.max(0) > 0) & (rad1.max(0) == 0)).sum() > 100
