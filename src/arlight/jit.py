@@ -16,6 +16,7 @@ specific ``libLLVM.so``).
 from __future__ import annotations
 
 import os
+import threading
 from typing import TYPE_CHECKING
 
 from arlight.errors import ArlightError
@@ -66,6 +67,14 @@ def ensure_variant() -> str:
 ALIGN_BYTES = 64
 """Alignment of the NumPy buffers :func:`aligned` hands to Dr.Jit."""
 
+
+FREEZE_LOCK = threading.RLock()
+"""Held while a frozen Dr.Jit function (``dr.freeze``) records or replays, and by the
+studio while it prepares a method on a thread of its own: a recording beside another
+thread's kernels aborted the whole process (a CI run on 2026-12-03: the bounce probe's
+recording in the studio's render thread while a preparation thread prefiltered a map;
+Dr.Jit does not document freezing as safe alongside other threads). Re-entrant: a
+preparation may call frozen functions itself."""
 
 def aligned(a, dtype) -> np.ndarray:
     """``a`` as a C-contiguous NumPy array of ``dtype`` whose buffer starts on a 64-byte

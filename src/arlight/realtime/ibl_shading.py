@@ -33,7 +33,6 @@ Units: radiance W/(sr·m²), angles radians, lengths metres.
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -42,7 +41,7 @@ import mitsuba as mi
 import numpy as np
 
 from arlight.backend.mitsuba_scene import SceneView
-from arlight.jit import aligned, opaques
+from arlight.jit import FREEZE_LOCK, aligned, opaques
 from arlight.realtime.gbuffer import GBuffer
 from arlight.scene.model import World
 from arlight.scene.schema import Field
@@ -268,7 +267,7 @@ def bounce_probe(view: SceneView | mi.Scene, centre: np.ndarray, env: np.ndarray
             not dr.flag(dr.JitFlag.SymbolicCalls):
         radiance, hit, d = _probe_radiance(scene, *args)
     else:
-        with _FROZEN_LOCK:  # the studio prepares and renders on several threads
+        with FREEZE_LOCK:  # the studio prepares and renders on several threads
             radiance, hit, d = _frozen_probe_radiance(scene, *args, view.generation)
     if env is not None:
         l_env = MipEnvironment.build(env).lookup(d, mi.Float(0.0))
@@ -312,9 +311,6 @@ def _probe_radiance(scene: mi.Scene, origin: mi.Point3f, n: int, spp: int, w: in
                           emitter.eval(si, hit), mi.Color3f(0.0))
     return radiance, hit, d
 
-
-_FROZEN_LOCK = threading.Lock()
-"""One call of :data:`_frozen_probe_radiance` at a time (its recordings are shared)."""
 
 _frozen_probe_radiance = dr.freeze(_probe_radiance, limit=PROBE_RECORDINGS,
                                    warn_after=1_000_000)

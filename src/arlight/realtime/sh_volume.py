@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from arlight.jit import aligned, opaque
+from arlight.jit import FREEZE_LOCK, aligned, opaque
 from arlight.realtime.exact_sum import scatter_sum_exact
 from arlight.realtime.shading import on_active
 
@@ -352,11 +352,12 @@ def propagate(vol: SHVolume, steps: int, dampening: bool = False,
     oks = [t[1] for t in tables]
     cur = [mi.Color3f(c) for c in vol.coeffs]
     if stats is None:
-        if transmittance is None:
-            return SHVolume(grid, _propagate_frozen(cur, idxs, oks, int(steps),
-                                                    bool(dampening), grid.n))
-        return SHVolume(grid, _propagate_blocked(cur, idxs, oks, list(transmittance),
-                                                 int(steps), bool(dampening), grid.n))
+        with FREEZE_LOCK:  # the studio prepares and renders on several threads
+            if transmittance is None:
+                return SHVolume(grid, _propagate_frozen(cur, idxs, oks, int(steps),
+                                                        bool(dampening), grid.n))
+            return SHVolume(grid, _propagate_blocked(cur, idxs, oks, list(transmittance),
+                                                     int(steps), bool(dampening), grid.n))
     acc = [mi.Color3f(c) for c in cur]
     fluxes = []
     for i in range(int(steps)):

@@ -59,6 +59,7 @@ import numpy as np
 
 from arlight.errors import InputError
 from arlight.evaluate.metrics import rmse
+from arlight.jit import FREEZE_LOCK
 from arlight.methods import Method, RenderSettings, get_method, methods
 from arlight.methods.base import Layers, Prepared
 from arlight.output_guard import check_outputs, file_digest, record_written, written_by_arlight
@@ -693,10 +694,13 @@ class Engine:
         thread, before the worker gets the state: Dr.Jit compiles kernels per image size,
         seconds each, which must not stall the first drag)."""
         fn = get_method(name)
-        state = fn.prepare(self.scene.world, self.settings)
-        drag = DragStates.prepare(fn, self.scene.world, state, self.settings, self.factors)
-        for k in self.factors[1:]:
-            fn.render(drag.state(k), self.views[k], drag.settings(k))
+        # frames that replay frozen functions wait for it (arlight.jit.FREEZE_LOCK)
+        with FREEZE_LOCK:
+            state = fn.prepare(self.scene.world, self.settings)
+            drag = DragStates.prepare(fn, self.scene.world, state, self.settings,
+                                      self.factors)
+            for k in self.factors[1:]:
+                fn.render(drag.state(k), self.views[k], drag.settings(k))
         return state, drag
 
     @property
