@@ -106,6 +106,7 @@ from arlight.realtime.ibl_shading import (
     specular_tables,
 )
 from arlight.realtime.light_reduction import REDUCIBLE_LIGHTS, LightSet, ReducedLight, reduce_lights
+from arlight.realtime.mirror_rays import MirrorLight, mirror_rays
 from arlight.realtime.photo_albedo import photo_albedo
 from arlight.realtime.real_lane import REAL_LANE_OPTIONS
 from arlight.realtime.rsm import RealMaps, RSMPair, moved_maps, real_maps, rsm_pair, same_grid
@@ -426,6 +427,9 @@ class DVCTData:
     real_maps: RealMaps | None = None
     real_window: LatticeVoxels | None = None
     distant: DistantLight | None = None
+    mirror: MirrorLight | None = None
+    """What the mirror rays' hits are shaded with (:func:`mirror_light`; None when
+    ``mirror_alpha`` and ``mirror_alpha_real`` are both 0), built with the lights."""
 
 
 def _light_sizes(world: World, lights: LightSet, options: Options) -> list[float]:
@@ -513,9 +517,20 @@ def prepare(world: World, options: Options) -> DVCTData:
         tris = np.concatenate([shape_triangles(s) for s in world.virtual_shapes])
         maps = real_maps(views, lights, grid, options.rsm_size, bounds,
                          directional_coverage(grid))
+    distant = DistantLight.of(world, lights)
     return DVCTData(world, views, lights, grid, real, tris, Materials.of(world),
-                    _light_sizes(world, lights, options), maps, window,
-                    DistantLight.of(world, lights))
+                    _light_sizes(world, lights, options), maps, window, distant,
+                    mirror_light(views, lights, world, distant, options))
+
+
+def mirror_light(views: SceneViews, lights: LightSet, world: World,
+                 distant: DistantLight | None, options: Options) -> MirrorLight | None:
+    """:class:`~arlight.realtime.mirror_rays.MirrorLight` of the world and its reduced
+    lights, once per world and lighting (its tables, prefiltered environment and per-shape
+    roles do not change as objects move); None when no lane traces a mirror ray."""
+    if max(float(options.mirror_alpha), float(options.mirror_alpha_real)) <= 0.0:
+        return None
+    return MirrorLight.of(views, lights, world, distant)
 
 
 def pose(data: DVCTData, world: World, transforms: dict[str, np.ndarray], options: Options
@@ -1206,9 +1221,7 @@ def mirror_terms(data: DVCTData, gb: GBuffer, seen: Reprojector | None, traced: 
     one whose ray meets a real surface the camera sees gains the change of that surface's
     direct light. A virtual lane shows all its ray brings (the photograph at a seen real hit
     plus that change)."""
-    from arlight.realtime.mirror_rays import MirrorLight, mirror_rays
-
-    light = MirrorLight.of(data.views, data.lights, data.world, data.distant)
+    light = data.mirror or MirrorLight.of(data.views, data.lights, data.world, data.distant)
     box = virtual_bounds(data.world, data.views.mixed)
     real = gb.valid & ~gb.virtual & traced
     rad, change, role = mirror_rays(light, gb.position, gb.normal, gb.to_camera, gb.shape,
@@ -1524,9 +1537,10 @@ class DVCTMethod(BaseMethod):
         maps = None if data.real_maps is None else real_maps(
             data.views, lights, data.grid, options.rsm_size, data.real_maps.box,
             data.real_maps.coverage)
+        distant = DistantLight.of(world, lights)
         return replace(data, world=world, lights=lights, real_maps=maps,
-                       light_size=_light_sizes(world, lights, options),
-                       distant=DistantLight.of(world, lights))
+                       light_size=_light_sizes(world, lights, options), distant=distant,
+                       mirror=mirror_light(data.views, lights, world, distant, options))
 
     def render_view(self, data: DVCTData, view: FrameView, options: Options,
                     settings: RenderSettings, timer: StageTimer) -> Layers:

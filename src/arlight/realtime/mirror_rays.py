@@ -52,7 +52,6 @@ threshold is an option chosen on training worlds.
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass
 
 import drjit as dr
@@ -108,34 +107,18 @@ class MirrorLight:
            ) -> MirrorLight:
         """From dvct's :class:`~arlight.methods.dvct.DistantLight` ``distant`` (its tables,
         DFG table and environment), or without one (no glossy virtual shape) the tables of
-        ``world`` and its environment prefiltered as dvct's (:func:`_environment`): a real
+        ``world`` and its environment prefiltered as dvct's (``prefilter_ggx``, cached by
+        the map's content; dvct builds this once per world and lighting): a real
         lane's ray that meets a virtual surface hides the environment it reflected."""
         real = mi.Bool([not s.is_virtual for s in world.shapes])
         if distant is not None:
             return MirrorLight(views, lights, distant.tables, distant.dfg, distant.env,
                                distant.near, real)
+        img = environment_map(world)
         return MirrorLight(views, lights, specular_tables(world),
-                           mi.Float(dfg_table().reshape(-1)), _environment(world),
+                           mi.Float(dfg_table().reshape(-1)),
+                           None if img is None else prefilter_ggx(img),
                            split_lights(world, lights)[1], real)
-
-
-_ENVIRONMENTS: dict[int, tuple[weakref.ref, MipEnvironment | None]] = {}
-"""Prefiltered environments by ``id(world)`` (with a weak reference that tells a reused id)."""
-
-
-def _environment(world: object) -> MipEnvironment | None:
-    """The distant lights of ``world`` (:func:`~arlight.realtime.ibl_shading.
-    environment_map`) prefiltered per GGX roughness as dvct's
-    :class:`~arlight.methods.dvct.DistantLight` (:func:`~arlight.realtime.ibl_shading.
-    prefilter_ggx` at its default 64 samples); None without distant lights. Once per world
-    object: the map's resampling cost ~20 ms a frame at 160 px."""
-    held = _ENVIRONMENTS.get(id(world))
-    if held is not None and held[0]() is world:
-        return held[1]
-    img = environment_map(world)
-    env = None if img is None else prefilter_ggx(img)
-    _ENVIRONMENTS[id(world)] = (weakref.ref(world), env)
-    return env
 
 
 def lobe_albedo(light: MirrorLight, n: mi.Vector3f, v: mi.Vector3f, shape: mi.UInt32
@@ -207,13 +190,14 @@ def mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
 
 
 def _reflection_ray(position: mi.Point3f, normal: mi.Vector3f, to_camera: mi.Vector3f,
-                    idx: mi.UInt32) -> tuple[mi.Vector3f, mi.Vector3f, mi.Ray3f]:
-    """The lanes ``idx``'s normal, view direction and mirror ray ``r = 2 <v,n> n − v``
-    (leaving the surface 10⁻⁴ m along ``n``)."""
+                    idx: mi.UInt32
+                    ) -> tuple[mi.Point3f, mi.Vector3f, mi.Vector3f, mi.Ray3f]:
+    """The lanes ``idx``'s position, normal, view direction and mirror ray ``r = 2 <v,n> n
+    − v`` (leaving the surface 10⁻⁴ m along ``n``)."""
     p = dr.gather(mi.Point3f, position, idx)
     n = dr.gather(mi.Vector3f, normal, idx)
     v = dr.gather(mi.Vector3f, to_camera, idx)
-    return n, v, mi.Ray3f(p + n * 1e-4, 2.0 * dr.dot(v, n) * n - v)
+    return p, n, v, mi.Ray3f(p + n * 1e-4, 2.0 * dr.dot(v, n) * n - v)
 
 
 def _may_change(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
@@ -227,12 +211,13 @@ def _may_change(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
     if dr.width(idx) == 0:
         return out
     mixed = light.views.mixed
-    si = mixed.scene.ray_intersect(_reflection_ray(position, normal, to_camera, idx)[2])
+    p, _, _, ray = _reflection_ray(position, normal, to_camera, idx)
+    si = mixed.scene.ray_intersect(ray)
     role = mixed.hit_role(si)
     need = (role == ROLE_VIRTUAL) | ((role == ROLE_REAL) & shadow_reach(light.lights, si.p,
                                                                           ball))
     if light.near.lights:
-        need |= shadow_reach(light.near, dr.gather(mi.Point3f, position, idx), ball)
+        need |= shadow_reach(light.near, p, ball)
     dr.scatter(out, need, idx)
     return out
 
@@ -253,8 +238,7 @@ def _mirror_rays(light: MirrorLight, position: mi.Point3f, normal: mi.Vector3f,
     idx = dr.compress(active)
     if dr.width(idx) == 0:
         return out, out_change, role_out
-    n, v, ray = _reflection_ray(position, normal, to_camera, idx)
-    p = dr.gather(mi.Point3f, position, idx)
+    p, n, v, ray = _reflection_ray(position, normal, to_camera, idx)
     sh = mi.UInt32(dr.maximum(dr.gather(mi.Int32, shape, idx), 0))
     d = ray.d
     mixed = light.views.mixed
