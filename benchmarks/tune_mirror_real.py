@@ -24,6 +24,7 @@ import argparse
 import json
 import statistics
 import time
+from pathlib import Path
 
 WORLDS: dict[int, str] = {
     # large real glossy surfaces (ground, floor, walls, back wall)
@@ -69,8 +70,11 @@ def main() -> None:
     ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth samples per pixel")
     ap.add_argument("--frames", type=int, default=3, help="timed renders per candidate")
     ap.add_argument("--options", default="{}", help="JSON: further dvct options, all candidates")
-    ap.add_argument("--out", default="", help="write the per-world results as JSON here")
+    ap.add_argument("--out", default="", help="write the per-world results as JSON here (a "
+                    "new file: an existing one is never overwritten)")
     args = ap.parse_args()
+    if args.out and Path(args.out).exists():  # before the sweep, not after an hour of it
+        ap.error(f"--out {args.out} exists; choose a new file")
 
     from arlight.evaluate.harness import (
         EvalConfig,
@@ -139,8 +143,8 @@ def main() -> None:
               f"{max(dc):+.2f}), all {statistics.median(dp):+.3f}, time ×"
               f"{statistics.median(tr):.3f}, gained {sum(x > 0.05 for x in dc)}, lost "
               f"{sum(x < -0.05 for x in dc)}")
-    if args.out:
-        with open(args.out, "w") as f:
+    if args.out:  # exclusive create: a file made meanwhile is not overwritten either
+        with open(args.out, "x") as f:
             json.dump({str(s): {str(a): v for a, v in r.items()} for s, r in res.items()}, f,
                       indent=1)
 
